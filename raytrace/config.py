@@ -1,0 +1,98 @@
+"""Compile policy, tolerances and BVH build constants: the one place they live.
+
+Kernels import these names; nothing else in the package spells a tolerance or a cost
+as a literal. Changing a value here changes it everywhere (and invalidates the Numba
+cache automatically, because the constants are globals of the kernel modules).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numba
+
+# ---------------------------------------------------------------------------------------
+# Compile policy
+# ---------------------------------------------------------------------------------------
+#: Cache compiled kernels on disk (``__pycache__``), so only the first run compiles.
+#: Caveat: Numba invalidates a cached kernel only when *its own* source file changes.
+#: After editing ``_kernels/intersect.py`` (inlined into ``traverse.py``), delete the
+#: ``*.nbi``/``*.nbc`` files or touch ``traverse.py``; a fresh clone never has a cache.
+CACHE = True
+#: ``fastmath`` is allowed in the BVH *builder* only (its result is a heuristic tree;
+#: reassociation cannot make it wrong). DECISION: never in intersection or traversal —
+#: reordering the Möller–Trumbore arithmetic breaks edge/vertex consistency between
+#: neighbouring triangles, and NaN handling in the slab test relies on IEEE comparisons.
+BUILD_FASTMATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
+#: IEEE semantics for division (1/0 = inf, no ZeroDivisionError check per division): the
+#: slab test relies on 1/0 = inf for axis-parallel rays.
+ERROR_MODEL = "numpy"
+
+#: Rays handled sequentially by one worker before the next block is taken. Blocks are a
+#: fixed size, independent of the thread count, so results never depend on it.
+RAY_BLOCK = 256
+#: Blocks handed to a worker at a time (Numba dynamic scheduling). Ray cost varies a lot
+#: across a scan (rays down the tunnel axis visit more nodes), so static equal shares
+#: leave one core idle; measured on the 1M-triangle benchmark tunnel: 1.5x -> ~2x scaling.
+PRANGE_CHUNK = 8
+
+
+def set_threads(n: int | None) -> int:
+    """Set the number of Numba worker threads (``None``: all available). Returns it."""
+    if n is None:
+        n = numba.config.NUMBA_NUM_THREADS
+    n = int(n)
+    if not 1 <= n <= numba.config.NUMBA_NUM_THREADS:
+        raise ValueError(
+            f"Expected a thread count between 1 and {numba.config.NUMBA_NUM_THREADS}, "
+            f"got {n}; pass a smaller number or leave it unset to use all cores."
+        )
+    numba.set_num_threads(n)
+    return n
+
+
+def threads() -> int:
+    """Number of Numba worker threads currently in use."""
+    return numba.get_num_threads()
+
+
+if "TUNNELSIM_THREADS" in os.environ:  # pragma: no cover - environment dependent
+    set_threads(int(os.environ["TUNNELSIM_THREADS"]))
+
+# ---------------------------------------------------------------------------------------
+# Intersection tolerances (Möller & Trumbore 1997)
+# ---------------------------------------------------------------------------------------
+#: Barycentric slack: a hit is accepted when u >= -BARY, v >= -BARY, u + v <= 1 + BARY.
+#: DECISION: a small positive slack makes rays aimed exactly at an edge or a vertex hit
+#: (at least) one of the triangles sharing it, whatever the rounding of the two
+#: triangles' separate tests; without it such rays can slip through a closed mesh. The
+#: price is that a ray passing within ~BARY * edge length outside a triangle counts as a
+#: hit on it. 1e-9 is ~10^6 ulps of a barycentric coordinate: far above float64
+#: rounding, far below anything a laser scanner resolves (1e-9 of a 10 cm edge = 0.1 nm).
+BARY = 1e-9
+
+#: Triangles whose |e1 x e2| is below AREA_REL * (longest edge)^2 are zero-area
+#: (collinear or repeated vertices) and are dropped at build time with a warning.
+AREA_REL = 1e-14
+
+#: Node boxes are stored as float32, rounded outward, then padded by BOX_PAD_REL times
+#: the scene's largest extent so that rounding in the slab test cannot cull a box that
+#: the exact ray touches (a hit on a box face or exactly at a shared vertex).
+BOX_PAD_REL = 1e-6
+
+# ---------------------------------------------------------------------------------------
+# BVH build (Wald 2007, "On fast construction of SAH-based bounding volume hierarchies")
+# ---------------------------------------------------------------------------------------
+#: Number of centroid bins per axis in the binned SAH sweep.
+SAH_BINS = 16
+#: Cost of one traversal step relative to C_ISECT (pbrt-v4 and tinybvh use ~1:1 with a
+#: box test against a triangle test; we keep them as tunable constants).
+SAH_C_TRAV = 1.0
+#: Cost of one ray-triangle test.
+SAH_C_ISECT = 1.0
+#: A node with at most this many triangles may become a leaf when SAH says so.
+MAX_LEAF_SIZE = 8
+#: A node whose triangles all share one centroid cannot be split by position; it becomes
+#: a leaf if it has at most this many, otherwise it is split in two by index.
+MAX_LEAF_SIZE_FORCED = 32

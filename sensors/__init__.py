@@ -1,0 +1,1 @@
+"""sensors: scanner models as data, scan patterns, trajectories, return physics (to come)."""

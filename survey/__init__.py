@@ -1,0 +1,1 @@
+"""survey: the surveyor's workflow on top of ``sensors`` and ``raytrace``."""
