@@ -57,6 +57,22 @@ def threads() -> int:
     return numba.get_num_threads()
 
 
+@numba.njit(cache=CACHE, parallel=True)
+def _probe(n):  # pragma: no cover - trivial; compiled once, cached
+    acc = 0
+    for i in numba.prange(n):
+        acc += i
+    return acc
+
+
+def threading_info() -> dict:
+    """Numba's threading layer and thread counts (runs a tiny parallel kernel first,
+    because Numba chooses the layer lazily)."""
+    _probe(4)
+    return dict(threading_layer=numba.threading_layer(), threads=numba.get_num_threads(),
+                max_threads=numba.config.NUMBA_NUM_THREADS)
+
+
 if "TUNNELSIM_THREADS" in os.environ:  # pragma: no cover - environment dependent
     set_threads(int(os.environ["TUNNELSIM_THREADS"]))
 

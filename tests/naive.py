@@ -34,19 +34,18 @@ def naive_cast(vertices, faces, origins, directions, t_min=0.0, t_max=np.inf):
     for i in range(n):
         p = np.cross(d[i], e2)
         det = np.einsum("ij,ij->i", e1, p)
-        with np.errstate(divide="ignore", invalid="ignore"):
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             inv = 1.0 / det
             s = o[i] - p0
             u = np.einsum("ij,ij->i", s, p) * inv
             q = np.cross(s, e1)
             vv = (q @ d[i]) * inv
             t = np.einsum("ij,ij->i", e2, q) * inv
-        ok = (det != 0) & (u >= -BARY) & (u <= 1 + BARY) & (vv >= -BARY) & \
-             (u + vv <= 1 + BARY) & (t >= t_min) & (t <= t_max)
+            ok = (det != 0) & (u >= -BARY) & (u <= 1 + BARY) & (vv >= -BARY) & \
+                 (u + vv <= 1 + BARY) & (t >= t_min) & (t <= t_max)
+            m = np.minimum(np.minimum(u, vv), 1 - u - vv)
         if not ok.any():
             # Closest near-miss margin, for diagnosing grazing rays.
-            with np.errstate(invalid="ignore"):
-                m = np.minimum(np.minimum(u, vv), 1 - u - vv)
             m = np.where((det != 0) & (t >= t_min) & (t <= t_max), -m, np.inf)
             margin[i] = np.nanmin(np.abs(m)) if np.isfinite(m).any() else np.inf
             continue

@@ -1,0 +1,261 @@
+"""Ray-casting benchmark: tunnelsim's ``raytrace.Scene`` against Embree, in one run.
+
+Engines (each in its own subprocess, so memory figures are not mixed up):
+
+* ``ours``    raytrace.Scene (Numba, all threads)
+* ``open3d``  open3d.t.geometry.RaycastingScene (Embree inside, all threads)
+* ``embreex`` embreex EmbreeScene.run (Embree 4, as trimesh uses it)
+
+Meshes: straight 300 m horseshoe tunnels (3 m wide, 2 mm correlated roughness, open
+portals) of ~0.1M, 1M and 4M triangles (``raytrace.shapes.tunnel_tube``).
+
+Rays, identical for every engine (seeded):
+
+* coherent:   one station at mid-tunnel, 1.5 m above the floor; vertical profiles in
+  scan order (elevation -70 deg .. 250 deg through the zenith, 180 deg of azimuth), like
+  a TLS head turning while its mirror spins;
+* incoherent: random origins inside the tunnel, random directions.
+
+Figures: build seconds, scene memory (RSS growth over the build, MB), Mrays/s, and
+each engine's ratio to Open3D. Agreement of hit/miss and t with Open3D on the first
+200k rays of each set is printed too (a benchmark that is fast and wrong is useless).
+
+Usage::
+
+    python benchmarks/bench_raycast.py                      # 0.1M, 1M, 4M; 10M rays
+    python benchmarks/bench_raycast.py --sizes 1e6 --rays 2e6 --json out.json
+
+Needs the ``bench`` extra (open3d, embreex); Open3D also needs the system library
+libusb-1.0 (Debian: ``apt-get install libusb-1.0-0``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+CHECK_RAYS = 200_000
+
+
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def coherent_rays(n: int, origin=(150.0, 0.0, 1.5)):
+    """n rays (rounded to a full grid) from one station, in scan order."""
+    n_cols = int(round(np.sqrt(n / 1.6)))
+    n_rows = int(round(n / n_cols))
+    az = np.linspace(0.0, np.pi, n_cols, endpoint=False)
+    el = np.linspace(np.deg2rad(-70.0), np.deg2rad(250.0), n_rows)
+    ce, se = np.cos(el), np.sin(el)
+    d = np.empty((n_cols, n_rows, 3))
+    d[:, :, 0] = np.cos(az)[:, None] * ce[None, :]
+    d[:, :, 1] = np.sin(az)[:, None] * ce[None, :]
+    d[:, :, 2] = se[None, :]
+    return np.asarray(origin, dtype=np.float64), d.reshape(-1, 3)
+
+
+def incoherent_rays(n: int, seed: int = 42):
+    rng = np.random.default_rng(seed)
+    o = np.empty((n, 3))
+    o[:, 0] = rng.uniform(2.0, 298.0, n)
+    o[:, 1] = rng.uniform(-1.2, 1.2, n)
+    o[:, 2] = rng.uniform(0.3, 2.6, n)
+    d = rng.standard_normal((n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    return o, d
+
+
+# --------------------------------------------------------------------------- engines
+# Each engine: ``warm()`` imports the library and runs a one-triangle scene (loading
+# compiled kernels, starting thread pools) before the memory baseline is taken; then the
+# constructor builds the real scene, timed.
+class Ours:
+    name = "ours"
+
+    @staticmethod
+    def warm():
+        from raytrace import Scene
+
+        Scene(np.eye(3), [[0, 1, 2]]).cast(np.zeros(3), np.ones((1, 3)))
+
+    def __init__(self, v, f):
+        from raytrace import Scene
+
+        self.scene = Scene(v, f)
+
+    def cast(self, o, d):
+        h = self.scene.cast(o, d)
+        return h.t
+
+
+class Open3D:
+    name = "open3d"
+
+    @staticmethod
+    def warm():
+        Open3D(np.eye(3), np.array([[0, 1, 2]]))
+
+    def __init__(self, v, f):
+        import open3d as o3d
+
+        self.o3d = o3d
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)),
+                                 o3d.core.Tensor(f.astype(np.uint32)))
+        # Open3D builds the BVH lazily, on the first query: include it in the build.
+        self.scene.cast_rays(o3d.core.Tensor(np.array([[150, 0, 1.5, 1, 0, 0]], np.float32)))
+
+    def cast(self, o, d):
+        rays = np.empty((d.shape[0], 6), dtype=np.float32)
+        rays[:, :3] = o
+        rays[:, 3:] = d
+        t = self.scene.cast_rays(self.o3d.core.Tensor(rays))["t_hit"].numpy()
+        return t.astype(np.float64)
+
+
+class Embreex:
+    name = "embreex"
+
+    @staticmethod
+    def warm():
+        Embreex(np.eye(3), np.array([[0, 1, 2]]))
+
+    def __init__(self, v, f):
+        from embreex import rtcore_scene as rtcs
+        from embreex.mesh_construction import TriangleMesh
+
+        self.scene = rtcs.EmbreeScene()
+        TriangleMesh(self.scene, v.astype(np.float32), f.astype(np.int32))
+        self.scene.run(np.array([[150, 0, 1.5]], np.float32), np.array([[1, 0, 0]], np.float32))
+
+    def cast(self, o, d):
+        o32 = np.broadcast_to(np.asarray(o, np.float32), d.shape).copy()
+        r = self.scene.run(o32, d.astype(np.float32), output=1)
+        t = r["tfar"].astype(np.float64)
+        t[r["geomID"] < 0] = np.inf
+        return t
+
+
+ENGINES = {"ours": Ours, "open3d": Open3D, "embreex": Embreex}
+
+
+def worker(engine: str, mesh_path: str, n_rays: int, out_dir: str) -> dict:
+    z = np.load(mesh_path)
+    v, f = z["v"], z["f"]
+    ENGINES[engine].warm()
+    rss0 = _rss_mb()
+    t0 = time.perf_counter()
+    eng = ENGINES[engine](v, f)
+    build_s = time.perf_counter() - t0
+    scene_mb = _rss_mb() - rss0
+    res = dict(engine=engine, triangles=int(len(f)), build_s=build_s, scene_mb=scene_mb)
+    if engine == "ours":
+        res["ours_nbytes_mb"] = eng.scene.nbytes / 2**20
+        res["ours_stats"] = eng.scene.stats
+    for kind, make in (("coherent", coherent_rays), ("incoherent", incoherent_rays)):
+        o, d = make(n_rays)
+        eng.cast(o if o.ndim == 1 else o[:1000], d[:1000])  # warm-up
+        t0 = time.perf_counter()
+        t = eng.cast(o, d)
+        dt = time.perf_counter() - t0
+        res[f"{kind}_mrays"] = d.shape[0] / dt / 1e6
+        res[f"{kind}_rays"] = int(d.shape[0])
+        res[f"{kind}_hit"] = float(np.isfinite(t).mean())
+        np.save(Path(out_dir) / f"{engine}_{kind}.npy", t[:CHECK_RAYS])
+        del o, d, t
+    res["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return res
+
+
+def _agreement(a, b):
+    ha, hb = np.isfinite(a), np.isfinite(b)
+    both = ha & hb
+    return (float((ha == hb).mean()), float(np.abs(a[both] - b[both]).max()) if both.any()
+            else 0.0)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", default="1e5,1e6,4e6", help="triangle counts, comma-separated")
+    ap.add_argument("--rays", type=float, default=1e7, help="rays per set (default 10M)")
+    ap.add_argument("--engines", default="ours,open3d,embreex")
+    ap.add_argument("--json", help="write all figures to this JSON file")
+    ap.add_argument("--worker", help=argparse.SUPPRESS)
+    ap.add_argument("--mesh", help=argparse.SUPPRESS)
+    ap.add_argument("--out", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.worker:
+        print(json.dumps(worker(args.worker, args.mesh, int(args.rays), args.out)))
+        return 0
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from raytrace.shapes import tunnel_tube
+
+    engines = args.engines.split(",")
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for size in (int(float(s)) for s in args.sizes.split(",")):
+            v, f = tunnel_tube(size, length_m=300.0, roughness_m=0.002, seed=0)
+            mesh = Path(tmp) / "mesh.npz"
+            np.savez(mesh, v=v, f=f)
+            results = {}
+            for eng in engines:
+                cmd = [sys.executable, __file__, "--worker", eng, "--mesh", str(mesh),
+                       "--rays", str(args.rays), "--out", tmp]
+                p = subprocess.run(cmd, capture_output=True, text=True)
+                if p.returncode != 0:
+                    print(f"[{eng}] failed:\n{p.stderr[-2000:]}", file=sys.stderr)
+                    continue
+                results[eng] = json.loads(p.stdout.strip().splitlines()[-1])
+            ref = results.get("open3d")
+            for eng, r in results.items():
+                for kind in ("coherent", "incoherent"):
+                    if ref and eng != "open3d":
+                        a = np.load(Path(tmp) / f"{eng}_{kind}.npy")
+                        b = np.load(Path(tmp) / f"open3d_{kind}.npy")
+                        r[f"{kind}_agree"], r[f"{kind}_max_dt"] = _agreement(a, b)
+                if ref:
+                    r["build_ratio"] = r["build_s"] / ref["build_s"]
+                    r["mem_ratio"] = r["scene_mb"] / max(ref["scene_mb"], 1e-9)
+                    r["coherent_ratio"] = r["coherent_mrays"] / ref["coherent_mrays"]
+                    r["incoherent_ratio"] = r["incoherent_mrays"] / ref["incoherent_mrays"]
+                rows.append(r)
+            _print_table([r for r in rows if r["triangles"] == len(f)])
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+def _print_table(rows):
+    print(f"\n### {rows[0]['triangles']:,} triangles, "
+          f"{rows[0]['coherent_rays']:,} coherent / {rows[0]['incoherent_rays']:,} "
+          "incoherent rays\n")
+    print("| engine | build s | scene MB | coherent Mrays/s | incoherent Mrays/s | "
+          "peak RSS MB | ratio to Open3D (build / mem / coh / incoh) | agreement with "
+          "Open3D (hit/miss, max abs dt m) |")
+    print("|---|---:|---:|---:|---:|---:|---|---|")
+    for r in rows:
+        ratio = (f"{r['build_ratio']:.2f} / {r['mem_ratio']:.2f} / {r['coherent_ratio']:.2f}"
+                 f" / {r['incoherent_ratio']:.2f}") if "build_ratio" in r else "-"
+        agree = (f"coh {100 * r['coherent_agree']:.4f} %, {r['coherent_max_dt']:.1e}; incoh "
+                 f"{100 * r['incoherent_agree']:.4f} %, {r['incoherent_max_dt']:.1e}"
+                 if "coherent_agree" in r else "(reference)")
+        print(f"| {r['engine']} | {r['build_s']:.2f} | {r['scene_mb']:.0f} | "
+              f"{r['coherent_mrays']:.2f} | {r['incoherent_mrays']:.2f} | "
+              f"{r['peak_rss_mb']:.0f} | {ratio} | {agree} |")
+    sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
