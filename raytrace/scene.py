@@ -22,11 +22,12 @@ import numpy as np
 
 from . import config
 from ._kernels.build import build_sah, sah_cost, to_pair_layout, triangle_setup
+from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
 from ._kernels.traverse import any_hit, closest_hit
 from .errors import MeshError, RayError, SceneFileError
 
 #: Version of the ``Scene.save`` file layout; ``Scene.load`` refuses other versions.
-FILE_FORMAT = 1
+FILE_FORMAT = 2
 
 
 def _shape(a) -> str:
@@ -92,8 +93,9 @@ class Hits:
         if self._normals is None:
             nrm = np.full((len(self), 3), np.nan)
             h = self.hit
-            tri = self._scene._tris[self._slot[h]]
-            c = np.cross(tri[:, 3:6], tri[:, 6:9])
+            sc = self._scene
+            p = sc._verts[sc._tri[self._slot[h]]]  # (k, 3, 3), local frame
+            c = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
             nrm[h] = c / np.linalg.norm(c, axis=1)[:, None]
             self._normals = nrm
         return self._normals
@@ -135,13 +137,11 @@ class Scene:
         self.origin_offset = np.round(0.5 * (lo + hi))
         local = v - self.origin_offset
         m = f.shape[0]
-        tris = np.empty((m, 9))
         tri_lo = np.empty((m, 3))
         tri_hi = np.empty((m, 3))
         cent = np.empty((m, 3))
         good = np.empty(m, dtype=np.bool_)
-        triangle_setup(local, f, config.AREA_REL, tris, tri_lo, tri_hi, cent, good)
-        del local
+        triangle_setup(local, f, config.AREA_REL, tri_lo, tri_hi, cent, good)
         n_bad = m - int(good.sum())
         if n_bad == m:
             raise MeshError(
@@ -156,14 +156,19 @@ class Scene:
                 UserWarning, stacklevel=2,
             )
             keep = np.flatnonzero(good)
-            tris, tri_lo, tri_hi, cent = tris[keep], tri_lo[keep], tri_hi[keep], cent[keep]
+            tri_lo, tri_hi, cent = tri_lo[keep], tri_hi[keep], cent[keep]
         node_box, meta, order, max_depth = build_sah(
             tri_lo, tri_hi, cent, int(sah_bins), float(c_trav), float(c_isect),
             int(max_leaf_size), int(config.MAX_LEAF_SIZE_FORCED))
         del tri_lo, tri_hi, cent
-        self._tris = tris[order]
-        del tris
-        self._ids = order if keep is None else keep[order]
+        # DECISION: shared float64 vertices + int32 faces in leaf order (24 B a triangle
+        # for a closed mesh) rather than precomputed v0/e1/e2 (72 B): the edges are
+        # formed in the kernel in the same local frame, so results are unchanged, and
+        # the scene is a third of the size.
+        self._verts = np.ascontiguousarray(local)
+        ids = order if keep is None else keep[order]
+        self._tri = np.ascontiguousarray(f[ids].astype(np.int32))
+        self._ids = ids.astype(np.int32)
         pair_box, pair_link = to_pair_layout(node_box, meta)
         self._nodes = _pack_nodes(pair_box, pair_link, hi - lo)
         self._max_depth = int(max_depth)
@@ -201,10 +206,11 @@ class Scene:
                    np.asarray(mesh.faces, dtype=np.int64), **kwargs)
 
     @classmethod
-    def _from_arrays(cls, nodes, tris, ids, offset, max_depth, n_faces, build, stats):
+    def _from_arrays(cls, nodes, verts, tri, ids, offset, max_depth, n_faces, build, stats):
         self = cls.__new__(cls)
         self._nodes = nodes
-        self._tris = tris
+        self._verts = verts
+        self._tri = tri
         self._ids = ids
         self.origin_offset = offset
         self._max_depth = int(max_depth)
@@ -214,7 +220,8 @@ class Scene:
         return self
 
     # ------------------------------------------------------------------ queries
-    def cast(self, origins, directions, t_min=0.0, t_max=np.inf) -> Hits:
+    def cast(self, origins, directions, t_min=0.0, t_max=np.inf, *,
+             method: str = "auto") -> Hits:
         """Closest hit of each ray.
 
         Parameters
@@ -226,24 +233,44 @@ class Scene:
         t_min, t_max : float or (n,) array_like of float
             Accepted hit interval [t_min, t_max] along the normalised direction (both
             ends included, as in Embree).
+        method : {"auto", "bvh", "cubemap"}
+            "cubemap" builds (and keeps, for the next call from the same origin) a cube
+            map of candidate triangles around a single shared origin — a TLS station —
+            and tests each ray against its cell's list only. "auto" does so for a single
+            origin with at least ``config.CUBEMAP_MIN_RAYS_PER_TRI`` rays per triangle.
+            The answer is identical either way; only the speed differs.
 
         Returns
         -------
         Hits
         """
+        if method not in ("auto", "bvh", "cubemap"):
+            raise RayError(f"Expected `method` to be 'auto', 'bvh' or 'cubemap', got "
+                           f"{method!r}.")
         org, dirs, tmin, tmax = self._prepare(origins, directions, t_min, t_max)
         n = dirs.shape[0]
         out_t = np.empty(n)
         out_slot = np.empty(n, dtype=np.int64)
         out_u = np.empty(n)
         out_v = np.empty(n)
-        if n:
+        local = org - self.origin_offset
+        view = None
+        if n and org.shape[0] == 1 and (method == "cubemap" or (
+                method == "auto" and n >= config.CUBEMAP_MIN_RAYS_PER_TRI * self.n_triangles)):
+            view = self._view(local)
+        if n and view is not None:
+            start, slots, counts, g = view
             with numba.parallel_chunksize(config.PRANGE_CHUNK):
-                closest_hit(self._nodes, self._nodes.view(np.int32), self._tris, self._ids,
-                            org - self.origin_offset, dirs, tmin, tmax,
+                closest_hit_view(start, slots, counts, g, config.CUBEMAP_HOT, self._nodes,
+                                 self._nodes.view(np.int32), self._verts, self._tri, self._ids, local,
+                                 dirs, tmin, tmax, self._max_depth + 2, config.RAY_BLOCK,
+                                 out_t, out_slot, out_u, out_v)
+        elif n:
+            with numba.parallel_chunksize(config.PRANGE_CHUNK):
+                closest_hit(self._nodes, self._nodes.view(np.int32), self._verts, self._tri, self._ids,
+                            local, dirs, tmin, tmax,
                             self._max_depth + 2, out_t, out_slot, out_u, out_v)
-        tri = np.where(out_slot >= 0, self._ids[np.maximum(out_slot, 0)], -1) if n else \
-            np.empty(0, dtype=np.int64)
+        tri = np.where(out_slot >= 0, self._ids[np.maximum(out_slot, 0)], -1)
         return Hits(out_t, tri.astype(np.int64), out_u, out_v, org, dirs, out_slot, self)
 
     def occluded(self, origins, directions, t_max=np.inf, t_min=0.0) -> np.ndarray:
@@ -255,10 +282,32 @@ class Scene:
         out = np.zeros(dirs.shape[0], dtype=np.bool_)
         if dirs.shape[0]:
             with numba.parallel_chunksize(config.PRANGE_CHUNK):
-                any_hit(self._nodes, self._nodes.view(np.int32), self._tris,
+                any_hit(self._nodes, self._nodes.view(np.int32), self._verts, self._tri,
                         org - self.origin_offset, dirs,
                         tmin, tmax, self._max_depth + 2, out)
         return out
+
+    def _view(self, local_origin):
+        """Cube map around one origin (local frame), cached for the last origin used.
+        Returns (start, slots, counts, g), or None when it would be too large."""
+        key = local_origin.tobytes()
+        cached = getattr(self, "_view_cache", None)
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        m = self.n_triangles
+        g = int(np.sqrt(config.CUBEMAP_CELLS_PER_TRI * m / 6.0))
+        g = min(config.CUBEMAP_MAX_G, max(config.CUBEMAP_MIN_G, g))
+        fp = np.empty((m, 6, 4), dtype=np.int32)
+        o = local_origin[0]
+        footprints(self._verts, self._tri, float(o[0]), float(o[1]), float(o[2]), g, fp)
+        counts, _ = count_entries(fp, g)
+        kept = int(counts[counts <= config.CUBEMAP_HOT].sum())
+        view = None
+        if kept <= config.CUBEMAP_MAX_ENTRIES:
+            start, slots = fill_entries(fp, g, counts, config.CUBEMAP_HOT)
+            view = (start, slots, counts, g)
+        self._view_cache = (key, view)
+        return view
 
     def _prepare(self, origins, directions, t_min, t_max):
         d = np.asarray(directions, dtype=np.float64)
@@ -318,7 +367,7 @@ class Scene:
                                    dir=path.parent if str(path.parent) else ".")
         try:
             with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, nodes=self._nodes, tris=self._tris, ids=self._ids,
+                np.savez(fh, nodes=self._nodes, verts=self._verts, tri=self._tri, ids=self._ids,
                          origin_offset=self.origin_offset,
                          info=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8))
             os.replace(tmp, path)
@@ -337,7 +386,7 @@ class Scene:
         try:
             with np.load(path, allow_pickle=False) as z:
                 info = json.loads(z["info"].tobytes().decode())
-                arrays = {k: z[k] for k in ("nodes", "tris", "ids", "origin_offset")}
+                arrays = {k: z[k] for k in ("nodes", "verts", "tri", "ids", "origin_offset")}
         except SceneFileError:
             raise
         except Exception as exc:
@@ -348,7 +397,7 @@ class Scene:
         if info.get("format") != FILE_FORMAT:
             raise SceneFileError(f"Expected scene file format {FILE_FORMAT}, got "
                                  f"{info.get('format')} in '{path}'; rebuild it from the mesh.")
-        return cls._from_arrays(arrays["nodes"], arrays["tris"], arrays["ids"],
+        return cls._from_arrays(arrays["nodes"], arrays["verts"], arrays["tri"], arrays["ids"],
                                 arrays["origin_offset"], info["max_depth"],
                                 info["n_input_faces"], info["build"], info["stats"])
 
@@ -362,12 +411,13 @@ class Scene:
     @property
     def n_triangles(self) -> int:
         """Number of triangles in the BVH (degenerate ones dropped)."""
-        return int(self._tris.shape[0])
+        return int(self._tri.shape[0])
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the scene's arrays (tree and triangles)."""
-        return int(self._nodes.nbytes + self._tris.nbytes + self._ids.nbytes)
+        return int(self._nodes.nbytes + self._verts.nbytes + self._tri.nbytes +
+                   self._ids.nbytes)
 
     @property
     def bounds(self) -> np.ndarray:
@@ -379,7 +429,7 @@ class Scene:
         return np.stack([lo, hi]) + self.origin_offset
 
     def _compute_stats(self, seconds) -> dict:
-        return dict(triangles=int(self._tris.shape[0]), input_faces=self._n_input_faces,
+        return dict(triangles=int(self._tri.shape[0]), input_faces=self._n_input_faces,
                     max_depth=self._max_depth, **self._tree, build_seconds=float(seconds),
                     nbytes=self.nbytes)
 

@@ -321,9 +321,9 @@ def build_sah(tri_lo, tri_hi, cent, n_bins, c_trav, c_isect, max_leaf, max_leaf_
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def triangle_setup(verts, faces, area_rel, tris, lo, hi, cent, good):
-    """Per triangle: v0, e1, e2 (into ``tris`` (m, 9)), box, centroid, and whether it has
-    non-zero area (|e1 x e2| > area_rel * longest edge^2). Vertices are in the local frame.
+def triangle_setup(verts, faces, area_rel, lo, hi, cent, good):
+    """Per triangle: box, centroid, and whether it has non-zero area
+    (|e1 x e2| > area_rel * longest edge^2). Vertices are in the local frame.
     """
     for i in prange(faces.shape[0]):
         a = faces[i, 0]
@@ -333,18 +333,15 @@ def triangle_setup(verts, faces, area_rel, tris, lo, hi, cent, good):
             p = verts[a, k]
             q = verts[b, k]
             r = verts[c, k]
-            tris[i, k] = p
-            tris[i, 3 + k] = q - p
-            tris[i, 6 + k] = r - p
             lo[i, k] = min(p, min(q, r))
             hi[i, k] = max(p, max(q, r))
             cent[i, k] = (p + q + r) / 3.0
-        e1x = tris[i, 3]
-        e1y = tris[i, 4]
-        e1z = tris[i, 5]
-        e2x = tris[i, 6]
-        e2y = tris[i, 7]
-        e2z = tris[i, 8]
+        e1x = verts[b, 0] - verts[a, 0]
+        e1y = verts[b, 1] - verts[a, 1]
+        e1z = verts[b, 2] - verts[a, 2]
+        e2x = verts[c, 0] - verts[a, 0]
+        e2y = verts[c, 1] - verts[a, 1]
+        e2z = verts[c, 2] - verts[a, 2]
         cx = e1y * e2z - e1z * e2y
         cy = e1z * e2x - e1x * e2z
         cz = e1x * e2y - e1y * e2x

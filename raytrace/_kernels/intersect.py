@@ -13,11 +13,11 @@ from ..config import BARY, CACHE, ERROR_MODEL
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
-def moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz):
+def moller_trumbore(verts, tri, k, ox, oy, oz, dx, dy, dz):
     """Möller & Trumbore 1997 ray-triangle test, both faces, float64.
 
-    ``tris[k]`` holds v0 (0:3), e1 = v1 - v0 (3:6), e2 = v2 - v0 (6:9). The ray is
-    o + t d. Returns (t, u, v) with the hit at (1 - u - v) v0 + u v1 + v v2, or
+    Triangle k has vertices ``verts[tri[k]]`` = (v0, v1, v2); e1 = v1 - v0, e2 = v2 - v0
+    are formed here, in the local frame, exactly as everywhere else. The ray is o + t d. Returns (t, u, v) with the hit at (1 - u - v) v0 + u v1 + v v2, or
     t = inf when the ray misses the triangle's (slightly enlarged) interior.
 
     Edges and vertices: the barycentric test uses the slack ``config.BARY`` on all three
@@ -25,12 +25,18 @@ def moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz):
     (the caller breaks the tie: smaller t, then smaller input index). A ray parallel to
     the triangle's plane (det == 0 exactly) misses it.
     """
-    e1x = tris[k, 3]
-    e1y = tris[k, 4]
-    e1z = tris[k, 5]
-    e2x = tris[k, 6]
-    e2y = tris[k, 7]
-    e2z = tris[k, 8]
+    ia = tri[k, 0]
+    ib = tri[k, 1]
+    ic = tri[k, 2]
+    v0x = verts[ia, 0]
+    v0y = verts[ia, 1]
+    v0z = verts[ia, 2]
+    e1x = verts[ib, 0] - v0x
+    e1y = verts[ib, 1] - v0y
+    e1z = verts[ib, 2] - v0z
+    e2x = verts[ic, 0] - v0x
+    e2y = verts[ic, 1] - v0y
+    e2z = verts[ic, 2] - v0z
     # p = d x e2, det = e1 . p
     px = dy * e2z - dz * e2y
     py = dz * e2x - dx * e2z
@@ -39,9 +45,9 @@ def moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz):
     if det == 0.0:
         return (np.nan, 0.0, 0.0)
     inv = 1.0 / det
-    sx = ox - tris[k, 0]
-    sy = oy - tris[k, 1]
-    sz = oz - tris[k, 2]
+    sx = ox - v0x
+    sy = oy - v0y
+    sz = oz - v0z
     u = (sx * px + sy * py + sz * pz) * inv
     if u < -BARY or u > 1.0 + BARY:
         return (np.nan, 0.0, 0.0)
