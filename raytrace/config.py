@@ -132,6 +132,10 @@ SAH_C_TRAV = 3.0
 SAH_C_ISECT = 1.0
 #: A node with at most this many triangles may become a leaf when SAH says so.
 MAX_LEAF_SIZE = 16
+#: Parallel build: the serial top phase stops at tasks of at most
+#: max(BUILD_TASK_MIN, m // BUILD_TASKS) triangles, which are then built in parallel.
+BUILD_TASKS = 64
+BUILD_TASK_MIN = 4096
 #: A node whose triangles all share one centroid cannot be split by position; it becomes
 #: a leaf if it has at most this many, otherwise it is split in two by index.
 MAX_LEAF_SIZE_FORCED = 32

@@ -21,7 +21,7 @@ import numba
 import numpy as np
 
 from . import config
-from ._kernels.build import build_sah, sah_cost, to_pair_layout, triangle_setup
+from ._kernels.build import build_bvh, to_pair_layout, triangle_setup
 from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
 from ._kernels.traverse import any_hit, closest_hit
 from .errors import MeshError, RayError, SceneFileError
@@ -137,18 +137,16 @@ class Scene:
         self.origin_offset = np.round(0.5 * (lo + hi))
         local = v - self.origin_offset
         m = f.shape[0]
-        tri_lo = np.empty((m, 3))
-        tri_hi = np.empty((m, 3))
-        cent = np.empty((m, 3))
+        prim = np.empty((m, 9), dtype=np.float32)
         good = np.empty(m, dtype=np.bool_)
-        triangle_setup(local, f, config.AREA_REL, tri_lo, tri_hi, cent, good)
+        triangle_setup(local, f, config.AREA_REL, prim, good)
         n_bad = m - int(good.sum())
         if n_bad == m:
             raise MeshError(
                 f"Expected a mesh with at least one triangle of non-zero area, got "
                 f"{n_bad} degenerate triangles; check the face indices and units."
             )
-        keep = None
+        keep = np.arange(m)
         if n_bad:
             warnings.warn(
                 f"Dropped {n_bad} zero-area triangle(s) of {m} "
@@ -156,29 +154,30 @@ class Scene:
                 UserWarning, stacklevel=2,
             )
             keep = np.flatnonzero(good)
-            tri_lo, tri_hi, cent = tri_lo[keep], tri_hi[keep], cent[keep]
-        node_box, meta, order, max_depth = build_sah(
-            tri_lo, tri_hi, cent, int(sah_bins), float(c_trav), float(c_isect),
-            int(max_leaf_size), int(config.MAX_LEAF_SIZE_FORCED))
-        del tri_lo, tri_hi, cent
+            prim = prim[keep]
+        stop = max(config.BUILD_TASK_MIN, len(keep) // config.BUILD_TASKS)
+        with numba.parallel_chunksize(1):
+            node_box, node_meta = build_bvh(
+                prim, keep, int(sah_bins), float(c_trav), float(c_isect),
+                int(max_leaf_size), int(config.MAX_LEAF_SIZE_FORCED), int(stop))
+        del prim
+        pair_box, pair_link, (n_nodes, n_leaves, max_depth, in_leaves, cost) = \
+            to_pair_layout(node_box, node_meta, float(c_trav), float(c_isect))
+        del node_box, node_meta
         # DECISION: shared float64 vertices + int32 faces in leaf order (24 B a triangle
         # for a closed mesh) rather than precomputed v0/e1/e2 (72 B): the edges are
         # formed in the kernel in the same local frame, so results are unchanged, and
         # the scene is a third of the size.
         self._verts = np.ascontiguousarray(local)
-        ids = order if keep is None else keep[order]
-        self._tri = np.ascontiguousarray(f[ids].astype(np.int32))
-        self._ids = ids.astype(np.int32)
-        pair_box, pair_link = to_pair_layout(node_box, meta)
+        self._tri = np.ascontiguousarray(f[keep].astype(np.int32))
+        self._ids = keep.astype(np.int32)
         self._nodes = _pack_nodes(pair_box, pair_link, hi - lo)
         self._max_depth = int(max_depth)
         self._n_input_faces = int(m)
         self._build = dict(sah_bins=int(sah_bins), max_leaf_size=int(max_leaf_size),
                            c_trav=float(c_trav), c_isect=float(c_isect))
-        self._tree = dict(nodes=int(meta.shape[0]), leaves=int((meta[:, 1] > 0).sum()),
-                          mean_leaf_size=float(meta[meta[:, 1] > 0, 1].mean()),
-                          sah_cost=float(sah_cost(node_box, meta, float(c_trav),
-                                                  float(c_isect))))
+        self._tree = dict(nodes=int(n_nodes), leaves=int(n_leaves),
+                          mean_leaf_size=float(in_leaves) / n_leaves, sah_cost=float(cost))
         self._stats = self._compute_stats(time.perf_counter() - t_start)
 
     # ------------------------------------------------------------------ construction
@@ -484,8 +483,8 @@ def _pack_nodes(pair_box, pair_link, extent):
     nodes = np.empty((pair_box.shape[0], 16), dtype=np.float32)
     for side in (0, 6):
         with np.errstate(invalid="ignore", over="ignore"):
-            lo = (pair_box[:, side:side + 3] - pad).astype(np.float32)
-            hi = (pair_box[:, side + 3:side + 6] + pad).astype(np.float32)
+            lo = (pair_box[:, side:side + 3].astype(np.float64) - pad).astype(np.float32)
+            hi = (pair_box[:, side + 3:side + 6].astype(np.float64) + pad).astype(np.float32)
         nodes[:, side:side + 3] = np.nextafter(lo, np.float32(-np.inf))
         nodes[:, side + 3:side + 6] = np.nextafter(hi, np.float32(np.inf))
     if pair_link.max() >= 2 ** 31:

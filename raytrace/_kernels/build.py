@@ -1,25 +1,37 @@
-"""Binned SAH BVH construction (Wald 2007), as one Numba kernel.
+"""Binned SAH BVH construction (Wald 2007) in Numba, parallel over subtrees.
 
 Reference: I. Wald, "On fast construction of SAH-based bounding volume hierarchies",
-IEEE Symposium on Interactive Ray Tracing 2007. Node layout after pbrt-v4
-``aggregates.cpp`` (``flattenBVH``): depth-first pre-order, the left child directly after
-its parent, the right child's index stored in the parent.
+IEEE Symposium on Interactive Ray Tracing 2007 (binned SAH, bins over centroid bounds).
+Parallelisation by independent subtrees after a serial top phase, as in Wald's paper
+(section 4) and Embree's binned builders.
 
-The builder works top-down with an explicit task stack (no recursion, no Python loop over
-triangles). Each task carries its node box and centroid box, which the parent's binning
-already produced (union of the bins on each side), so every level touches each triangle
-twice: once to bin it, once to partition it. Total work O(n log n).
+Steps:
 
-Output arrays (the reference layout; traversal reads them directly)::
+1. ``triangle_setup``: per triangle a 36-byte primitive record (float32 box rounded
+   outward, float32 centroid) and a zero-area flag, in parallel.
+2. ``build_bvh``: a serial top phase splits the triangles until every open task holds at
+   most ``stop`` triangles; those tasks are then built in parallel (``prange``), each
+   into its own pre-allocated range of the node arrays. Each task carries its node box
+   and centroid box (the union of the parent's bins on its side), so a level touches
+   each primitive twice: once to bin it, once to partition it. Primitive records are
+   partitioned physically (rows swapped with their triangle index), so every pass
+   reads memory sequentially. Work O(n log n); no Python loop over triangles.
+3. ``to_pair_layout``: a pre-order walk from the root emits the traversal layout (see
+   ``traverse.py``) and the tree statistics.
 
-    node_box  (n_nodes, 6) float64   min x, min y, min z, max x, max y, max z
-    node_meta (n_nodes, 2) int64     internal: (index of right child, 0)
-                                     leaf:     (first triangle slot, triangle count > 0)
-    order     (m,) int64             triangle slot -> input triangle index
+Build arrays (explicit child pointers; node order is irrelevant, only the walk matters)::
 
-The left child of internal node i is i + 1. ``Scene`` converts the boxes to float32
-(rounded outward), giving the 32-byte node of tinybvh: 24 bytes of box + 8 bytes of meta
-(the meta is stored as int32 there).
+    node_box  (2m - 1, 6) float32   min x, min y, min z, max x, max y, max z
+    node_meta (2m - 1, 4) int32     left child, right child, first slot, count
+                                    (count 0: internal; count > 0: leaf [first, first+count))
+
+The boxes are conservative: primitive boxes are rounded outward to float32, and unions
+(min/max) of float32 values are exact.
+
+Sizing: the top phase and the subtrees together use at most 2m - 1 nodes: with P open
+tasks of c_k triangles, the top tree has P - 1 internal nodes and P task roots, and a
+subtree needs at most 2 c_k - 2 nodes besides its root: (P - 1) + P + sum(2 c_k - 2)
+= 2m - 1.
 """
 
 from __future__ import annotations
@@ -29,301 +41,17 @@ from numba import njit, prange
 
 from ..config import BUILD_FASTMATH, CACHE, ERROR_MODEL
 
-
-@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
-def _half_area(bx0, by0, bz0, bx1, by1, bz1):
-    dx = bx1 - bx0
-    dy = by1 - by0
-    dz = bz1 - bz0
-    if dx < 0.0 or dy < 0.0 or dz < 0.0:
-        return 0.0
-    return dx * dy + dy * dz + dz * dx
-
-
-@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
-def build_sah(tri_lo, tri_hi, cent, n_bins, c_trav, c_isect, max_leaf, max_leaf_forced):
-    """Build a binned-SAH BVH over m triangle boxes.
-
-    Parameters
-    ----------
-    tri_lo, tri_hi : (m, 3) float64
-        Per-triangle bounding boxes.
-    cent : (m, 3) float64
-        Per-triangle centroids (the binning key).
-    n_bins : int
-        Bins per axis (Wald 2007 uses 16-32).
-    c_trav, c_isect : float
-        SAH costs of a traversal step and of a triangle test.
-    max_leaf : int
-        Largest leaf SAH may choose.
-    max_leaf_forced : int
-        Largest leaf made of triangles with identical centroids (unsplittable).
-
-    Returns
-    -------
-    node_box : (n_nodes, 6) float64
-    node_meta : (n_nodes, 2) int64
-    order : (m,) int64
-    max_depth : int
-    """
-    m = tri_lo.shape[0]
-    order = np.arange(m)
-    max_nodes = 2 * m - 1
-    node_box = np.empty((max_nodes, 6))
-    node_meta = np.zeros((max_nodes, 2), dtype=np.int64)
-
-    # Task stack: range [s, e), parent whose right-child field to patch (-1 for a left
-    # child, which lands at parent + 1 by construction), depth, node box, centroid box.
-    # Only right children wait on the stack, at most one per level: depth <= m.
-    cap = m + 1
-    t_s = np.empty(cap, dtype=np.int64)
-    t_e = np.empty(cap, dtype=np.int64)
-    t_par = np.empty(cap, dtype=np.int64)
-    t_dep = np.empty(cap, dtype=np.int64)
-    t_box = np.empty((cap, 6))
-    t_cbox = np.empty((cap, 6))
-
-    # Root boxes.
-    rb = np.empty(6)
-    cb = np.empty(6)
-    for a in range(3):
-        rb[a] = np.inf
-        rb[a + 3] = -np.inf
-        cb[a] = np.inf
-        cb[a + 3] = -np.inf
-    for i in range(m):
-        for a in range(3):
-            rb[a] = min(rb[a], tri_lo[i, a])
-            rb[a + 3] = max(rb[a + 3], tri_hi[i, a])
-            cb[a] = min(cb[a], cent[i, a])
-            cb[a + 3] = max(cb[a + 3], cent[i, a])
-    t_s[0] = 0
-    t_e[0] = m
-    t_par[0] = -1
-    t_dep[0] = 0
-    t_box[0, :] = rb
-    t_cbox[0, :] = cb
-    sp = 1
-
-    # Per-bin accumulators: count, triangle box, centroid box; per axis.
-    b_cnt = np.zeros((3, n_bins), dtype=np.int64)
-    b_box = np.empty((3, n_bins, 6))
-    b_cbox = np.empty((3, n_bins, 6))
-    # Sweep results: right-side area, count and boxes for a split after bin k.
-    r_area = np.empty(n_bins)
-    r_cnt = np.empty(n_bins, dtype=np.int64)
-    acc = np.empty(6)
-    cacc = np.empty(6)
-    bin_of = np.empty(3, dtype=np.int64)
-    scale = np.zeros(3)
-    box = np.empty(6)
-    cbox = np.empty(6)
-    lbox = np.empty(6)
-    rbox = np.empty(6)
-    lcb = np.empty(6)
-    rcb = np.empty(6)
-
-    n_nodes = 0
-    max_depth = 0
-    while sp > 0:
-        sp -= 1
-        s = t_s[sp]
-        e = t_e[sp]
-        par = t_par[sp]
-        dep = t_dep[sp]
-        for c in range(6):
-            box[c] = t_box[sp, c]
-            cbox[c] = t_cbox[sp, c]
-
-        node = n_nodes
-        n_nodes += 1
-        if par >= 0:
-            node_meta[par, 0] = node
-        node_box[node, :] = box
-        if dep > max_depth:
-            max_depth = dep
-        count = e - s
-
-        if count == 1:
-            node_meta[node, 0] = s
-            node_meta[node, 1] = 1
-            continue
-
-        # --- Wald 2007: bin centroids along each axis ---------------------------------
-        # Small nodes get fewer bins: with ~n/2 nodes of a handful of triangles, clearing
-        # and sweeping 3 x n_bins bins per node would dominate the build.
-        nb = min(n_bins, max(2, count))
-        any_extent = False
-        for a in range(3):
-            scale[a] = 0.0
-            ext = cbox[a + 3] - cbox[a]
-            if ext > 0.0:
-                # (1 - 1e-9) keeps the maximum centroid inside the last bin.
-                scale[a] = nb * (1.0 - 1e-9) / ext
-                any_extent = True
-        best_cost = np.inf
-        best_axis = -1
-        best_k = -1
-        if any_extent:
-            for a in range(3):
-                for k in range(nb):
-                    b_cnt[a, k] = 0
-                    for c in range(3):
-                        b_box[a, k, c] = np.inf
-                        b_box[a, k, c + 3] = -np.inf
-                        b_cbox[a, k, c] = np.inf
-                        b_cbox[a, k, c + 3] = -np.inf
-            for j in range(s, e):
-                i = order[j]
-                for a in range(3):
-                    if scale[a] > 0.0:
-                        k = int((cent[i, a] - cbox[a]) * scale[a])
-                        if k >= nb:
-                            k = nb - 1
-                        elif k < 0:
-                            k = 0
-                        bin_of[a] = k
-                for a in range(3):
-                    if scale[a] > 0.0:
-                        k = bin_of[a]
-                        b_cnt[a, k] += 1
-                        for c in range(3):
-                            lo = tri_lo[i, c]
-                            hi = tri_hi[i, c]
-                            if lo < b_box[a, k, c]:
-                                b_box[a, k, c] = lo
-                            if hi > b_box[a, k, c + 3]:
-                                b_box[a, k, c + 3] = hi
-                            ce = cent[i, c]
-                            if ce < b_cbox[a, k, c]:
-                                b_cbox[a, k, c] = ce
-                            if ce > b_cbox[a, k, c + 3]:
-                                b_cbox[a, k, c + 3] = ce
-            # Sweep from the right, then from the left; cost of a split after bin k:
-            # C_trav + C_isect * (A_L N_L + A_R N_R) / A_parent  (half areas suffice).
-            parent_area = _half_area(box[0], box[1], box[2], box[3], box[4], box[5])
-            for a in range(3):
-                if scale[a] == 0.0:
-                    continue
-                for c in range(3):
-                    acc[c] = np.inf
-                    acc[c + 3] = -np.inf
-                n_acc = 0
-                for k in range(nb - 1, 0, -1):
-                    n_acc += b_cnt[a, k]
-                    for c in range(3):
-                        acc[c] = min(acc[c], b_box[a, k, c])
-                        acc[c + 3] = max(acc[c + 3], b_box[a, k, c + 3])
-                    r_cnt[k] = n_acc
-                    r_area[k] = _half_area(acc[0], acc[1], acc[2], acc[3], acc[4], acc[5])
-                for c in range(3):
-                    acc[c] = np.inf
-                    acc[c + 3] = -np.inf
-                n_acc = 0
-                for k in range(nb - 1):
-                    n_acc += b_cnt[a, k]
-                    for c in range(3):
-                        acc[c] = min(acc[c], b_box[a, k, c])
-                        acc[c + 3] = max(acc[c + 3], b_box[a, k, c + 3])
-                    n_r = r_cnt[k + 1]
-                    if n_acc == 0 or n_r == 0:
-                        continue
-                    l_area = _half_area(acc[0], acc[1], acc[2], acc[3], acc[4], acc[5])
-                    cost = c_isect * (l_area * n_acc + r_area[k + 1] * n_r)
-                    if cost < best_cost:
-                        best_cost = cost
-                        best_axis = a
-                        best_k = k
-            if parent_area > 0.0:
-                best_cost = c_trav + best_cost / parent_area
-            else:
-                best_cost = c_trav + c_isect * count
-
-        leaf_cost = c_isect * count
-        if best_axis < 0:
-            # Every centroid coincides: no positional split exists.
-            if count <= max_leaf_forced:
-                node_meta[node, 0] = s
-                node_meta[node, 1] = count
-                continue
-            mid = s + count // 2
-            for c in range(6):
-                lbox[c] = box[c]
-                rbox[c] = box[c]
-                lcb[c] = cbox[c]
-                rcb[c] = cbox[c]
-        elif count <= max_leaf and leaf_cost <= best_cost:
-            node_meta[node, 0] = s
-            node_meta[node, 1] = count
-            continue
-        else:
-            # Partition [s, e) in place: bins <= best_k go left.
-            a = best_axis
-            lo_j = s
-            hi_j = e - 1
-            while lo_j <= hi_j:
-                i = order[lo_j]
-                k = int((cent[i, a] - cbox[a]) * scale[a])
-                if k >= nb:
-                    k = nb - 1
-                elif k < 0:
-                    k = 0
-                if k <= best_k:
-                    lo_j += 1
-                else:
-                    order[lo_j] = order[hi_j]
-                    order[hi_j] = i
-                    hi_j -= 1
-            mid = lo_j
-            for c in range(3):
-                lbox[c] = np.inf
-                lbox[c + 3] = -np.inf
-                rbox[c] = np.inf
-                rbox[c + 3] = -np.inf
-                lcb[c] = np.inf
-                lcb[c + 3] = -np.inf
-                rcb[c] = np.inf
-                rcb[c + 3] = -np.inf
-            for k in range(nb):
-                if b_cnt[a, k] == 0:
-                    continue
-                if k <= best_k:
-                    for c in range(3):
-                        lbox[c] = min(lbox[c], b_box[a, k, c])
-                        lbox[c + 3] = max(lbox[c + 3], b_box[a, k, c + 3])
-                        lcb[c] = min(lcb[c], b_cbox[a, k, c])
-                        lcb[c + 3] = max(lcb[c + 3], b_cbox[a, k, c + 3])
-                else:
-                    for c in range(3):
-                        rbox[c] = min(rbox[c], b_box[a, k, c])
-                        rbox[c + 3] = max(rbox[c + 3], b_box[a, k, c + 3])
-                        rcb[c] = min(rcb[c], b_cbox[a, k, c])
-                        rcb[c + 3] = max(rcb[c + 3], b_cbox[a, k, c + 3])
-
-        # Push right first so the left child is popped next and lands at node + 1.
-        t_s[sp] = mid
-        t_e[sp] = e
-        t_par[sp] = node
-        t_dep[sp] = dep + 1
-        t_box[sp, :] = rbox
-        t_cbox[sp, :] = rcb
-        sp += 1
-        t_s[sp] = s
-        t_e[sp] = mid
-        t_par[sp] = -1
-        t_dep[sp] = dep + 1
-        t_box[sp, :] = lbox
-        t_cbox[sp, :] = lcb
-        sp += 1
-        node_meta[node, 1] = 0
-
-    return node_box[:n_nodes].copy(), node_meta[:n_nodes].copy(), order, max_depth
+#: Fields of a primitive record.
+_LO, _HI, _CE = 0, 3, 6
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def triangle_setup(verts, faces, area_rel, lo, hi, cent, good):
-    """Per triangle: box, centroid, and whether it has non-zero area
-    (|e1 x e2| > area_rel * longest edge^2). Vertices are in the local frame.
+def triangle_setup(verts, faces, area_rel, prim, good):
+    """Primitive records and zero-area flags.
+
+    verts (n, 3) float64 local frame; faces (m, 3) int64. Writes prim (m, 9) float32:
+    box min (0:3) rounded down, box max (3:6) rounded up, centroid (6:9); and good (m,)
+    bool: |e1 x e2| > area_rel * (longest edge)^2.
     """
     for i in prange(faces.shape[0]):
         a = faces[i, 0]
@@ -333,9 +61,17 @@ def triangle_setup(verts, faces, area_rel, lo, hi, cent, good):
             p = verts[a, k]
             q = verts[b, k]
             r = verts[c, k]
-            lo[i, k] = min(p, min(q, r))
-            hi[i, k] = max(p, max(q, r))
-            cent[i, k] = (p + q + r) / 3.0
+            lo = min(p, min(q, r))
+            hi = max(p, max(q, r))
+            lo32 = np.float32(lo)
+            if lo32 > lo:
+                lo32 = np.nextafter(lo32, np.float32(-np.inf))
+            hi32 = np.float32(hi)
+            if hi32 < hi:
+                hi32 = np.nextafter(hi32, np.float32(np.inf))
+            prim[i, _LO + k] = lo32
+            prim[i, _HI + k] = hi32
+            prim[i, _CE + k] = (p + q + r) / 3.0
         e1x = verts[b, 0] - verts[a, 0]
         e1y = verts[b, 1] - verts[a, 1]
         e1z = verts[b, 2] - verts[a, 2]
@@ -352,79 +88,367 @@ def triangle_setup(verts, faces, area_rel, lo, hi, cent, good):
         good[i] = np.sqrt(cx * cx + cy * cy + cz * cz) > area_rel * longest
 
 
+@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH, inline="always")
+def _half_area(b):
+    dx = b[3] - b[0]
+    dy = b[4] - b[1]
+    dz = b[5] - b[2]
+    if dx < 0.0 or dy < 0.0 or dz < 0.0:
+        return 0.0
+    return dx * dy + dy * dz + dz * dx
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
+def _bounds(prim, s, e, box, cbox):
+    for c in range(3):
+        box[c] = np.inf
+        box[c + 3] = -np.inf
+        cbox[c] = np.inf
+        cbox[c + 3] = -np.inf
+    for j in range(s, e):
+        for c in range(3):
+            box[c] = min(box[c], prim[j, _LO + c])
+            box[c + 3] = max(box[c + 3], prim[j, _HI + c])
+            cbox[c] = min(cbox[c], prim[j, _CE + c])
+            cbox[c + 3] = max(cbox[c + 3], prim[j, _CE + c])
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
+def _split(prim, idx, s, e, box, cbox, n_bins, c_trav, c_isect, max_leaf, max_leaf_forced,
+           b_cnt, b_box, acc, r_area, r_cnt, scale, out):
+    """Decide leaf or split for [s, e) (Wald 2007 binned SAH); on a split, partition the
+    rows in place and write the children's boxes into out (4, 6): left box, right box,
+    left centroid box, right centroid box. Returns the split position, or -1 for a leaf.
+    """
+    count = e - s
+    if count == 1:
+        return -1
+    # Small nodes get fewer bins: with ~n/2 nodes of a handful of triangles, clearing
+    # and sweeping 3 x n_bins bins per node would dominate the build.
+    nb = min(n_bins, max(2, count))
+    any_extent = False
+    for a in range(3):
+        scale[a] = 0.0
+        ext = cbox[a + 3] - cbox[a]
+        if ext > 0.0:
+            # (1 - 1e-6) keeps the largest centroid inside the last bin.
+            scale[a] = nb * (1.0 - 1e-6) / ext
+            any_extent = True
+    best_cost = np.inf
+    best_axis = -1
+    best_k = -1
+    if any_extent:
+        for a in range(3):
+            for k in range(nb):
+                b_cnt[a, k] = 0
+                for c in range(3):
+                    b_box[a, k, c] = np.inf
+                    b_box[a, k, c + 3] = -np.inf
+                    b_box[a, k, c + 6] = np.inf
+                    b_box[a, k, c + 9] = -np.inf
+        for j in range(s, e):
+            for a in range(3):
+                if scale[a] > 0.0:
+                    k = int((prim[j, _CE + a] - cbox[a]) * scale[a])
+                    k = min(nb - 1, max(0, k))
+                    b_cnt[a, k] += 1
+                    for c in range(3):
+                        b_box[a, k, c] = min(b_box[a, k, c], prim[j, _LO + c])
+                        b_box[a, k, c + 3] = max(b_box[a, k, c + 3], prim[j, _HI + c])
+                        b_box[a, k, c + 6] = min(b_box[a, k, c + 6], prim[j, _CE + c])
+                        b_box[a, k, c + 9] = max(b_box[a, k, c + 9], prim[j, _CE + c])
+        # Sweep from the right, then from the left; cost of a split after bin k:
+        # C_trav + C_isect * (A_L N_L + A_R N_R) / A_parent  (half areas suffice).
+        for a in range(3):
+            if scale[a] == 0.0:
+                continue
+            for c in range(3):
+                acc[c] = np.inf
+                acc[c + 3] = -np.inf
+            n_acc = 0
+            for k in range(nb - 1, 0, -1):
+                n_acc += b_cnt[a, k]
+                for c in range(3):
+                    acc[c] = min(acc[c], b_box[a, k, c])
+                    acc[c + 3] = max(acc[c + 3], b_box[a, k, c + 3])
+                r_cnt[k] = n_acc
+                r_area[k] = _half_area(acc)
+            for c in range(3):
+                acc[c] = np.inf
+                acc[c + 3] = -np.inf
+            n_acc = 0
+            for k in range(nb - 1):
+                n_acc += b_cnt[a, k]
+                for c in range(3):
+                    acc[c] = min(acc[c], b_box[a, k, c])
+                    acc[c + 3] = max(acc[c + 3], b_box[a, k, c + 3])
+                n_r = r_cnt[k + 1]
+                if n_acc == 0 or n_r == 0:
+                    continue
+                cost = _half_area(acc) * n_acc + r_area[k + 1] * n_r
+                if cost < best_cost:
+                    best_cost = cost
+                    best_axis = a
+                    best_k = k
+        parent_area = _half_area(box)
+        if parent_area > 0.0:
+            best_cost = c_trav + c_isect * best_cost / parent_area
+        else:
+            best_cost = c_trav + c_isect * count
+
+    if best_axis < 0:
+        # Every centroid coincides: no positional split exists.
+        if count <= max_leaf_forced:
+            return -1
+        mid = s + count // 2
+        for c in range(6):
+            out[0, c] = box[c]
+            out[1, c] = box[c]
+            out[2, c] = cbox[c]
+            out[3, c] = cbox[c]
+        return mid
+    if count <= max_leaf and c_isect * count <= best_cost:
+        return -1
+
+    # Partition rows [s, e): bins <= best_k go left.
+    a = best_axis
+    lo_j = s
+    hi_j = e - 1
+    while lo_j <= hi_j:
+        k = int((prim[lo_j, _CE + a] - cbox[a]) * scale[a])
+        k = min(nb - 1, max(0, k))
+        if k <= best_k:
+            lo_j += 1
+        else:
+            for c in range(9):
+                tmp = prim[lo_j, c]
+                prim[lo_j, c] = prim[hi_j, c]
+                prim[hi_j, c] = tmp
+            ti = idx[lo_j]
+            idx[lo_j] = idx[hi_j]
+            idx[hi_j] = ti
+            hi_j -= 1
+    for q in range(4):
+        for c in range(3):
+            out[q, c] = np.inf
+            out[q, c + 3] = -np.inf
+    for k in range(nb):
+        if b_cnt[a, k] == 0:
+            continue
+        side = 0 if k <= best_k else 1
+        for c in range(3):
+            out[side, c] = min(out[side, c], b_box[a, k, c])
+            out[side, c + 3] = max(out[side, c + 3], b_box[a, k, c + 3])
+            out[2 + side, c] = min(out[2 + side, c], b_box[a, k, c + 6])
+            out[2 + side, c + 3] = max(out[2 + side, c + 3], b_box[a, k, c + 9])
+    return lo_j
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
+def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, c_trav, c_isect,
+          max_leaf, max_leaf_forced, stop, node_box, node_meta, pend):
+    """Build the tree over rows [s0, e0) with its root at node ``root`` and further
+    nodes allocated from ``next_free`` on. Tasks of at most ``stop`` triangles are not
+    expanded but appended to ``pend`` (rows: node, s, e) when stop > 0.
+    Returns (next_free, number of pending tasks)."""
+    cap = e0 - s0 + 1
+    t_s = np.empty(cap, dtype=np.int64)
+    t_e = np.empty(cap, dtype=np.int64)
+    t_node = np.empty(cap, dtype=np.int64)
+    t_box = np.empty((cap, 12))
+    b_cnt = np.zeros((3, n_bins), dtype=np.int64)
+    b_box = np.empty((3, n_bins, 12))
+    acc = np.empty(6)
+    r_area = np.empty(n_bins)
+    r_cnt = np.empty(n_bins, dtype=np.int64)
+    scale = np.zeros(3)
+    out = np.empty((4, 6))
+    box = np.empty(6)
+    cbox = np.empty(6)
+    n_pend = 0
+
+    t_s[0] = s0
+    t_e[0] = e0
+    t_node[0] = root
+    t_box[0, :6] = box0
+    t_box[0, 6:] = cbox0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        s = t_s[sp]
+        e = t_e[sp]
+        node = t_node[sp]
+        for c in range(6):
+            box[c] = t_box[sp, c]
+            cbox[c] = t_box[sp, 6 + c]
+            node_box[node, c] = box[c]
+        if stop > 0 and e - s <= stop:
+            pend[n_pend, 0] = node
+            pend[n_pend, 1] = s
+            pend[n_pend, 2] = e
+            n_pend += 1
+            continue
+        mid = _split(prim, idx, s, e, box, cbox, n_bins, c_trav, c_isect, max_leaf,
+                     max_leaf_forced, b_cnt, b_box, acc, r_area, r_cnt, scale, out)
+        if mid < 0:
+            node_meta[node, 0] = -1
+            node_meta[node, 1] = -1
+            node_meta[node, 2] = s
+            node_meta[node, 3] = e - s
+            continue
+        left = next_free
+        right = next_free + 1
+        next_free += 2
+        node_meta[node, 0] = left
+        node_meta[node, 1] = right
+        node_meta[node, 2] = s
+        node_meta[node, 3] = 0
+        # Push right first so the left subtree is built (and allocated) first.
+        t_s[sp] = mid
+        t_e[sp] = e
+        t_node[sp] = right
+        t_box[sp, :6] = out[1]
+        t_box[sp, 6:] = out[3]
+        sp += 1
+        t_s[sp] = s
+        t_e[sp] = mid
+        t_node[sp] = left
+        t_box[sp, :6] = out[0]
+        t_box[sp, 6:] = out[2]
+        sp += 1
+    return next_free, n_pend
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
+def _grow_pending(prim, idx, pend, n_pend, bases, n_bins, c_trav, c_isect, max_leaf,
+                  max_leaf_forced, node_box, node_meta):
+    dummy = np.zeros((1, 3), dtype=np.int64)
+    for q in prange(n_pend):
+        node = pend[q, 0]
+        s = pend[q, 1]
+        e = pend[q, 2]
+        box = np.empty(6)
+        cbox = np.empty(6)
+        _bounds(prim, s, e, box, cbox)
+        _grow(prim, idx, s, e, node, bases[q], box, cbox, n_bins, c_trav, c_isect,
+              max_leaf, max_leaf_forced, 0, node_box, node_meta, dummy)
+
+
 @njit(cache=CACHE, error_model=ERROR_MODEL)
-def to_pair_layout(node_box, node_meta):
-    """Convert the reference tree into the traversal layout: one record per internal
-    node holding both children's boxes (Aila & Laine 2009, "Understanding the efficiency
-    of ray traversal on GPUs"; tinybvh ``BVH_GPU``), so a visit reads one 64-byte record.
+def build_top(prim, idx, n_bins, c_trav, c_isect, max_leaf, max_leaf_forced, stop):
+    """Serial top phase over all rows. Returns node arrays (2m - 1 rows), the pending
+    tasks (node, s, e) and, per pending task, the first free node of its range."""
+    m = prim.shape[0]
+    n_nodes = 2 * m - 1
+    node_box = np.empty((n_nodes, 6), dtype=np.float32)
+    node_meta = np.zeros((n_nodes, 4), dtype=np.int32)
+    box = np.empty(6)
+    cbox = np.empty(6)
+    _bounds(prim, 0, m, box, cbox)
+    pend = np.empty((m, 3), dtype=np.int64)
+    next_free, n_pend = _grow(prim, idx, 0, m, 0, 1, box, cbox, n_bins, c_trav, c_isect,
+                              max_leaf, max_leaf_forced, stop, node_box, node_meta, pend)
+    bases = np.empty(n_pend, dtype=np.int64)
+    for q in range(n_pend):
+        bases[q] = next_free
+        next_free += 2 * (pend[q, 2] - pend[q, 1]) - 2
+    return node_box, node_meta, pend[:n_pend].copy(), bases
 
-    Returns ``nodes`` (n_internal, 16) float32, laid out per record as::
 
-        0:6    left child box  (min x, min y, min z, max x, max y, max z)
-        6:12   right child box
-        12, 13 left, right child: internal -> record index; leaf -> first triangle slot
-        14, 15 left, right triangle count: 0 for an internal child, > 0 for a leaf
+def build_bvh(prim, idx, n_bins, c_trav, c_isect, max_leaf, max_leaf_forced, stop):
+    """Binned SAH BVH over the primitive rows (permuted in place together with idx).
 
-    Fields 12-15 are int32 stored in the float32 array's bits (read through an int32
-    view of the same memory). Records are in depth-first order, the root first. A tree
-    that is a single leaf gets one record whose right child is an empty box.
+    Returns node_box (2m - 1, 6) float32 and node_meta (2m - 1, 4) int32 with the root
+    at 0 (rows not reached from the root are unused).
+    """
+    node_box, node_meta, pend, bases = build_top(prim, idx, n_bins, c_trav, c_isect,
+                                                 max_leaf, max_leaf_forced, stop)
+    if len(pend):
+        _grow_pending(prim, idx, pend, len(pend), bases, n_bins, c_trav, c_isect,
+                      max_leaf, max_leaf_forced, node_box, node_meta)
+    return node_box, node_meta
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL)
+def to_pair_layout(node_box, node_meta, c_trav, c_isect):
+    """Pre-order walk from the root: the traversal records (Aila & Laine 2009, "Under-
+    standing the efficiency of ray traversal on GPUs"; tinybvh ``BVH_GPU``), so a visit
+    reads one 64-byte record holding both children's boxes, and the tree statistics.
+
+    Returns ``box`` (n_int, 12) float32 (left box, right box), ``link`` (n_int, 4) int64
+    (left, right: record index or first slot; left, right count: 0 internal, > 0 leaf),
+    and stats: nodes, leaves, max depth, triangles in leaves, SAH cost (Wald 2007: sum
+    over internal nodes of C_trav A/A_root plus over leaves of C_isect N A/A_root). A
+    tree that is a single leaf gets one record whose right child is an empty box.
     """
     n = node_box.shape[0]
+    stack = np.empty(n + 1, dtype=np.int64)
+    depth = np.empty(n + 1, dtype=np.int64)
     rec = np.full(n, -1, dtype=np.int64)
+    # Pass 1: number the internal nodes in pre-order.
     n_int = 0
-    for i in range(n):
-        if node_meta[i, 1] == 0:
+    stack[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        i = stack[sp]
+        if node_meta[i, 3] == 0:
             rec[i] = n_int
             n_int += 1
+            stack[sp] = node_meta[i, 1]
+            stack[sp + 1] = node_meta[i, 0]
+            sp += 2
+    box = np.empty((max(n_int, 1), 12), dtype=np.float32)
+    link = np.zeros((max(n_int, 1), 4), dtype=np.int64)
+    root_area = _half_area(node_box[0])
+    if root_area <= 0.0:
+        root_area = 1.0
+    n_nodes = 0
+    n_leaves = 0
+    in_leaves = 0
+    max_depth = 0
+    cost = 0.0
     if n_int == 0:
-        n_int = 1
-    box = np.empty((n_int, 12), dtype=np.float64)
-    link = np.zeros((n_int, 4), dtype=np.int64)
-    if n == 1 or node_meta[0, 1] > 0:
         for c in range(6):
             box[0, c] = node_box[0, c]
         for c in range(3):
             box[0, 6 + c] = np.inf
             box[0, 9 + c] = -np.inf
-        link[0, 0] = node_meta[0, 0]
-        link[0, 2] = node_meta[0, 1]
-        link[0, 1] = 0
-        link[0, 3] = 1  # an empty leaf behind an empty box: never entered
-        return box, link
-    for i in range(n):
-        if node_meta[i, 1] != 0:
+        link[0, 0] = node_meta[0, 2]
+        link[0, 2] = node_meta[0, 3]
+        link[0, 1] = node_meta[0, 2]
+        link[0, 3] = node_meta[0, 3]  # never entered: its box is empty
+        return box, link, (1, 1, 0, int(node_meta[0, 3]), c_isect * node_meta[0, 3])
+    stack[0] = 0
+    depth[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        i = stack[sp]
+        d = depth[sp]
+        n_nodes += 1
+        max_depth = max(max_depth, d)
+        area = _half_area(node_box[i]) / root_area
+        if node_meta[i, 3] > 0:
+            n_leaves += 1
+            in_leaves += node_meta[i, 3]
+            cost += c_isect * node_meta[i, 3] * area
             continue
+        cost += c_trav * area
         r = rec[i]
-        children = (i + 1, node_meta[i, 0])
         for side in range(2):
-            ch = children[side]
+            ch = node_meta[i, side]
             for c in range(6):
                 box[r, 6 * side + c] = node_box[ch, c]
-            if node_meta[ch, 1] > 0:
-                link[r, side] = node_meta[ch, 0]
-                link[r, 2 + side] = node_meta[ch, 1]
+            if node_meta[ch, 3] > 0:
+                link[r, side] = node_meta[ch, 2]
+                link[r, 2 + side] = node_meta[ch, 3]
             else:
                 link[r, side] = rec[ch]
                 link[r, 2 + side] = 0
-    return box, link
-
-
-@njit(cache=CACHE, error_model=ERROR_MODEL)
-def sah_cost(node_box, node_meta, c_trav, c_isect):
-    """Expected SAH cost of a finished tree, normalised by the root's area.
-
-    cost = sum_internal C_trav * A(n) / A(root) + sum_leaf C_isect * N(n) * A(n) / A(root)
-    """
-    root = _half_area(node_box[0, 0], node_box[0, 1], node_box[0, 2],
-                      node_box[0, 3], node_box[0, 4], node_box[0, 5])
-    if root <= 0.0:
-        root = 1.0
-    total = 0.0
-    for i in range(node_box.shape[0]):
-        a = _half_area(node_box[i, 0], node_box[i, 1], node_box[i, 2],
-                       node_box[i, 3], node_box[i, 4], node_box[i, 5]) / root
-        if node_meta[i, 1] > 0:
-            total += c_isect * node_meta[i, 1] * a
-        else:
-            total += c_trav * a
-    return total
+        stack[sp] = node_meta[i, 1]
+        depth[sp] = d + 1
+        stack[sp + 1] = node_meta[i, 0]
+        depth[sp + 1] = d + 1
+        sp += 2
+    return box, link, (n_nodes, n_leaves, max_depth, in_leaves, cost)

@@ -49,9 +49,9 @@ def test_console_script_installed():
 def test_import_compiles_nothing():
     """The first import must not compile (or load) kernels: Numba compiles lazily."""
     code = ("import raytrace, survey.cli\n"
-            "from raytrace._kernels import build, traverse\n"
-            "fs = [build.build_sah, build.triangle_setup, traverse.closest_hit, "
-            "traverse.any_hit]\n"
+            "from raytrace._kernels import build, cubemap, traverse\n"
+            "fs = [build.build_top, build._grow_pending, build.triangle_setup, "
+            "traverse.closest_hit, traverse.any_hit, cubemap.closest_hit_view]\n"
             "print(sum(len(f.signatures) for f in fs))\n")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
