@@ -21,13 +21,13 @@ import numba
 import numpy as np
 
 from . import config
-from ._kernels.build import build_bvh, to_pair_layout, triangle_setup
+from ._kernels.build import build_bvh, slot_triangles, to_quad_layout, triangle_setup
 from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
 from ._kernels.traverse import any_hit, closest_hit
 from .errors import MeshError, RayError, SceneFileError
 
 #: Version of the ``Scene.save`` file layout; ``Scene.load`` refuses other versions.
-FILE_FORMAT = 2
+FILE_FORMAT = 4
 
 
 def _shape(a) -> str:
@@ -93,9 +93,8 @@ class Hits:
         if self._normals is None:
             nrm = np.full((len(self), 3), np.nan)
             h = self.hit
-            sc = self._scene
-            p = sc._verts[sc._tri[self._slot[h]]]  # (k, 3, 3), local frame
-            c = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+            tri = self._scene._tris[self._slot[h]]
+            c = np.cross(tri[:, 3:6], tri[:, 6:9])
             nrm[h] = c / np.linalg.norm(c, axis=1)[:, None]
             self._normals = nrm
         return self._normals
@@ -158,27 +157,32 @@ class Scene:
         stop = max(config.BUILD_TASK_MIN, len(keep) // config.BUILD_TASKS)
         with numba.parallel_chunksize(1):
             node_box, node_meta = build_bvh(
-                prim, keep, int(sah_bins), float(c_trav), float(c_isect),
+                prim, keep, int(sah_bins), bool(config.SAH_ALL_AXES), float(c_trav),
+                float(c_isect),
                 int(max_leaf_size), int(config.MAX_LEAF_SIZE_FORCED), int(stop))
         del prim
-        pair_box, pair_link, (n_nodes, n_leaves, max_depth, in_leaves, cost) = \
-            to_pair_layout(node_box, node_meta, float(c_trav), float(c_isect))
+        quad_box, quad_link, (n_nodes, n_leaves, max_depth, in_leaves, cost, depth4) = \
+            to_quad_layout(node_box, node_meta, float(c_trav), float(c_isect))
         del node_box, node_meta
-        # DECISION: shared float64 vertices + int32 faces in leaf order (24 B a triangle
-        # for a closed mesh) rather than precomputed v0/e1/e2 (72 B): the edges are
-        # formed in the kernel in the same local frame, so results are unchanged, and
-        # the scene is a third of the size.
-        self._verts = np.ascontiguousarray(local)
-        self._tri = np.ascontiguousarray(f[keep].astype(np.int32))
+        # DECISION: per slot v0, e1, e2 in float64 (72 B a triangle, a leaf is one
+        # contiguous run) rather than shared vertices + indices (~24 B): with shared
+        # vertices every triangle of a leaf gathers three vertices from different cache
+        # lines, which made incoherent rays ~1.5x slower on the 1M-triangle benchmark
+        # tunnel; the scene stays within 1.5x of Open3D's memory (benchmarks/RESULTS.md).
+        self._tris = np.empty((len(keep), 9))
+        slot_triangles(local, f, keep, self._tris)
         self._ids = keep.astype(np.int32)
-        self._nodes = _pack_nodes(pair_box, pair_link, hi - lo)
+        self._nodes = _pack_nodes(quad_box, quad_link, hi - lo)
         self._max_depth = int(max_depth)
+        # A visit pushes at most 3 records: 3 per 4-wide level, plus slack.
+        self._stack_size = 3 * int(depth4) + 4
         self._n_input_faces = int(m)
         self._build = dict(sah_bins=int(sah_bins), max_leaf_size=int(max_leaf_size),
                            c_trav=float(c_trav), c_isect=float(c_isect))
         self._tree = dict(nodes=int(n_nodes), leaves=int(n_leaves),
                           mean_leaf_size=float(in_leaves) / n_leaves, sah_cost=float(cost))
         self._stats = self._compute_stats(time.perf_counter() - t_start)
+        _release_freed_memory()
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -205,11 +209,12 @@ class Scene:
                    np.asarray(mesh.faces, dtype=np.int64), **kwargs)
 
     @classmethod
-    def _from_arrays(cls, nodes, verts, tri, ids, offset, max_depth, n_faces, build, stats):
+    def _from_arrays(cls, nodes, tris, ids, offset, max_depth, stack_size, n_faces,
+                     build, stats):
         self = cls.__new__(cls)
+        self._stack_size = int(stack_size)
         self._nodes = nodes
-        self._verts = verts
-        self._tri = tri
+        self._tris = tris
         self._ids = ids
         self.origin_offset = offset
         self._max_depth = int(max_depth)
@@ -261,14 +266,14 @@ class Scene:
             start, slots, counts, g = view
             with numba.parallel_chunksize(config.PRANGE_CHUNK):
                 closest_hit_view(start, slots, counts, g, config.CUBEMAP_HOT, self._nodes,
-                                 self._nodes.view(np.int32), self._verts, self._tri, self._ids, local,
-                                 dirs, tmin, tmax, self._max_depth + 2, config.RAY_BLOCK,
+                                 self._nodes.view(np.int32), self._tris, self._ids, local,
+                                 dirs, tmin, tmax, self._stack_size, config.RAY_BLOCK,
                                  out_t, out_slot, out_u, out_v)
         elif n:
             with numba.parallel_chunksize(config.PRANGE_CHUNK):
-                closest_hit(self._nodes, self._nodes.view(np.int32), self._verts, self._tri, self._ids,
+                closest_hit(self._nodes, self._nodes.view(np.int32), self._tris, self._ids,
                             local, dirs, tmin, tmax,
-                            self._max_depth + 2, out_t, out_slot, out_u, out_v)
+                            self._stack_size, out_t, out_slot, out_u, out_v)
         tri = np.where(out_slot >= 0, self._ids[np.maximum(out_slot, 0)], -1)
         return Hits(out_t, tri.astype(np.int64), out_u, out_v, org, dirs, out_slot, self)
 
@@ -281,9 +286,9 @@ class Scene:
         out = np.zeros(dirs.shape[0], dtype=np.bool_)
         if dirs.shape[0]:
             with numba.parallel_chunksize(config.PRANGE_CHUNK):
-                any_hit(self._nodes, self._nodes.view(np.int32), self._verts, self._tri,
+                any_hit(self._nodes, self._nodes.view(np.int32), self._tris,
                         org - self.origin_offset, dirs,
-                        tmin, tmax, self._max_depth + 2, out)
+                        tmin, tmax, self._stack_size, out)
         return out
 
     def _view(self, local_origin):
@@ -291,14 +296,14 @@ class Scene:
         Returns (start, slots, counts, g), or None when it would be too large."""
         key = local_origin.tobytes()
         cached = getattr(self, "_view_cache", None)
-        if cached is not None and cached[0] == key:
+        if cached is not None and cached[0] == key:  # same origin: reuse
             return cached[1]
         m = self.n_triangles
         g = int(np.sqrt(config.CUBEMAP_CELLS_PER_TRI * m / 6.0))
         g = min(config.CUBEMAP_MAX_G, max(config.CUBEMAP_MIN_G, g))
         fp = np.empty((m, 6, 4), dtype=np.int32)
         o = local_origin[0]
-        footprints(self._verts, self._tri, float(o[0]), float(o[1]), float(o[2]), g, fp)
+        footprints(self._tris, float(o[0]), float(o[1]), float(o[2]), g, fp)
         counts, _ = count_entries(fp, g)
         kept = int(counts[counts <= config.CUBEMAP_HOT].sum())
         view = None
@@ -360,13 +365,13 @@ class Scene:
     def save(self, path) -> Path:
         """Write the built scene to ``path`` (NumPy .npz) atomically; returns the path."""
         path = Path(path)
-        meta = dict(format=FILE_FORMAT, max_depth=self._max_depth,
+        meta = dict(format=FILE_FORMAT, max_depth=self._max_depth, stack_size=self._stack_size,
                     n_input_faces=self._n_input_faces, build=self._build, stats=self._stats)
         fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part",
                                    dir=path.parent if str(path.parent) else ".")
         try:
             with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, nodes=self._nodes, verts=self._verts, tri=self._tri, ids=self._ids,
+                np.savez(fh, nodes=self._nodes, tris=self._tris, ids=self._ids,
                          origin_offset=self.origin_offset,
                          info=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8))
             os.replace(tmp, path)
@@ -385,7 +390,7 @@ class Scene:
         try:
             with np.load(path, allow_pickle=False) as z:
                 info = json.loads(z["info"].tobytes().decode())
-                arrays = {k: z[k] for k in ("nodes", "verts", "tri", "ids", "origin_offset")}
+                arrays = {k: z[k] for k in ("nodes", "tris", "ids", "origin_offset")}
         except SceneFileError:
             raise
         except Exception as exc:
@@ -396,8 +401,9 @@ class Scene:
         if info.get("format") != FILE_FORMAT:
             raise SceneFileError(f"Expected scene file format {FILE_FORMAT}, got "
                                  f"{info.get('format')} in '{path}'; rebuild it from the mesh.")
-        return cls._from_arrays(arrays["nodes"], arrays["verts"], arrays["tri"], arrays["ids"],
+        return cls._from_arrays(arrays["nodes"], arrays["tris"], arrays["ids"],
                                 arrays["origin_offset"], info["max_depth"],
+                                info["stack_size"],
                                 info["n_input_faces"], info["build"], info["stats"])
 
     # ------------------------------------------------------------------ diagnostics
@@ -410,25 +416,23 @@ class Scene:
     @property
     def n_triangles(self) -> int:
         """Number of triangles in the BVH (degenerate ones dropped)."""
-        return int(self._tri.shape[0])
+        return int(self._tris.shape[0])
 
     @property
     def nbytes(self) -> int:
         """Bytes held by the scene's arrays (tree and triangles)."""
-        return int(self._nodes.nbytes + self._verts.nbytes + self._tri.nbytes +
-                   self._ids.nbytes)
+        return int(self._nodes.nbytes + self._tris.nbytes + self._ids.nbytes)
 
     @property
     def bounds(self) -> np.ndarray:
         """(2, 3) float64 world-coordinate box of the mesh (as stored, padded)."""
-        b = self._nodes[0, :12].astype(np.float64).reshape(2, 6)
-        with np.errstate(invalid="ignore"):
-            lo = np.fmin(b[0, :3], b[1, :3])
-            hi = np.fmax(b[0, 3:], b[1, 3:])
+        b = self._nodes[0, :24].astype(np.float64).reshape(6, 4)  # SoA lanes
+        lo = b[:3].min(axis=1)
+        hi = b[3:].max(axis=1)
         return np.stack([lo, hi]) + self.origin_offset
 
     def _compute_stats(self, seconds) -> dict:
-        return dict(triangles=int(self._tri.shape[0]), input_faces=self._n_input_faces,
+        return dict(triangles=int(self._tris.shape[0]), input_faces=self._n_input_faces,
                     max_depth=self._max_depth, **self._tree, build_seconds=float(seconds),
                     nbytes=self.nbytes)
 
@@ -473,21 +477,44 @@ def _validate_mesh(vertices, faces):
     return v, f
 
 
-def _pack_nodes(pair_box, pair_link, extent):
-    """Pack the pair layout into one (n_int, 16) float32 array (64-byte records).
+def _release_freed_memory():
+    """Hand the build's freed temporaries back to the OS (glibc ``malloc_trim``).
 
-    Boxes are rounded outward to float32 and padded by ``config.BOX_PAD_REL`` times the
-    scene extent; links are stored as int32 bits in columns 12-15.
+    The build allocates ~2.5x the final scene in temporaries (primitive records, the
+    binary tree); glibc keeps much of that freed memory in its heap, which showed as
+    ~50 MB of extra resident memory per 1M triangles. Best effort: other C libraries
+    (or none found) are simply skipped.
+    """
+    global _MALLOC_TRIM
+    if _MALLOC_TRIM is None:
+        try:
+            import ctypes
+
+            _MALLOC_TRIM = ctypes.CDLL("libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _MALLOC_TRIM = False
+    if _MALLOC_TRIM:
+        _MALLOC_TRIM(0)
+
+
+_MALLOC_TRIM = None
+
+
+def _pack_nodes(quad_box, quad_link, extent):
+    """Pack the 4-wide layout into one (n4, 32) float32 array (128-byte records).
+
+    Boxes (columns 0:12 minima, 12:24 maxima) are rounded outward to float32 and padded
+    by ``config.BOX_PAD_REL`` times the scene extent; links are stored as int32 bits in
+    columns 24-31.
     """
     pad = config.BOX_PAD_REL * float(max(np.max(extent), 1e-12))
-    nodes = np.empty((pair_box.shape[0], 16), dtype=np.float32)
-    for side in (0, 6):
-        with np.errstate(invalid="ignore", over="ignore"):
-            lo = (pair_box[:, side:side + 3].astype(np.float64) - pad).astype(np.float32)
-            hi = (pair_box[:, side + 3:side + 6].astype(np.float64) + pad).astype(np.float32)
-        nodes[:, side:side + 3] = np.nextafter(lo, np.float32(-np.inf))
-        nodes[:, side + 3:side + 6] = np.nextafter(hi, np.float32(np.inf))
-    if pair_link.max() >= 2 ** 31:
+    nodes = np.empty((quad_box.shape[0], 32), dtype=np.float32)
+    with np.errstate(invalid="ignore", over="ignore"):
+        lo = (quad_box[:, :12].astype(np.float64) - pad).astype(np.float32)
+        hi = (quad_box[:, 12:24].astype(np.float64) + pad).astype(np.float32)
+    nodes[:, :12] = np.nextafter(lo, np.float32(-np.inf))
+    nodes[:, 12:24] = np.nextafter(hi, np.float32(np.inf))
+    if quad_link.max() >= 2 ** 31:
         raise MeshError("Expected fewer than 2**31 triangles, got more; split the mesh.")
-    nodes.view(np.int32)[:, 12:16] = pair_link.astype(np.int32)
+    nodes.view(np.int32)[:, 24:32] = quad_link.astype(np.int32)
     return nodes

@@ -16,8 +16,8 @@ Steps:
    each primitive twice: once to bin it, once to partition it. Primitive records are
    partitioned physically (rows swapped with their triangle index), so every pass
    reads memory sequentially. Work O(n log n); no Python loop over triangles.
-3. ``to_pair_layout``: a pre-order walk from the root emits the traversal layout (see
-   ``traverse.py``) and the tree statistics.
+3. ``to_quad_layout``: collapses the binary tree into 4-wide records (the traversal
+   layout, see ``traverse.py``) and collects the tree statistics.
 
 Build arrays (explicit child pointers; node order is irrelevant, only the walk matters)::
 
@@ -88,6 +88,22 @@ def triangle_setup(verts, faces, area_rel, prim, good):
         good[i] = np.sqrt(cx * cx + cy * cy + cz * cz) > area_rel * longest
 
 
+@njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
+def slot_triangles(verts, faces, order, out):
+    """Triangle records in leaf order: out[j] = v0, e1 = v1 - v0, e2 = v2 - v0 of face
+    order[j] (float64, local frame), the layout the traversal reads."""
+    for j in prange(order.shape[0]):
+        i = order[j]
+        a = faces[i, 0]
+        b = faces[i, 1]
+        c = faces[i, 2]
+        for k in range(3):
+            p = verts[a, k]
+            out[j, k] = p
+            out[j, 3 + k] = verts[b, k] - p
+            out[j, 6 + k] = verts[c, k] - p
+
+
 @njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH, inline="always")
 def _half_area(b):
     dx = b[3] - b[0]
@@ -114,8 +130,8 @@ def _bounds(prim, s, e, box, cbox):
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
-def _split(prim, idx, s, e, box, cbox, n_bins, c_trav, c_isect, max_leaf, max_leaf_forced,
-           b_cnt, b_box, acc, r_area, r_cnt, scale, out):
+def _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_leaf,
+           max_leaf_forced, b_cnt, b_box, acc, r_area, r_cnt, scale, out):
     """Decide leaf or split for [s, e) (Wald 2007 binned SAH); on a split, partition the
     rows in place and write the children's boxes into out (4, 6): left box, right box,
     left centroid box, right centroid box. Returns the split position, or -1 for a leaf.
@@ -127,10 +143,14 @@ def _split(prim, idx, s, e, box, cbox, n_bins, c_trav, c_isect, max_leaf, max_le
     # and sweeping 3 x n_bins bins per node would dominate the build.
     nb = min(n_bins, max(2, count))
     any_extent = False
+    longest = 0
+    for a in range(3):
+        if cbox[a + 3] - cbox[a] > cbox[longest + 3] - cbox[longest]:
+            longest = a
     for a in range(3):
         scale[a] = 0.0
         ext = cbox[a + 3] - cbox[a]
-        if ext > 0.0:
+        if ext > 0.0 and (all_axes or a == longest):
             # (1 - 1e-6) keeps the largest centroid inside the last bin.
             scale[a] = nb * (1.0 - 1e-6) / ext
             any_extent = True
@@ -245,8 +265,8 @@ def _split(prim, idx, s, e, box, cbox, n_bins, c_trav, c_isect, max_leaf, max_le
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
-def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, c_trav, c_isect,
-          max_leaf, max_leaf_forced, stop, node_box, node_meta, pend):
+def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, all_axes, c_trav,
+          c_isect, max_leaf, max_leaf_forced, stop, node_box, node_meta, pend):
     """Build the tree over rows [s0, e0) with its root at node ``root`` and further
     nodes allocated from ``next_free`` on. Tasks of at most ``stop`` triangles are not
     expanded but appended to ``pend`` (rows: node, s, e) when stop > 0.
@@ -288,7 +308,7 @@ def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, c_trav, c_ise
             pend[n_pend, 2] = e
             n_pend += 1
             continue
-        mid = _split(prim, idx, s, e, box, cbox, n_bins, c_trav, c_isect, max_leaf,
+        mid = _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_leaf,
                      max_leaf_forced, b_cnt, b_box, acc, r_area, r_cnt, scale, out)
         if mid < 0:
             node_meta[node, 0] = -1
@@ -320,8 +340,8 @@ def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, c_trav, c_ise
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def _grow_pending(prim, idx, pend, n_pend, bases, n_bins, c_trav, c_isect, max_leaf,
-                  max_leaf_forced, node_box, node_meta):
+def _grow_pending(prim, idx, pend, n_pend, bases, n_bins, all_axes, c_trav, c_isect,
+                  max_leaf, max_leaf_forced, node_box, node_meta):
     dummy = np.zeros((1, 3), dtype=np.int64)
     for q in prange(n_pend):
         node = pend[q, 0]
@@ -330,12 +350,12 @@ def _grow_pending(prim, idx, pend, n_pend, bases, n_bins, c_trav, c_isect, max_l
         box = np.empty(6)
         cbox = np.empty(6)
         _bounds(prim, s, e, box, cbox)
-        _grow(prim, idx, s, e, node, bases[q], box, cbox, n_bins, c_trav, c_isect,
+        _grow(prim, idx, s, e, node, bases[q], box, cbox, n_bins, all_axes, c_trav, c_isect,
               max_leaf, max_leaf_forced, 0, node_box, node_meta, dummy)
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
-def build_top(prim, idx, n_bins, c_trav, c_isect, max_leaf, max_leaf_forced, stop):
+def build_top(prim, idx, n_bins, all_axes, c_trav, c_isect, max_leaf, max_leaf_forced, stop):
     """Serial top phase over all rows. Returns node arrays (2m - 1 rows), the pending
     tasks (node, s, e) and, per pending task, the first free node of its range."""
     m = prim.shape[0]
@@ -346,8 +366,9 @@ def build_top(prim, idx, n_bins, c_trav, c_isect, max_leaf, max_leaf_forced, sto
     cbox = np.empty(6)
     _bounds(prim, 0, m, box, cbox)
     pend = np.empty((m, 3), dtype=np.int64)
-    next_free, n_pend = _grow(prim, idx, 0, m, 0, 1, box, cbox, n_bins, c_trav, c_isect,
-                              max_leaf, max_leaf_forced, stop, node_box, node_meta, pend)
+    next_free, n_pend = _grow(prim, idx, 0, m, 0, 1, box, cbox, n_bins, all_axes, c_trav,
+                              c_isect, max_leaf, max_leaf_forced, stop, node_box, node_meta,
+                              pend)
     bases = np.empty(n_pend, dtype=np.int64)
     for q in range(n_pend):
         bases[q] = next_free
@@ -355,70 +376,58 @@ def build_top(prim, idx, n_bins, c_trav, c_isect, max_leaf, max_leaf_forced, sto
     return node_box, node_meta, pend[:n_pend].copy(), bases
 
 
-def build_bvh(prim, idx, n_bins, c_trav, c_isect, max_leaf, max_leaf_forced, stop):
+def build_bvh(prim, idx, n_bins, all_axes, c_trav, c_isect, max_leaf, max_leaf_forced, stop):
     """Binned SAH BVH over the primitive rows (permuted in place together with idx).
+
+    ``all_axes``: bin along all three axes (Wald 2007) or only along the axis of largest
+    centroid extent (3x less binning work, the usual fast-builder shortcut).
 
     Returns node_box (2m - 1, 6) float32 and node_meta (2m - 1, 4) int32 with the root
     at 0 (rows not reached from the root are unused).
     """
-    node_box, node_meta, pend, bases = build_top(prim, idx, n_bins, c_trav, c_isect,
-                                                 max_leaf, max_leaf_forced, stop)
+    node_box, node_meta, pend, bases = build_top(prim, idx, n_bins, all_axes, c_trav,
+                                                 c_isect, max_leaf, max_leaf_forced, stop)
     if len(pend):
-        _grow_pending(prim, idx, pend, len(pend), bases, n_bins, c_trav, c_isect,
+        _grow_pending(prim, idx, pend, len(pend), bases, n_bins, all_axes, c_trav, c_isect,
                       max_leaf, max_leaf_forced, node_box, node_meta)
     return node_box, node_meta
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
-def to_pair_layout(node_box, node_meta, c_trav, c_isect):
-    """Pre-order walk from the root: the traversal records (Aila & Laine 2009, "Under-
-    standing the efficiency of ray traversal on GPUs"; tinybvh ``BVH_GPU``), so a visit
-    reads one 64-byte record holding both children's boxes, and the tree statistics.
+def to_quad_layout(node_box, node_meta, c_trav, c_isect):
+    """Collapse the binary tree into 4-wide records and collect the tree statistics.
 
-    Returns ``box`` (n_int, 12) float32 (left box, right box), ``link`` (n_int, 4) int64
-    (left, right: record index or first slot; left, right count: 0 internal, > 0 leaf),
-    and stats: nodes, leaves, max depth, triangles in leaves, SAH cost (Wald 2007: sum
-    over internal nodes of C_trav A/A_root plus over leaves of C_isect N A/A_root). A
-    tree that is a single leaf gets one record whose right child is an empty box.
+    Wide-BVH collapse by surface area as in Embree's BVH4 and Wald, Benthin & Boulos
+    2008 ("Getting rid of packets"): a record starts with the two children of a binary
+    node and repeatedly opens its largest-area internal child until it has four.
+    The root is record 0; the internal children of a record get consecutive record
+    indices when it is filled (siblings sit side by side in memory).
+
+    Returns
+    -------
+    box : (n4, 24) float32
+        Child boxes, structure of arrays: min x[4], min y[4], min z[4], max x[4],
+        max y[4], max z[4]. Unused lanes hold an empty box (min +inf, max -inf).
+    link : (n4, 8) int64
+        child[4] (record index for an internal child, first triangle slot for a leaf),
+        count[4] (0: internal child or unused lane; > 0: leaf).
+    stats : tuple
+        binary nodes, leaves, binary max depth, triangles in leaves, SAH cost (Wald 2007:
+        sum over internal nodes of C_trav A / A_root plus over leaves of
+        C_isect N A / A_root), 4-wide max depth.
     """
     n = node_box.shape[0]
-    stack = np.empty(n + 1, dtype=np.int64)
-    depth = np.empty(n + 1, dtype=np.int64)
-    rec = np.full(n, -1, dtype=np.int64)
-    # Pass 1: number the internal nodes in pre-order.
-    n_int = 0
-    stack[0] = 0
-    sp = 1
-    while sp > 0:
-        sp -= 1
-        i = stack[sp]
-        if node_meta[i, 3] == 0:
-            rec[i] = n_int
-            n_int += 1
-            stack[sp] = node_meta[i, 1]
-            stack[sp + 1] = node_meta[i, 0]
-            sp += 2
-    box = np.empty((max(n_int, 1), 12), dtype=np.float32)
-    link = np.zeros((max(n_int, 1), 4), dtype=np.int64)
     root_area = _half_area(node_box[0])
     if root_area <= 0.0:
         root_area = 1.0
+    # Binary statistics.
+    stack = np.empty(n + 1, dtype=np.int64)
+    depth = np.empty(n + 1, dtype=np.int64)
     n_nodes = 0
     n_leaves = 0
     in_leaves = 0
     max_depth = 0
     cost = 0.0
-    if n_int == 0:
-        for c in range(6):
-            box[0, c] = node_box[0, c]
-        for c in range(3):
-            box[0, 6 + c] = np.inf
-            box[0, 9 + c] = -np.inf
-        link[0, 0] = node_meta[0, 2]
-        link[0, 2] = node_meta[0, 3]
-        link[0, 1] = node_meta[0, 2]
-        link[0, 3] = node_meta[0, 3]  # never entered: its box is empty
-        return box, link, (1, 1, 0, int(node_meta[0, 3]), c_isect * node_meta[0, 3])
     stack[0] = 0
     depth[0] = 0
     sp = 1
@@ -433,22 +442,83 @@ def to_pair_layout(node_box, node_meta, c_trav, c_isect):
             n_leaves += 1
             in_leaves += node_meta[i, 3]
             cost += c_isect * node_meta[i, 3] * area
-            continue
-        cost += c_trav * area
-        r = rec[i]
-        for side in range(2):
-            ch = node_meta[i, side]
-            for c in range(6):
-                box[r, 6 * side + c] = node_box[ch, c]
-            if node_meta[ch, 3] > 0:
-                link[r, side] = node_meta[ch, 2]
-                link[r, 2 + side] = node_meta[ch, 3]
+        else:
+            cost += c_trav * area
+            stack[sp] = node_meta[i, 1]
+            depth[sp] = d + 1
+            stack[sp + 1] = node_meta[i, 0]
+            depth[sp + 1] = d + 1
+            sp += 2
+
+    n_rec_max = max(1, n // 2 + 1)
+    box = np.empty((n_rec_max, 24), dtype=np.float32)
+    link = np.zeros((n_rec_max, 8), dtype=np.int64)
+    ch = np.empty(4, dtype=np.int64)
+    # Work list: (binary node, record index). Pre-order: records are numbered when
+    # their parent record is filled, children pushed in reverse.
+    work = np.empty(n + 1, dtype=np.int64)
+    wrec = np.empty(n + 1, dtype=np.int64)
+    wdep = np.empty(n + 1, dtype=np.int64)
+    n_rec = 1
+    max_depth4 = 0
+    work[0] = 0
+    wrec[0] = 0
+    wdep[0] = 0
+    sp = 1
+    while sp > 0:
+        sp -= 1
+        i = work[sp]
+        r = wrec[sp]
+        d4 = wdep[sp]
+        max_depth4 = max(max_depth4, d4)
+        if node_meta[i, 3] > 0:  # the root itself is a leaf
+            ch[0] = i
+            k = 1
+        else:
+            ch[0] = node_meta[i, 0]
+            ch[1] = node_meta[i, 1]
+            k = 2
+            while k < 4:
+                best = -1
+                best_a = -1.0
+                for q in range(k):
+                    if node_meta[ch[q], 3] == 0:
+                        a = _half_area(node_box[ch[q]])
+                        if a > best_a:
+                            best_a = a
+                            best = q
+                if best < 0:
+                    break
+                opened = ch[best]
+                ch[best] = node_meta[opened, 0]
+                ch[k] = node_meta[opened, 1]
+                k += 1
+        for lane in range(4):
+            if lane >= k:
+                for c in range(3):
+                    box[r, 4 * c + lane] = np.inf
+                    box[r, 12 + 4 * c + lane] = -np.inf
+                link[r, lane] = 0
+                link[r, 4 + lane] = 0
+                continue
+            c_node = ch[lane]
+            for c in range(3):
+                box[r, 4 * c + lane] = node_box[c_node, c]
+                box[r, 12 + 4 * c + lane] = node_box[c_node, 3 + c]
+            if node_meta[c_node, 3] > 0:
+                link[r, lane] = node_meta[c_node, 2]
+                link[r, 4 + lane] = node_meta[c_node, 3]
             else:
-                link[r, side] = rec[ch]
-                link[r, 2 + side] = 0
-        stack[sp] = node_meta[i, 1]
-        depth[sp] = d + 1
-        stack[sp + 1] = node_meta[i, 0]
-        depth[sp + 1] = d + 1
-        sp += 2
-    return box, link, (n_nodes, n_leaves, max_depth, in_leaves, cost)
+                link[r, lane] = n_rec
+                link[r, 4 + lane] = 0
+                n_rec += 1
+        # Push internal children in reverse lane order so that the first is next.
+        for lane in range(k - 1, -1, -1):
+            c_node = ch[lane]
+            if node_meta[c_node, 3] == 0:
+                work[sp] = c_node
+                wrec[sp] = link[r, lane]
+                wdep[sp] = d4 + 1
+                sp += 1
+    return box[:n_rec].copy(), link[:n_rec].copy(), (n_nodes, n_leaves, max_depth,
+                                                      in_leaves, cost, max_depth4)

@@ -72,14 +72,14 @@ def _clip(px, py, pz, n, qx, qy, qz, a, b, lateral):
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def footprints(verts, tri, ox, oy, oz, g, out):
+def footprints(tris, ox, oy, oz, g, out):
     """Cell ranges of every triangle on every cube face.
 
-    verts, tri : local-frame vertices and slot-ordered faces; (ox, oy, oz) the origin;
+    tris : (m, 9) float64 per slot v0, e1, e2 (local frame); (ox, oy, oz) the origin;
     g : cells per face side. Writes out (m, 6, 4) int32: row0, row1, col0, col1
     (inclusive), or row0 = -1 when the triangle does not reach that face.
     """
-    m = tri.shape[0]
+    m = tris.shape[0]
     n_chunks = (m + _CHUNK - 1) // _CHUNK
     for ch in prange(n_chunks):
         bx = np.empty(8)
@@ -92,8 +92,10 @@ def footprints(verts, tri, ox, oy, oz, g, out):
         for k in range(ch * _CHUNK, min(m, (ch + 1) * _CHUNK)):
             for c in range(3):
                 o = ox if c == 0 else (oy if c == 1 else oz)
-                for i in range(3):
-                    p[i, c] = verts[tri[k, i], c] - o
+                v0 = tris[k, c] - o
+                p[0, c] = v0
+                p[1, c] = v0 + tris[k, 3 + c]
+                p[2, c] = v0 + tris[k, 6 + c]
             for face in range(6):
                 axis = face // 2
                 sgn = 1.0 if face % 2 == 0 else -1.0
@@ -192,7 +194,7 @@ def fill_entries(fp, g, counts, hot):
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def closest_hit_view(start, slots, counts, g, hot, nodes, links, verts, tri, ids, org, dirs,
+def closest_hit_view(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs,
                      tmin, tmax, stack_size, block, out_t, out_slot, out_u, out_v):
     """Closest hit for n rays from the single origin org (1, 3) (local frame) using the
     cube map, falling back to the BVH for rays in hot cells. Same outputs as
@@ -207,6 +209,8 @@ def closest_hit_view(start, slots, counts, g, hot, nodes, links, verts, tri, ids
     for b in prange(n_blocks):
         st_node = np.empty(stack_size, dtype=np.int64)
         st_dist = np.empty(stack_size)
+        sd = np.empty(4)
+        si = np.empty(4, dtype=np.int64)
         for r in range(b * block, min(n, (b + 1) * block)):
             rt = 0 if one_t else r
             dx = dirs[r, 0]
@@ -234,9 +238,9 @@ def closest_hit_view(start, slots, counts, g, hot, nodes, links, verts, tri, ids
             t0 = tmin[rt]
             t1 = tmax[rt]
             if counts[cell] > hot:
-                bt, bid, bslot, bu, bv = trace_closest(nodes, links, verts, tri, ids, ox, oy, oz,
+                bt, bid, bslot, bu, bv = trace_closest(nodes, links, tris, ids, ox, oy, oz,
                                                        dx, dy, dz, t0, t1, -1,
-                                                       st_node, st_dist)
+                                                       st_node, st_dist, sd, si)
             else:
                 bt = t1
                 bid = -1
@@ -245,7 +249,7 @@ def closest_hit_view(start, slots, counts, g, hot, nodes, links, verts, tri, ids
                 bv = 0.0
                 for e in range(start[cell], start[cell + 1]):
                     k = slots[e]
-                    t, uu, vv = moller_trumbore(verts, tri, k, ox, oy, oz, dx, dy, dz)
+                    t, uu, vv = moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz)
                     if t >= t0 and t <= bt:
                         kid = ids[k]
                         if t < bt or bid < 0 or kid < bid:
