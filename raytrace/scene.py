@@ -23,8 +23,11 @@ import numpy as np
 from . import config
 from ._kernels.build import build_bvh, slot_triangles, to_quad_layout, triangle_setup
 from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
+from ._kernels.order import counting_sort, morton_keys
 from ._kernels.traverse import any_hit, closest_hit
 from .errors import MeshError, RayError, SceneFileError
+
+_NO_ORDER = np.empty(0, dtype=np.int64)
 
 #: Version of the ``Scene.save`` file layout; ``Scene.load`` refuses other versions.
 FILE_FORMAT = 4
@@ -272,8 +275,8 @@ class Scene:
         elif n:
             with numba.parallel_chunksize(config.PRANGE_CHUNK):
                 closest_hit(self._nodes, self._nodes.view(np.int32), self._tris, self._ids,
-                            local, dirs, tmin, tmax,
-                            self._stack_size, out_t, out_slot, out_u, out_v)
+                            local, dirs, tmin, tmax, self._stack_size,
+                            self._ray_order(local), out_t, out_slot, out_u, out_v)
         tri = np.where(out_slot >= 0, self._ids[np.maximum(out_slot, 0)], -1)
         return Hits(out_t, tri.astype(np.int64), out_u, out_v, org, dirs, out_slot, self)
 
@@ -285,11 +288,22 @@ class Scene:
         org, dirs, tmin, tmax = self._prepare(origins, directions, t_min, t_max)
         out = np.zeros(dirs.shape[0], dtype=np.bool_)
         if dirs.shape[0]:
+            local = org - self.origin_offset
             with numba.parallel_chunksize(config.PRANGE_CHUNK):
-                any_hit(self._nodes, self._nodes.view(np.int32), self._tris,
-                        org - self.origin_offset, dirs,
-                        tmin, tmax, self._stack_size, out)
+                any_hit(self._nodes, self._nodes.view(np.int32), self._tris, local, dirs,
+                        tmin, tmax, self._stack_size, self._ray_order(local), out)
         return out
+
+    def _ray_order(self, local_origins):
+        """Processing order for a batch: Morton order of the origins for large batches
+        of scattered origins, else empty (input order). Speed only; see order.py."""
+        n = local_origins.shape[0]
+        if n < config.ORDER_MIN_RAYS:
+            return _NO_ORDER
+        box = self.bounds - self.origin_offset
+        keys = np.empty(n, dtype=np.int64)
+        morton_keys(local_origins, box[0], box[1], config.ORDER_BITS, keys)
+        return counting_sort(keys, 1 << (3 * config.ORDER_BITS))
 
     def _view(self, local_origin):
         """Cube map around one origin (local frame), cached for the last origin used.

@@ -156,9 +156,10 @@ def trace_closest(nodes, links, tris, ids, ox, oy, oz, dx, dy, dz, t0, t1, prev,
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
-def _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size,
+def _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, order,
                    r0, r1, out_t, out_slot, out_u, out_v):
-    """Rays [r0, r1) of ``closest_hit``, sequentially, with the warm start.
+    """Rays order[r0:r1] of ``closest_hit`` (or rays r0..r1 when ``order`` is empty),
+    sequentially, with the warm start.
 
     DECISION: the per-block work is its own (serial) function called from the prange
     loop, not inlined into it: Numba's parfor lowering compiled the same loop ~35 %
@@ -170,8 +171,10 @@ def _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size,
     si = np.empty(4, dtype=np.int64)
     one_org = org.shape[0] == 1
     one_t = tmin.shape[0] == 1
+    ordered = order.shape[0] > 0
     prev = -1
-    for r in range(r0, r1):
+    for p in range(r0, r1):
+        r = order[p] if ordered else p
         ro = 0 if one_org else r
         rt = 0 if one_t else r
         bt, bid, bslot, bu, bv = trace_closest(
@@ -192,26 +195,28 @@ def _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size,
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def closest_hit(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size,
+def closest_hit(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, order,
                 out_t, out_slot, out_u, out_v):
     """Closest hit for n rays.
 
     org : (n_o, 3) float64, n_o in {1, n}; dirs : (n, 3) float64 unit vectors;
-    tmin, tmax : (n_t,) float64, n_t in {1, n}. Writes out_t (inf on miss), out_slot
-    (-1 on miss), out_u, out_v (0 on miss).
+    tmin, tmax : (n_t,) float64, n_t in {1, n}; order : (n,) int64 processing order
+    (see ``order.py``) or empty for 0..n-1. Writes out_t (inf on miss), out_slot
+    (-1 on miss), out_u, out_v (0 on miss), each at the ray's own index.
     """
     n = dirs.shape[0]
     n_blocks = (n + RAY_BLOCK - 1) // RAY_BLOCK
     for b in prange(n_blocks):
-        _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size,
+        _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, order,
                        b * RAY_BLOCK, min(n, (b + 1) * RAY_BLOCK),
                        out_t, out_slot, out_u, out_v)
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def any_hit(nodes, links, tris, org, dirs, tmin, tmax, stack_size, out):
-    """Any hit within [tmin, tmax] for n rays; writes out (bool). Early exit; children
-    are visited nearest first, as in ``trace_closest``."""
+def any_hit(nodes, links, tris, org, dirs, tmin, tmax, stack_size, order, out):
+    """Any hit within [tmin, tmax] for n rays, in ``order`` (or 0..n-1 when it is
+    empty); writes out (bool) at each ray's index. Early exit; children are visited
+    nearest first, as in ``trace_closest``."""
     n = dirs.shape[0]
     n_blocks = (n + RAY_BLOCK - 1) // RAY_BLOCK
     one_org = org.shape[0] == 1
@@ -221,7 +226,8 @@ def any_hit(nodes, links, tris, org, dirs, tmin, tmax, stack_size, out):
         sd = np.empty(4)
         si = np.empty(4, dtype=np.int64)
         prev = -1
-        for r in range(b * RAY_BLOCK, min(n, (b + 1) * RAY_BLOCK)):
+        for p in range(b * RAY_BLOCK, min(n, (b + 1) * RAY_BLOCK)):
+            r = order[p] if order.shape[0] > 0 else p
             ro = 0 if one_org else r
             rt = 0 if one_t else r
             ox = org[ro, 0]

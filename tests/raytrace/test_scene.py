@@ -214,3 +214,30 @@ def test_stats_are_consistent(small_tunnel):
     assert s["sah_cost"] > 1.0 and s["build_seconds"] > 0
     assert set(s) >= {"triangles", "nodes", "leaves", "max_depth", "mean_leaf_size",
                       "sah_cost", "build_seconds"}
+
+
+def test_large_scattered_batches_are_ordered_without_changing_results(small_tunnel,
+                                                                      monkeypatch):
+    """Batches above ORDER_MIN_RAYS are cast in Morton order of their origins; the
+    answer (and any-hit) must be the same as in input order."""
+    from raytrace import config
+
+    v, f = small_tunnel
+    scene = Scene(v, f)
+    rng = np.random.default_rng(12)
+    n = 100_000
+    o = np.stack([rng.uniform(-5, 65, n), rng.uniform(-2, 2, n), rng.uniform(-1, 4, n)], 1)
+    d = rng.standard_normal((n, 3))
+    t_max = rng.uniform(0.5, 30, n)
+    assert n >= config.ORDER_MIN_RAYS
+    order = scene._ray_order(o - scene.origin_offset)
+    assert sorted(order.tolist()) == list(range(n)) and (order != np.arange(n)).any()
+    a = scene.cast(o, d, t_max=t_max)
+    occ_a = scene.occluded(o, d, t_max)
+    monkeypatch.setattr(config, "ORDER_MIN_RAYS", 10**9)
+    assert len(scene._ray_order(o)) == 0
+    b = scene.cast(o, d, t_max=t_max)
+    occ_b = scene.occluded(o, d, t_max)
+    for name in ("t", "triangle", "u", "v"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    np.testing.assert_array_equal(occ_a, occ_b)
