@@ -192,13 +192,20 @@ class Scene:
     def from_file(cls, path, **kwargs) -> "Scene":
         """Load any mesh trimesh reads (PLY, OBJ, STL, OFF, GLB, DAE) and build a scene.
 
-        Multi-part files (scenes) are concatenated in their world placement.
+        Multi-part files (scenes) are concatenated in their world placement. Collada
+        (.dae) needs the optional ``pycollada`` (``pip install 'tunnelsim[collada]'``).
         """
         import trimesh
 
         path = Path(path)
         if not path.is_file():
             raise MeshError(f"Expected a mesh file, got no file at '{path}'; check the path.")
+        if path.suffix.lower() == ".dae":
+            try:
+                import collada  # noqa: F401  (trimesh reads Collada through pycollada)
+            except ImportError:
+                raise MeshError(f"Expected pycollada to read the Collada file '{path}', "
+                                "got it missing; pip install 'tunnelsim[collada]'.") from None
         try:
             mesh = trimesh.load(str(path), force="mesh", process=False)
         except Exception as exc:  # trimesh raises many types for unreadable files

@@ -190,7 +190,13 @@ def test_from_file_formats(tmp_path):
     o = np.array([5.0, 0.0, 1.5])
     d = np.random.default_rng(1).standard_normal((2000, 3))
     ref = Scene(v, f).cast(o, d)
-    for ext in ("ply", "obj", "stl", "off", "glb"):
+    exts = ["ply", "obj", "stl", "off", "glb"]
+    try:
+        import collada  # noqa: F401
+        exts.append("dae")
+    except ImportError:  # pragma: no cover - the test extra installs it
+        pass
+    for ext in exts:
         path = tmp_path / f"t.{ext}"
         mesh.export(path)
         h = Scene.from_file(path).cast(o, d)
