@@ -36,7 +36,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..config import CACHE, CUBEMAP_PAD, ERROR_MODEL
-from .intersect import moller_trumbore
+from .intersect import closer, moller_trumbore
 from .traverse import trace_closest
 
 #: Chunk of triangles per parallel task in the footprint pass.
@@ -250,14 +250,12 @@ def closest_hit_view(start, slots, counts, g, hot, nodes, links, tris, ids, org,
                 for e in range(start[cell], start[cell + 1]):
                     k = slots[e]
                     t, uu, vv = moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz)
-                    if t >= t0 and t <= bt:
-                        kid = ids[k]
-                        if t < bt or bid < 0 or kid < bid:
-                            bt = t
-                            bid = kid
-                            bslot = k
-                            bu = uu
-                            bv = vv
+                    if closer(t, ids, k, t0, bt, bid):
+                        bt = t
+                        bid = ids[k]
+                        bslot = k
+                        bu = uu
+                        bv = vv
             if bslot >= 0:
                 out_t[r] = bt
                 out_slot[r] = bslot

@@ -57,3 +57,12 @@ def moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz):
         return (np.nan, 0.0, 0.0)
     t = (e2x * qx + e2y * qy + e2z * qz) * inv
     return (t, u, v)
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def closer(t, ids, k, t0, best_t, best_id):
+    """Whether a hit at t on slot k beats the best so far (input index best_id, -1 for
+    none): t must lie in [t0, best_t]; a smaller t wins, an equal t goes to the smaller
+    input index (``ids[k]``). The one place the tie rule lives: it makes the closest hit
+    a total order, independent of traversal order and thread count."""
+    return t >= t0 and t <= best_t and (t < best_t or best_id < 0 or ids[k] < best_id)

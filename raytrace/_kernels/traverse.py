@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..config import CACHE, ERROR_MODEL, RAY_BLOCK
-from .intersect import moller_trumbore
+from .intersect import closer, moller_trumbore
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
@@ -101,7 +101,7 @@ def trace_closest(nodes, links, tris, ids, ox, oy, oz, dx, dy, dz, t0, t1, prev,
     best_v = 0.0
     if prev >= 0:
         t, u, v = moller_trumbore(tris, prev, ox, oy, oz, dx, dy, dz)
-        if t >= t0 and t <= best_t:
+        if closer(t, ids, prev, t0, best_t, best_id):
             best_t = t
             best_id = ids[prev]
             best_slot = prev
@@ -122,14 +122,12 @@ def trace_closest(nodes, links, tris, ids, ox, oy, oz, dx, dy, dz, t0, t1, prev,
                 first = links[cur, 24 + lane]
                 for j in range(first, first + cnt):
                     t, u, v = moller_trumbore(tris, j, ox, oy, oz, dx, dy, dz)
-                    if t >= t0 and t <= best_t:
-                        kid = ids[j]
-                        if t < best_t or best_id < 0 or kid < best_id:
-                            best_t = t
-                            best_id = kid
-                            best_slot = j
-                            best_u = u
-                            best_v = v
+                    if closer(t, ids, j, t0, best_t, best_id):
+                        best_t = t
+                        best_id = ids[j]
+                        best_slot = j
+                        best_u = u
+                        best_v = v
             else:
                 # Reuse the sorted buffers in place: internal children keep their order.
                 sd[n_int] = sd[q]
@@ -212,69 +210,75 @@ def closest_hit(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, orde
                        out_t, out_slot, out_u, out_v)
 
 
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def trace_any(nodes, links, tris, ox, oy, oz, dx, dy, dz, t0, t1, prev, st_node, sd, si):
+    """Any hit of one ray o + t d with t in [t0, t1]: the slot of a triangle hit, or -1.
+    ``prev`` (a slot, or -1) is tested first. Early exit; children are visited nearest
+    first, as in ``trace_closest``."""
+    if prev >= 0:
+        t, u, v = moller_trumbore(tris, prev, ox, oy, oz, dx, dy, dz)
+        if t >= t0 and t <= t1:
+            return prev
+    ix = 1.0 / dx
+    iy = 1.0 / dy
+    iz = 1.0 / dz
+    nx = 0 if ix >= 0.0 else 12
+    ny = 0 if iy >= 0.0 else 12
+    nz = 0 if iz >= 0.0 else 12
+    sp = 0
+    cur = 0
+    while cur >= 0:
+        k = _sorted_hits(nodes, cur, ox, oy, oz, ix, iy, iz, nx, ny, nz, t0, t1, sd, si)
+        nxt = -1
+        for q in range(k):
+            lane = si[q]
+            cnt = links[cur, 28 + lane]
+            child = links[cur, 24 + lane]
+            if cnt > 0:
+                for j in range(child, child + cnt):
+                    t, u, v = moller_trumbore(tris, j, ox, oy, oz, dx, dy, dz)
+                    if t >= t0 and t <= t1:
+                        return j
+            elif nxt < 0:
+                nxt = child
+            else:
+                st_node[sp] = child
+                sp += 1
+        cur = nxt
+        if cur < 0 and sp > 0:
+            sp -= 1
+            cur = st_node[sp]
+    return -1
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL)
+def _any_block(nodes, links, tris, org, dirs, tmin, tmax, stack_size, order, r0, r1, out):
+    """Rays order[r0:r1] of ``any_hit`` (or r0..r1 when ``order`` is empty)."""
+    st_node = np.empty(stack_size, dtype=np.int64)
+    sd = np.empty(4)
+    si = np.empty(4, dtype=np.int64)
+    one_org = org.shape[0] == 1
+    one_t = tmin.shape[0] == 1
+    ordered = order.shape[0] > 0
+    prev = -1
+    for p in range(r0, r1):
+        r = order[p] if ordered else p
+        ro = 0 if one_org else r
+        rt = 0 if one_t else r
+        slot = trace_any(nodes, links, tris, org[ro, 0], org[ro, 1], org[ro, 2],
+                         dirs[r, 0], dirs[r, 1], dirs[r, 2], tmin[rt], tmax[rt], prev,
+                         st_node, sd, si)
+        out[r] = slot >= 0
+        if slot >= 0:
+            prev = slot
+
+
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
 def any_hit(nodes, links, tris, org, dirs, tmin, tmax, stack_size, order, out):
     """Any hit within [tmin, tmax] for n rays, in ``order`` (or 0..n-1 when it is
-    empty); writes out (bool) at each ray's index. Early exit; children are visited
-    nearest first, as in ``trace_closest``."""
+    empty); writes out (bool) at each ray's index."""
     n = dirs.shape[0]
     n_blocks = (n + RAY_BLOCK - 1) // RAY_BLOCK
-    one_org = org.shape[0] == 1
-    one_t = tmin.shape[0] == 1
     for b in prange(n_blocks):
-        st_node = np.empty(stack_size, dtype=np.int64)
-        sd = np.empty(4)
-        si = np.empty(4, dtype=np.int64)
-        prev = -1
-        for p in range(b * RAY_BLOCK, min(n, (b + 1) * RAY_BLOCK)):
-            r = order[p] if order.shape[0] > 0 else p
-            ro = 0 if one_org else r
-            rt = 0 if one_t else r
-            ox = org[ro, 0]
-            oy = org[ro, 1]
-            oz = org[ro, 2]
-            dx = dirs[r, 0]
-            dy = dirs[r, 1]
-            dz = dirs[r, 2]
-            ix = 1.0 / dx
-            iy = 1.0 / dy
-            iz = 1.0 / dz
-            nx = 0 if ix >= 0.0 else 12
-            ny = 0 if iy >= 0.0 else 12
-            nz = 0 if iz >= 0.0 else 12
-            t0 = tmin[rt]
-            t1 = tmax[rt]
-            found = False
-            if prev >= 0:
-                t, u, v = moller_trumbore(tris, prev, ox, oy, oz, dx, dy, dz)
-                found = t >= t0 and t <= t1
-            sp = 0
-            cur = -1 if found else 0
-            while cur >= 0:
-                k = _sorted_hits(nodes, cur, ox, oy, oz, ix, iy, iz, nx, ny, nz, t0, t1, sd, si)
-                nxt = -1
-                for q in range(k):
-                    lane = si[q]
-                    cnt = links[cur, 28 + lane]
-                    child = links[cur, 24 + lane]
-                    if cnt > 0:
-                        for j in range(child, child + cnt):
-                            t, u, v = moller_trumbore(tris, j, ox, oy, oz, dx, dy, dz)
-                            if t >= t0 and t <= t1:
-                                found = True
-                                prev = j
-                                break
-                        if found:
-                            break
-                    elif nxt < 0:
-                        nxt = child
-                    else:
-                        st_node[sp] = child
-                        sp += 1
-                if found:
-                    break
-                cur = nxt
-                if cur < 0 and sp > 0:
-                    sp -= 1
-                    cur = st_node[sp]
-            out[r] = found
+        _any_block(nodes, links, tris, org, dirs, tmin, tmax, stack_size, order,
+                   b * RAY_BLOCK, min(n, (b + 1) * RAY_BLOCK), out)

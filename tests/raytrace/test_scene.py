@@ -17,6 +17,13 @@ def small_tunnel():
     return v, f
 
 
+def _rays_in(rng, n, length_m):
+    """n rays with origins inside a tunnel_tube of the given length, random directions."""
+    o = np.stack([rng.uniform(1, length_m - 1, n), rng.uniform(-1, 1, n),
+                  rng.uniform(0.3, 2.4, n)], axis=1)
+    return o, rng.standard_normal((n, 3))
+
+
 def _station_rays(origin, n=40_000, seed=0):
     rng = np.random.default_rng(seed)
     d = rng.standard_normal((n, 3))
@@ -47,10 +54,7 @@ def test_utm_coordinates_hit_like_local(small_tunnel):
 def test_thread_count_does_not_change_results(small_tunnel):
     v, f = small_tunnel
     scene = Scene(v, f)
-    rng = np.random.default_rng(5)
-    o = np.stack([rng.uniform(1, 59, 50_000), rng.uniform(-1, 1, 50_000),
-                  rng.uniform(0.3, 2.4, 50_000)], axis=1)
-    d = rng.standard_normal((50_000, 3))
+    o, d = _rays_in(np.random.default_rng(5), 50_000, 60.0)
     before = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
@@ -97,9 +101,7 @@ def test_occluded_matches_cast(small_tunnel):
     v, f = small_tunnel
     scene = Scene(v, f)
     rng = np.random.default_rng(8)
-    o = np.stack([rng.uniform(1, 59, 30_000), rng.uniform(-1, 1, 30_000),
-                  rng.uniform(0.3, 2.4, 30_000)], axis=1)
-    d = rng.standard_normal((30_000, 3))
+    o, d = _rays_in(rng, 30_000, 60.0)
     t_max = rng.uniform(0, 4, 30_000)
     h = scene.cast(o, d)
     occ = scene.occluded(o, d, t_max)
