@@ -129,9 +129,56 @@ def _bounds(prim, s, e, box, cbox):
             cbox[c + 3] = max(cbox[c + 3], prim[j, _CE + c])
 
 
+#: Nodes of at least this many triangles are binned in parallel chunks (top phase only).
+_PAR_BIN_MIN = 65_536
+_PAR_BIN_CHUNKS = 16
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH, parallel=True)
+def _bin_parallel(prim, s, e, cbox, scale, nb, b_cnt, b_box):
+    """Bin rows [s, e) like the serial loop in ``_split``, in parallel chunks with local
+    bins, then reduce. Counts, minima and maxima do not depend on the order, so the
+    bins (and the tree) are identical to the serial result."""
+    n_ch = _PAR_BIN_CHUNKS
+    loc_cnt = np.zeros((n_ch, 3, nb), dtype=np.int64)
+    loc_box = np.empty((n_ch, 3, nb, 12))
+    step = (e - s + n_ch - 1) // n_ch
+    for ch in prange(n_ch):
+        for a in range(3):
+            for k in range(nb):
+                for c in range(3):
+                    loc_box[ch, a, k, c] = np.inf
+                    loc_box[ch, a, k, c + 3] = -np.inf
+                    loc_box[ch, a, k, c + 6] = np.inf
+                    loc_box[ch, a, k, c + 9] = -np.inf
+        for j in range(s + ch * step, min(e, s + (ch + 1) * step)):
+            for a in range(3):
+                if scale[a] > 0.0:
+                    k = int((prim[j, _CE + a] - cbox[a]) * scale[a])
+                    k = min(nb - 1, max(0, k))
+                    loc_cnt[ch, a, k] += 1
+                    for c in range(3):
+                        loc_box[ch, a, k, c] = min(loc_box[ch, a, k, c], prim[j, _LO + c])
+                        loc_box[ch, a, k, c + 3] = max(loc_box[ch, a, k, c + 3],
+                                                       prim[j, _HI + c])
+                        loc_box[ch, a, k, c + 6] = min(loc_box[ch, a, k, c + 6],
+                                                       prim[j, _CE + c])
+                        loc_box[ch, a, k, c + 9] = max(loc_box[ch, a, k, c + 9],
+                                                       prim[j, _CE + c])
+    for ch in range(n_ch):
+        for a in range(3):
+            for k in range(nb):
+                b_cnt[a, k] += loc_cnt[ch, a, k]
+                for c in range(3):
+                    b_box[a, k, c] = min(b_box[a, k, c], loc_box[ch, a, k, c])
+                    b_box[a, k, c + 3] = max(b_box[a, k, c + 3], loc_box[ch, a, k, c + 3])
+                    b_box[a, k, c + 6] = min(b_box[a, k, c + 6], loc_box[ch, a, k, c + 6])
+                    b_box[a, k, c + 9] = max(b_box[a, k, c + 9], loc_box[ch, a, k, c + 9])
+
+
 @njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
 def _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_leaf,
-           max_leaf_forced, b_cnt, b_box, acc, r_area, r_cnt, scale, out):
+           max_leaf_forced, par, b_cnt, b_box, acc, r_area, r_cnt, scale, out):
     """Decide leaf or split for [s, e) (Wald 2007 binned SAH); on a split, partition the
     rows in place and write the children's boxes into out (4, 6): left box, right box,
     left centroid box, right centroid box. Returns the split position, or -1 for a leaf.
@@ -166,17 +213,20 @@ def _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_le
                     b_box[a, k, c + 3] = -np.inf
                     b_box[a, k, c + 6] = np.inf
                     b_box[a, k, c + 9] = -np.inf
-        for j in range(s, e):
-            for a in range(3):
-                if scale[a] > 0.0:
-                    k = int((prim[j, _CE + a] - cbox[a]) * scale[a])
-                    k = min(nb - 1, max(0, k))
-                    b_cnt[a, k] += 1
-                    for c in range(3):
-                        b_box[a, k, c] = min(b_box[a, k, c], prim[j, _LO + c])
-                        b_box[a, k, c + 3] = max(b_box[a, k, c + 3], prim[j, _HI + c])
-                        b_box[a, k, c + 6] = min(b_box[a, k, c + 6], prim[j, _CE + c])
-                        b_box[a, k, c + 9] = max(b_box[a, k, c + 9], prim[j, _CE + c])
+        if par and e - s >= _PAR_BIN_MIN:
+            _bin_parallel(prim, s, e, cbox, scale, nb, b_cnt, b_box)
+        else:
+            for j in range(s, e):
+                for a in range(3):
+                    if scale[a] > 0.0:
+                        k = int((prim[j, _CE + a] - cbox[a]) * scale[a])
+                        k = min(nb - 1, max(0, k))
+                        b_cnt[a, k] += 1
+                        for c in range(3):
+                            b_box[a, k, c] = min(b_box[a, k, c], prim[j, _LO + c])
+                            b_box[a, k, c + 3] = max(b_box[a, k, c + 3], prim[j, _HI + c])
+                            b_box[a, k, c + 6] = min(b_box[a, k, c + 6], prim[j, _CE + c])
+                            b_box[a, k, c + 9] = max(b_box[a, k, c + 9], prim[j, _CE + c])
         # Sweep from the right, then from the left; cost of a split after bin k:
         # C_trav + C_isect * (A_L N_L + A_R N_R) / A_parent  (half areas suffice).
         for a in range(3):
@@ -309,7 +359,8 @@ def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, all_axes, c_t
             n_pend += 1
             continue
         mid = _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_leaf,
-                     max_leaf_forced, b_cnt, b_box, acc, r_area, r_cnt, scale, out)
+                     max_leaf_forced, stop > 0, b_cnt, b_box, acc, r_area, r_cnt, scale,
+                     out)
         if mid < 0:
             node_meta[node, 0] = -1
             node_meta[node, 1] = -1

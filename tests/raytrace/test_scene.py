@@ -249,3 +249,20 @@ def test_large_scattered_batches_are_ordered_without_changing_results(small_tunn
     for name in ("t", "triangle", "u", "v"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     np.testing.assert_array_equal(occ_a, occ_b)
+
+
+def test_build_is_identical_for_any_thread_count():
+    """The parallel parts of the build (top-phase binning of nodes >= 65,536 triangles,
+    subtrees) must give the same tree as a one-thread build, bit for bit."""
+    v, f = tunnel_tube(150_000, length_m=100.0, roughness_m=0.002, seed=6)
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        a = Scene(v, f)
+        numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+        b = Scene(v, f)
+    finally:
+        numba.set_num_threads(before)
+    np.testing.assert_array_equal(a._nodes.view(np.int32), b._nodes.view(np.int32))
+    np.testing.assert_array_equal(a._tris, b._tris)
+    np.testing.assert_array_equal(a._ids, b._ids)
