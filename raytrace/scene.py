@@ -131,6 +131,12 @@ class Scene:
                  max_leaf_size: int = config.MAX_LEAF_SIZE,
                  c_trav: float = config.SAH_C_TRAV, c_isect: float = config.SAH_C_ISECT):
         t_start = time.perf_counter()
+        if not (2 <= int(sah_bins) <= 256 and 1 <= int(max_leaf_size) <= 255
+                and float(c_trav) > 0 and float(c_isect) > 0):
+            raise ValueError(
+                f"Expected 2 <= sah_bins <= 256, 1 <= max_leaf_size <= 255 and positive "
+                f"costs, got sah_bins={sah_bins}, max_leaf_size={max_leaf_size}, "
+                f"c_trav={c_trav}, c_isect={c_isect}; the defaults are in raytrace.config.")
         v, f = _validate_mesh(vertices, faces)
         lo = v.min(axis=0)
         hi = v.max(axis=0)

@@ -164,6 +164,13 @@ def test_bad_meshes(vertices, faces, match):
         Scene(vertices, faces)
 
 
+@pytest.mark.parametrize("kwargs", [dict(sah_bins=1), dict(max_leaf_size=0),
+                                    dict(c_trav=0.0), dict(c_isect=-1.0)])
+def test_bad_build_constants(kwargs):
+    with pytest.raises(ValueError, match="sah_bins"):
+        Scene([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], **kwargs)
+
+
 def test_bad_rays():
     scene = Scene([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]])
     with pytest.raises(RayError, match=r"zero length at row\(s\) 1"):
