@@ -115,7 +115,7 @@ CUBEMAP_MAX_G = 2048
 CUBEMAP_MIN_RAYS_PER_TRI = 0.5
 #: Give up on the cube map (use the BVH) when its lists would exceed this many entries
 #: (4 bytes each): an origin right against large triangles.
-CUBEMAP_MAX_ENTRIES = 64_000_000
+CUBEMAP_MAX_ENTRIES = 64_000_000  # must stay below 2^31 (int32 offsets)
 
 #: Batches of at least this many rays with their own origins are cast in Morton order
 #: of the origins (``_kernels/order.py``): measured on the 1M-triangle benchmark tunnel

@@ -18,7 +18,8 @@ and the same (t, input index) order, so the result is bit-identical to the BVH's
 
 Layout (one view, for one origin)::
 
-    start (6 G G + 1,) int64   CSR offsets: cell c lists slots[start[c]:start[c+1]]
+    start (6 G G + 1,) int32   CSR offsets: cell c lists slots[start[c]:start[c+1]]
+    counts (6 G G,) int32      triangles per cell (hot cells: more than HOT, no list)
     slots (n_entries,) int32   triangle slots (into the leaf-ordered triangle arrays)
 
 Cell index c = face * G * G + row * G + col; face = 2 * axis + (0 if d[axis] > 0 else 1);
@@ -151,8 +152,9 @@ def footprints(tris, ox, oy, oz, g, out):
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
 def count_entries(fp, g):
-    """Per-cell triangle counts (6 g g,) int64 and their total."""
-    counts = np.zeros(6 * g * g, dtype=np.int64)
+    """Per-cell triangle counts (6 g g,) int32 and their total (int64). A cell counts at
+    most one entry per triangle, so int32 holds any mesh below 2^31 triangles."""
+    counts = np.zeros(6 * g * g, dtype=np.int32)
     total = 0
     for k in range(fp.shape[0]):
         for face in range(6):
@@ -172,7 +174,8 @@ def fill_entries(fp, g, counts, hot):
     """CSR arrays from footprints; hot cells (count > hot) keep no list (their rays use
     the BVH), so memory is spent on the cells that are used."""
     n_cells = 6 * g * g
-    start = np.zeros(n_cells + 1, dtype=np.int64)
+    # int32 offsets: the caller keeps at most config.CUBEMAP_MAX_ENTRIES (< 2^31) entries.
+    start = np.zeros(n_cells + 1, dtype=np.int32)
     for c in range(n_cells):
         keep = counts[c] if counts[c] <= hot else 0
         start[c + 1] = start[c] + keep
