@@ -331,7 +331,7 @@ class Scene:
         fp = np.empty((m, 6, 4), dtype=np.int32)
         o = local_origin[0]
         footprints(self._tris, float(o[0]), float(o[1]), float(o[2]), g, fp)
-        counts, _ = count_entries(fp, g)
+        counts = count_entries(fp, g)
         kept = int(counts[counts <= config.CUBEMAP_HOT].sum())
         view = None
         if kept <= config.CUBEMAP_MAX_ENTRIES:

@@ -152,10 +152,9 @@ def footprints(tris, ox, oy, oz, g, out):
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
 def count_entries(fp, g):
-    """Per-cell triangle counts (6 g g,) int32 and their total (int64). A cell counts at
-    most one entry per triangle, so int32 holds any mesh below 2^31 triangles."""
+    """Per-cell triangle counts (6 g g,) int32. A cell counts at most one entry per
+    triangle, so int32 holds any mesh below 2^31 triangles."""
     counts = np.zeros(6 * g * g, dtype=np.int32)
-    total = 0
     for k in range(fp.shape[0]):
         for face in range(6):
             r0 = fp[k, face, 0]
@@ -165,8 +164,7 @@ def count_entries(fp, g):
             for r in range(r0, fp[k, face, 1] + 1):
                 for c in range(fp[k, face, 2], fp[k, face, 3] + 1):
                     counts[base + r * g + c] += 1
-            total += (fp[k, face, 1] - r0 + 1) * (fp[k, face, 3] - fp[k, face, 2] + 1)
-    return counts, total
+    return counts
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)

@@ -273,3 +273,17 @@ def test_build_is_identical_for_any_thread_count():
     np.testing.assert_array_equal(a._nodes.view(np.int32), b._nodes.view(np.int32))
     np.testing.assert_array_equal(a._tris, b._tris)
     np.testing.assert_array_equal(a._ids, b._ids)
+
+
+def test_set_threads_validates():
+    from raytrace import set_threads, threads
+
+    before = threads()
+    try:
+        assert set_threads(1) == 1 and threads() == 1
+        with pytest.raises(ValueError, match="thread count between 1 and"):
+            set_threads(0)
+        with pytest.raises(ValueError, match="thread count between 1 and"):
+            set_threads(numba.config.NUMBA_NUM_THREADS + 1)
+    finally:
+        set_threads(before)
