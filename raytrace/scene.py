@@ -10,8 +10,6 @@ numbers of the size of the tunnel itself.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 import time
 import warnings
 from dataclasses import dataclass, field
@@ -26,6 +24,7 @@ from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, foo
 from ._kernels.order import counting_sort, morton_keys
 from ._kernels.traverse import any_hit, closest_hit
 from .errors import MeshError, RayError, SceneFileError
+from .fileio import atomic_writer
 
 _NO_ORDER = np.empty(0, dtype=np.int64)
 
@@ -394,18 +393,10 @@ class Scene:
         path = Path(path)
         meta = dict(format=FILE_FORMAT, max_depth=self._max_depth, stack_size=self._stack_size,
                     n_input_faces=self._n_input_faces, build=self._build, stats=self._stats)
-        fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".part",
-                                   dir=path.parent if str(path.parent) else ".")
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, nodes=self._nodes, tris=self._tris, ids=self._ids,
-                         origin_offset=self.origin_offset,
-                         info=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8))
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        with atomic_writer(path) as fh:
+            np.savez(fh, nodes=self._nodes, tris=self._tris, ids=self._ids,
+                     origin_offset=self.origin_offset,
+                     info=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8))
         return path
 
     @classmethod

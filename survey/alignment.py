@@ -67,6 +67,40 @@ def clothoid(length_m: float, radius_start_m: float, radius_end_m: float) -> Ele
     return Element(float(length_m), k0, k1)
 
 
+def curve(deflection_rad: float, radius_m: float, transition_m: float) -> list:
+    """A symmetric curve: clothoid in from a straight, circular arc, clothoid out.
+
+    Each clothoid of length L turns by L / (2 R), so the arc's own deflection is
+    deflection - L / R (e.g. Casal et al. 2017, eq. for the spiral angle). The radius
+    must therefore be at least L / |deflection|: a smaller radius is more than the
+    clothoids allow, and is an error rather than a silent negative-length arc.
+    ``deflection_rad`` > 0 turns left. Returns [clothoid, arc, clothoid].
+    """
+    d = float(deflection_rad)
+    r = float(radius_m)
+    ln = float(transition_m)
+    if not (np.isfinite(d) and d != 0):
+        raise AlignmentError(f"Expected a non-zero finite deflection angle, got {d} rad.")
+    if not (np.isfinite(r) and r > 0):
+        raise AlignmentError(f"Expected a positive radius, got {r} m.")
+    if not (np.isfinite(ln) and ln >= 0):
+        raise AlignmentError(f"Expected a transition length >= 0, got {ln} m.")
+    arc_angle = abs(d) - ln / r
+    if arc_angle <= 0:
+        raise AlignmentError(f"Expected a radius of at least {ln / abs(d):.6g} m for "
+                             f"clothoids of {ln:g} m and a deflection of {d:.6g} rad, got "
+                             f"{r:g} m: the radius is smaller than the clothoids allow; "
+                             "use a larger radius or shorter transitions.")
+    sgn = np.sign(d)
+    out = []
+    if ln > 0:
+        out.append(clothoid(ln, np.inf, sgn * r))
+    out.append(arc(arc_angle * r, sgn * r))
+    if ln > 0:
+        out.append(clothoid(ln, sgn * r, np.inf))
+    return out
+
+
 class Alignment:
     """A 3-D tunnel centreline with chainage.
 
@@ -208,6 +242,42 @@ class Alignment:
                    profile=np.stack([s_prof + start_chainage_m, z_prof], axis=1),
                    start_chainage_m=start_chainage_m)
 
+    # ------------------------------------------------------------------ serialisation
+    def to_dict(self) -> dict:
+        """Plain data (JSON-ready) that ``from_dict`` turns back into this alignment."""
+        return {"elements": [[e.length_m, e.k_start, e.k_end] for e in self.elements],
+                "start_xy": [float(v) for v in self._xy0[0]],
+                "heading_rad": float(self._th0[0]),
+                "profile": self._profile.tolist(),
+                "start_chainage_m": self.start_chainage_m}
+
+    @classmethod
+    def from_dict(cls, d) -> "Alignment":
+        try:
+            return cls([Element(*map(float, e)) for e in d["elements"]],
+                       start_xy=d["start_xy"], heading_rad=d["heading_rad"],
+                       profile=d["profile"], start_chainage_m=d["start_chainage_m"])
+        except (KeyError, TypeError) as exc:
+            raise AlignmentError(f"Expected an alignment dictionary with elements, "
+                                 f"start_xy, heading_rad, profile and start_chainage_m, got "
+                                 f"keys {sorted(d) if isinstance(d, dict) else type(d)}."
+                                 ) from exc
+
+    def min_radius(self):
+        """(smallest left-turning radius, smallest right-turning radius) in metres;
+        inf where the alignment never turns that way. Curvature is linear within each
+        element, so its extremes are at element ends."""
+        k = np.concatenate([self._k0, self._k1])
+        kl, kr = k.max(initial=0.0), -k.min(initial=0.0)
+        return (1.0 / kl if kl > 0 else np.inf), (1.0 / kr if kr > 0 else np.inf)
+
+    def chainage_of_curvature(self, k):
+        """Chainage of the first element end where the curvature equals the extreme
+        value k (used to name the place in error messages)."""
+        ends = np.concatenate([self._s0[:-1], self._s0[1:]])
+        kk = np.concatenate([self._k0, self._k1])
+        return float(ends[int(np.argmin(np.abs(kk - k)))])
+
     # ------------------------------------------------------------------ plan geometry
     @property
     def length_m(self) -> float:
@@ -273,6 +343,11 @@ class Alignment:
         i, u = self._locate(s)
         xy = self._plan_in(i, u)
         return xy, self._heading_in(i, u), self._curvature_in(i, u)
+
+    def heading(self, s):
+        """Plan heading (radians, counter-clockwise from +x) at chainages s."""
+        i, u = self._locate(s)
+        return self._heading_in(i, u)
 
     def elevation(self, s):
         """Centreline elevation at chainages s (linear between profile points)."""

@@ -1,0 +1,203 @@
+"""Tunnel files: a binary PLY mesh plus a JSON sidecar with everything else.
+
+PLY (Turk 1994 format, binary little endian) as CloudCompare, MeshLab, Open3D and
+trimesh read it:
+
+- ``vertex``: ``double x, y, z`` (float64: georeferenced coordinates keep their
+  precision); for a deformed epoch ``float dx, dy, dz`` (the displacement from the
+  first epoch, metres); ``double chainage, profile_t`` (the chainage and profile
+  parameter of the lining point the vertex is or is attached to, NaN for cap centres).
+  CloudCompare shows all of them as scalar fields.
+- ``face``: ``list uchar int vertex_indices``, ``uchar label`` (index into the JSON's
+  ``labels``) and ``float reflectivity`` (0-1, from the label table).
+
+The JSON beside it (same name, ``.json``) holds the alignment, profile, features,
+parameters, label names, reflectivity table, face counts, control points and the
+deformation fields: enough to rebuild the ``TunnelMesh``. Both files are written
+atomically.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from raytrace.errors import TunnelsimError
+from raytrace.fileio import atomic_writer
+
+FORMAT = "tunnelsim-tunnel/1"
+
+
+class TunnelFileError(TunnelsimError, ValueError):
+    """A tunnel file is missing, unreadable or not one of ours."""
+
+
+def _face_dtype():
+    return np.dtype([("n", "u1"), ("v", "<i4", (3,)), ("label", "u1"),
+                     ("reflectivity", "<f4")])
+
+
+def write_ply(path, vertices, faces, labels=None, reflectivity=None, displacement=None,
+              vertex_fields=None):
+    """Binary little-endian PLY with float64 vertices, optional per-face ``label``
+    (uint8) and ``reflectivity`` (float32), per-vertex displacement ``dx dy dz`` and
+    other per-vertex scalars ``vertex_fields`` {name: (n,) float64 array}."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise TunnelFileError(f"Expected vertices (n, 3) and faces (m, 3), got {v.shape} "
+                              f"and {f.shape}.")
+    if len(v) >= 2**31:
+        raise TunnelFileError(f"Expected fewer than 2**31 vertices for PLY int indices, "
+                              f"got {len(v)}.")
+    vfields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    if displacement is not None:
+        vfields += [("dx", "<f4"), ("dy", "<f4"), ("dz", "<f4")]
+    vertex_fields = vertex_fields or {}
+    vfields += [(name, "<f8") for name in vertex_fields]
+    vrec = np.empty(len(v), dtype=vfields)
+    vrec["x"], vrec["y"], vrec["z"] = v.T
+    if displacement is not None:
+        d = np.asarray(displacement, dtype=np.float64)
+        vrec["dx"], vrec["dy"], vrec["dz"] = d.T
+    for name, arr in vertex_fields.items():
+        vrec[name] = arr
+    ffields = [("n", "u1"), ("v", "<i4", (3,))]
+    if labels is not None:
+        ffields.append(("label", "u1"))
+    if reflectivity is not None:
+        ffields.append(("reflectivity", "<f4"))
+    frec = np.empty(len(f), dtype=ffields)
+    frec["n"] = 3
+    frec["v"] = f
+    if labels is not None:
+        frec["label"] = labels
+    if reflectivity is not None:
+        frec["reflectivity"] = reflectivity
+    names = {"<f8": "double", "<f4": "float", "u1": "uchar"}
+    head = ["ply", "format binary_little_endian 1.0", "comment written by tunnelsim",
+            f"element vertex {len(v)}"]
+    head += [f"property {names[t]} {n}" for n, t in vfields]
+    head += [f"element face {len(f)}", "property list uchar int vertex_indices"]
+    head += [f"property {names[t]} {n}" for n, t, *_ in ffields[2:]]
+    head.append("end_header")
+    with atomic_writer(path) as fh:
+        fh.write(("\n".join(head) + "\n").encode("ascii"))
+        # Chunked writes keep the temporary copies small for multi-million meshes.
+        for arr in (vrec, frec):
+            step = 1 << 20
+            for i in range(0, len(arr), step):
+                fh.write(arr[i:i + step].tobytes())
+    return Path(path)
+
+
+_PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "<i2", "ushort": "<u2", "int": "<i4",
+              "uint": "<u4", "float": "<f4", "double": "<f8", "int8": "i1", "uint8": "u1",
+              "int16": "<i2", "uint16": "<u2", "int32": "<i4", "uint32": "<u4",
+              "float32": "<f4", "float64": "<f8"}
+
+
+def read_ply(path):
+    """Read a binary little-endian triangle PLY (as written by ``write_ply``).
+
+    Returns a dict with ``vertices`` (n, 3) float64, ``faces`` (m, 3) int64 and any
+    extra vertex/face properties by name. Other PLY files: use trimesh.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise TunnelFileError(f"Expected a PLY file, got '{path}' which does not exist.")
+    with open(path, "rb") as fh:
+        if fh.readline().strip() != b"ply":
+            raise TunnelFileError(f"Expected a PLY file, got '{path}' without the 'ply' "
+                                  "magic line.")
+        elements, props = [], {}
+        fmt = None
+        while True:
+            line = fh.readline()
+            if not line:
+                raise TunnelFileError(f"Expected 'end_header' in '{path}', got end of file.")
+            words = line.decode("ascii", "replace").split()
+            if not words or words[0] in ("comment", "obj_info"):
+                continue
+            if words[0] == "format":
+                fmt = words[1]
+            elif words[0] == "element":
+                elements.append((words[1], int(words[2])))
+                props[words[1]] = []
+            elif words[0] == "property":
+                props[elements[-1][0]].append(words[1:])
+            elif words[0] == "end_header":
+                break
+        if fmt != "binary_little_endian":
+            raise TunnelFileError(f"Expected a binary little-endian PLY, got format {fmt} "
+                                  f"in '{path}'; read it with trimesh.")
+        out = {}
+        for name, count in elements:
+            fields = []
+            for p in props[name]:
+                if p[0] == "list":
+                    if _PLY_TYPES[p[1]] != "u1":
+                        raise TunnelFileError("Expected face lists with uchar counts.")
+                    fields += [("_n", "u1"), ("_v", _PLY_TYPES[p[2]], (3,))]
+                else:
+                    fields.append((p[1], _PLY_TYPES[p[0]]))
+            rec = np.frombuffer(fh.read(np.dtype(fields).itemsize * count),
+                                dtype=fields, count=count)
+            if name == "face":
+                if (rec["_n"] != 3).any():
+                    raise TunnelFileError(f"Expected triangles only in '{path}'.")
+                out["faces"] = rec["_v"].astype(np.int64)
+            if name == "vertex":
+                out["vertices"] = np.stack([rec["x"], rec["y"], rec["z"]], 1).astype(float)
+            for fname in rec.dtype.names:
+                if not fname.startswith("_") and fname not in ("x", "y", "z"):
+                    out[fname] = rec[fname].copy()
+    return out
+
+
+def sidecar(path) -> Path:
+    return Path(path).with_suffix(".json")
+
+
+def write_tunnel(tunnel, path):
+    """Write the tunnel's PLY and JSON sidecar (atomically); returns both paths."""
+    path = Path(path)
+    if path.suffix.lower() != ".ply":
+        raise TunnelFileError(f"Expected an output path ending in .ply, got '{path}'.")
+    if not path.parent.exists():
+        raise TunnelFileError(f"Expected an existing output folder, got '{path.parent}'; "
+                              "create it first.")
+    write_ply(path, tunnel.vertices, tunnel.faces, tunnel.labels, tunnel.reflectivity,
+              tunnel.displacement, {"chainage": tunnel.vertex_chainage,
+                                    "profile_t": tunnel.vertex_param})
+    meta = dict(tunnel.metadata, format=FORMAT, mesh=path.name)
+    with atomic_writer(sidecar(path), "w") as fh:
+        json.dump(meta, fh, indent=1)
+    return path, sidecar(path)
+
+
+def read_tunnel(path):
+    """Read a tunnel written by ``write_tunnel`` back into a ``TunnelMesh``."""
+    from .alignment import Alignment
+    from .profiles import Profile
+    from .tunnel import TunnelMesh
+
+    path = Path(path)
+    js = sidecar(path)
+    if not js.is_file():
+        raise TunnelFileError(f"Expected the metadata file '{js}' beside '{path}', got "
+                              "none; write tunnels with TunnelMesh.write.")
+    meta = json.loads(js.read_text())
+    if meta.get("format") != FORMAT:
+        raise TunnelFileError(f"Expected format {FORMAT!r} in '{js}', got "
+                              f"{meta.get('format')!r}.")
+    ply = read_ply(path)
+    al = Alignment.from_dict(meta["alignment"])
+    prof = Profile.from_dict(meta["profile"])
+    disp = None
+    if "dx" in ply:
+        disp = np.stack([ply["dx"], ply["dy"], ply["dz"]], 1).astype(np.float64)
+    return TunnelMesh(ply["vertices"], ply["faces"], ply["label"].astype(np.uint8),
+                      ply["chainage"], ply["profile_t"], al, prof, meta, disp)
