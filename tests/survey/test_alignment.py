@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.special import fresnel
 
-from survey.alignment import (Alignment, AlignmentError, arc, clothoid, straight)
+from survey.alignment import (Alignment, AlignmentError, arc, clothoid, curve, straight)
 
 
 @pytest.fixture(scope="module")
@@ -142,3 +142,25 @@ def test_fit_rejects_bad_points():
         Alignment.fit(np.zeros((3, 3)))
     with pytest.raises(AlignmentError, match="repeated"):
         Alignment.fit(np.repeat(np.arange(6.0)[:, None], 3, axis=1).repeat(2, axis=0))
+
+
+def test_curve_turns_by_its_deflection_with_analytic_element_lengths():
+    """Clothoid-arc-clothoid: each clothoid turns L/(2R), the arc the rest; the end
+    heading is the deflection and the arc's own length is R (deflection - L/R)."""
+    d, r, ln = -0.4, 250.0, 30.0
+    els = curve(d, r, ln)
+    assert [e.length_m for e in els] == pytest.approx([ln, r * (abs(d) - ln / r), ln])
+    al = Alignment(els, heading_rad=0.2)
+    _, th, k = al.plan(np.array([0.0, ln, al.length_m]))
+    assert th[2] - th[0] == pytest.approx(d, abs=1e-13)
+    assert th[1] - th[0] == pytest.approx(-ln / (2 * r), abs=1e-13)
+    assert k[1] == pytest.approx(-1 / r)
+    assert al.min_radius() == (np.inf, pytest.approx(r))
+
+
+def test_alignment_dict_round_trip(curved):
+    back = Alignment.from_dict(curved.to_dict())
+    s = np.linspace(*curved.chainage_range, 57)
+    np.testing.assert_array_equal(back.point(s), curved.point(s))
+    with pytest.raises(AlignmentError, match="alignment dictionary"):
+        Alignment.from_dict({"elements": []})

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import numba
+import numpy as np
 import pytest
 
 from survey.cli import main
@@ -56,3 +57,41 @@ def test_import_compiles_nothing():
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
     assert res.stdout.strip() == "0"
+
+
+def test_tunnel_writes_mesh_metadata_and_epoch(tmp_path, capsys):
+    out = tmp_path / "tbm.ply"
+    ep = tmp_path / "tbm2.ply"
+    assert main(["tunnel", "-o", str(out), "--preset", "tbm", "--edge-length", "0.5",
+                 "--epoch2", str(ep), "--convergence", "40:60:5", "--origin",
+                 "451000,5352000,600"]) == 0
+    text = capsys.readouterr().out
+    assert "wrote" in text and str(out) in text
+    import json
+
+    from survey.tunnel_io import read_ply, read_tunnel
+    a, b = read_tunnel(out), read_tunnel(ep)
+    assert json.loads(out.with_suffix(".json").read_text())["face_counts"]["cable"] > 0
+    mid = np.isclose(a.vertex_chainage, 50.0)  # lining and attached features alike
+    d = np.linalg.norm(b.vertices - a.vertices, axis=1)
+    assert np.all(np.abs(d[mid & np.isfinite(a.vertex_param)] - 0.005) < 1e-9)
+    assert np.all(d[np.isclose(a.vertex_chainage, 20.0)] == 0)
+    assert a.vertices[:, 0].min() > 450_000
+    np.testing.assert_allclose(read_ply(ep)["dx"], b.vertices[:, 0] - a.vertices[:, 0],
+                               atol=1e-7)
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["tunnel", "-o", "x.txt"], "ending in .ply"),
+    (["tunnel", "-o", "no/such/dir/x.ply"], "existing output folder"),
+    (["tunnel", "-o", "x.ply", "--convergence", "1:2"], "START:END:MM"),
+    (["tunnel", "-o", "x.ply", "--edge-length", "0.0001"], "at most"),
+    (["tunnel", "-o", "x.ply", "--preset", "moon"], "invalid choice"),
+    (["tunnel"], "required"),
+])
+def test_tunnel_bad_input_is_one_line(argv, match, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and match in err
+    assert not list(tmp_path.iterdir())
