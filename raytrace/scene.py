@@ -21,6 +21,7 @@ import numpy as np
 from . import config
 from ._kernels.build import build_bvh, slot_triangles, to_quad_layout, triangle_setup
 from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
+from ._kernels.normals import hit_normals
 from ._kernels.order import counting_sort, morton_keys
 from ._kernels.traverse import any_hit, closest_hit
 from .errors import MeshError, RayError, SceneFileError
@@ -93,11 +94,8 @@ class Hits:
     @property
     def normals(self) -> np.ndarray:
         if self._normals is None:
-            nrm = np.full((len(self), 3), np.nan)
-            h = self.hit
-            tri = self._scene._tris[self._slot[h]]
-            c = np.cross(tri[:, 3:6], tri[:, 6:9])
-            nrm[h] = c / np.linalg.norm(c, axis=1)[:, None]
+            nrm = np.empty((len(self), 3))
+            hit_normals(self._scene._tris, self._slot, nrm)
             self._normals = nrm
         return self._normals
 

@@ -1,0 +1,230 @@
+"""Scan patterns with per-pulse timing, generated in chunks.
+
+Every pattern yields ``Pulses`` chunks: the time of each pulse, its unit direction in
+the sensor frame (x forward, y left, z up), and its channel (row), column and frame
+indices. Nothing is materialised beyond one chunk, so a 225-million-ray TLS station
+streams in bounded memory.
+
+- ``TLSScan`` (Z+F IMAGER-type): a mirror rotating about the horizontal axis sweeps a
+  vertical great circle at ``measurement_rate_hz / n_slots`` revolutions per second,
+  n_slots = round(2 pi / step); the head turns continuously by one step per mirror
+  revolution through ``head_sweep`` (180 deg: each vertical circle covers both sides).
+  Slot i of revolution j sits at mirror angle beta = (i + 1/2) step from the zenith and
+  head azimuth phi = (j + i / n_slots) step; slots within the blind cone around nadir
+  (outside the vertical field) are skipped but take their time. Pulse time
+  (j n_slots + i) / measurement_rate. Channel = row along the vertical sweep (0 at the
+  lower edge behind), column = j.
+- ``SpinningScan`` (Airy, VLP-16, Ouster): column k starts at k T_col; channel c fires
+  at k T_col + offset_c with elevation el_c and azimuth +-2 pi f_rot t + az_c (clockwise
+  sensors turn negatively about z). Frame = revolution index of the column start,
+  column = index of the column within its revolution.
+- ``ProfileScan`` (Z+F PROFILER-type): one plane, the sensor's y-z plane; profile p at
+  p / rate, point i at angle gamma = 2 pi (i + 1/2) / N from +z towards +y, at time
+  (p + i / N) / rate; points inside the blind sector are skipped. Channel = i,
+  column = frame = p.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import SimulationError
+from .spec import SensorSpec
+
+#: Default number of pulses per chunk (about 100 MB of simulation state per chunk).
+CHUNK_PULSES = 1 << 20
+
+
+@dataclass
+class Pulses:
+    """One chunk of pulses.
+
+    time : (n,) float64 seconds from the start of the scan
+    direction : (n, 3) float64 unit vectors in the sensor frame
+    channel, column, frame : (n,) int32
+    """
+
+    time: np.ndarray
+    direction: np.ndarray
+    channel: np.ndarray
+    column: np.ndarray
+    frame: np.ndarray
+
+    def __len__(self):
+        return len(self.time)
+
+
+def _check_chunk(chunk_pulses):
+    c = int(chunk_pulses)
+    if c < 1:
+        raise SimulationError(f"Expected `chunk_pulses` >= 1, got {chunk_pulses}.")
+    return c
+
+
+class TLSScan:
+    """A full TLS station at one angular step (see module doc)."""
+
+    def __init__(self, spec: SensorSpec, resolution: str | None = None,
+                 step_rad: float | None = None):
+        if spec.kind != "tls":
+            raise SimulationError(f"Expected a TLS sensor for a station scan, got "
+                                  f"{spec.name} ({spec.kind}).")
+        p = spec.pattern
+        if step_rad is None:
+            resolution = resolution or p.default_resolution
+            if resolution not in p.resolutions_rad:
+                raise SimulationError(f"Expected a resolution of {spec.name} in "
+                                      f"{sorted(p.resolutions_rad)}, got {resolution!r}.")
+            step_rad = p.resolutions_rad[resolution]
+        step_rad = float(step_rad)
+        if not (np.isfinite(step_rad) and 1e-6 <= step_rad <= np.deg2rad(10)):
+            raise SimulationError(f"Expected an angular step between 1e-6 rad and 10 deg, "
+                                  f"got {step_rad} rad.")
+        self.spec, self.resolution, self.step_rad = spec, resolution, step_rad
+        self.n_slots = int(round(2 * np.pi / step_rad))
+        self.n_lines = int(round(p.head_sweep_rad / step_rad))
+        beta = (np.arange(self.n_slots) + 0.5) * step_rad
+        alpha = np.where(beta <= np.pi, beta, beta - 2 * np.pi)   # signed, from zenith
+        half = p.vertical_fov_rad / 2
+        valid = np.abs(alpha) <= half
+        self._slot = np.nonzero(valid)[0]
+        self._alpha = alpha[valid]
+        order = np.argsort(self._alpha, kind="stable")
+        self._row = np.empty(len(order), dtype=np.int32)
+        self._row[order] = np.arange(len(order), dtype=np.int32)
+        self.rate_hz = p.measurement_rate_hz
+
+    @property
+    def points_per_line(self) -> int:
+        return len(self._slot)
+
+    @property
+    def n_pulses(self) -> int:
+        return self.points_per_line * self.n_lines
+
+    @property
+    def duration_s(self) -> float:
+        return self.n_lines * self.n_slots / self.rate_hz
+
+    def chunks(self, chunk_pulses: int = CHUNK_PULSES):
+        per = self.points_per_line
+        lines_per = max(1, _check_chunk(chunk_pulses) // per)
+        slot = self._slot.astype(np.float64)
+        sa, ca = np.sin(self._alpha), np.cos(self._alpha)
+        for j0 in range(0, self.n_lines, lines_per):
+            j = np.arange(j0, min(self.n_lines, j0 + lines_per), dtype=np.float64)
+            t = (j[:, None] * self.n_slots + slot[None, :]) / self.rate_hz
+            phi = (j[:, None] + slot[None, :] / self.n_slots) * self.step_rad
+            d = np.empty((len(j), per, 3))
+            d[..., 0] = sa[None, :] * np.cos(phi)
+            d[..., 1] = sa[None, :] * np.sin(phi)
+            d[..., 2] = np.broadcast_to(ca, (len(j), per))
+            yield Pulses(t.ravel(), d.reshape(-1, 3),
+                         np.tile(self._row, len(j)),
+                         np.repeat(j.astype(np.int32), per),
+                         np.zeros(len(j) * per, dtype=np.int32))
+
+
+class SpinningScan:
+    """A spinning multi-beam lidar running for ``duration_s`` (see module doc)."""
+
+    def __init__(self, spec: SensorSpec, duration_s: float, rotation_hz: float | None = None):
+        if spec.kind != "spinning":
+            raise SimulationError(f"Expected a spinning lidar, got {spec.name} "
+                                  f"({spec.kind}).")
+        p = spec.pattern
+        self.spec = spec
+        self.rotation_hz = float(rotation_hz or p.rotation_hz)
+        if not (np.isfinite(duration_s) and duration_s > 0):
+            raise SimulationError(f"Expected a positive scan duration, got {duration_s} s.")
+        self.duration_s = float(duration_s)
+        self.T = p.column_period_s
+        # Columns whose first pulse lies within the duration.
+        self.n_columns = int(np.ceil(self.duration_s / self.T - 1e-9))
+        self.columns_per_rev = 1.0 / (self.rotation_hz * self.T)
+
+    @property
+    def n_pulses(self) -> int:
+        return self.n_columns * self.spec.channels
+
+    def chunks(self, chunk_pulses: int = CHUNK_PULSES):
+        p = self.spec.pattern
+        nch = self.spec.channels
+        cols_per = max(1, _check_chunk(chunk_pulses) // nch)
+        sgn = -1.0 if p.clockwise else 1.0
+        ce, se = np.cos(p.elevations_rad), np.sin(p.elevations_rad)
+        for k0 in range(0, self.n_columns, cols_per):
+            k = np.arange(k0, min(self.n_columns, k0 + cols_per), dtype=np.int64)
+            start = k * self.T
+            t = start[:, None] + p.firing_offsets_s[None, :]
+            az = sgn * 2 * np.pi * self.rotation_hz * t + p.azimuth_offsets_rad[None, :]
+            frame = np.floor(start * self.rotation_hz + 1e-9).astype(np.int64)
+            first = np.ceil(frame * self.columns_per_rev - 1e-9).astype(np.int64)
+            d = np.empty((len(k), nch, 3))
+            d[..., 0] = ce[None, :] * np.cos(az)
+            d[..., 1] = ce[None, :] * np.sin(az)
+            d[..., 2] = np.broadcast_to(se, (len(k), nch))
+            yield Pulses(t.ravel(), d.reshape(-1, 3),
+                         np.tile(np.arange(nch, dtype=np.int32), len(k)),
+                         np.repeat((k - first).astype(np.int32), nch),
+                         np.repeat(frame.astype(np.int32), nch))
+
+
+class ProfileScan:
+    """A 2-D profile scanner running for ``duration_s`` (see module doc)."""
+
+    def __init__(self, spec: SensorSpec, duration_s: float):
+        if spec.kind != "profiler":
+            raise SimulationError(f"Expected a profile scanner, got {spec.name} "
+                                  f"({spec.kind}).")
+        if not (np.isfinite(duration_s) and duration_s > 0):
+            raise SimulationError(f"Expected a positive scan duration, got {duration_s} s.")
+        p = spec.pattern
+        self.spec = spec
+        self.duration_s = float(duration_s)
+        self.n_profiles = int(np.ceil(self.duration_s * p.profile_rate_hz - 1e-9))
+        n = p.points_per_profile
+        gamma = 2 * np.pi * (np.arange(n) + 0.5) / n
+        b0, b1 = (np.mod(b, 2 * np.pi) for b in p.blind_sector_rad)
+        blind = (gamma >= b0) & (gamma <= b1) if b0 <= b1 else (gamma >= b0) | (gamma <= b1)
+        self._idx = np.nonzero(~blind)[0]
+        self._gamma = gamma[~blind]
+
+    @property
+    def points_per_profile(self) -> int:
+        return len(self._idx)
+
+    @property
+    def n_pulses(self) -> int:
+        return self.n_profiles * self.points_per_profile
+
+    def chunks(self, chunk_pulses: int = CHUNK_PULSES):
+        p = self.spec.pattern
+        per = self.points_per_profile
+        prof_per = max(1, _check_chunk(chunk_pulses) // per)
+        n = p.points_per_profile
+        sg, cg = np.sin(self._gamma), np.cos(self._gamma)
+        for p0 in range(0, self.n_profiles, prof_per):
+            q = np.arange(p0, min(self.n_profiles, p0 + prof_per))
+            t = (q[:, None] + self._idx[None, :] / n) / p.profile_rate_hz
+            d = np.zeros((len(q), per, 3))
+            d[..., 1] = sg
+            d[..., 2] = cg
+            yield Pulses(t.ravel(), d.reshape(-1, 3),
+                         np.tile(self._idx.astype(np.int32), len(q)),
+                         np.repeat(q.astype(np.int32), per),
+                         np.repeat(q.astype(np.int32), per))
+
+
+def scan_for(spec: SensorSpec, *, duration_s: float | None = None, resolution=None,
+             step_rad=None):
+    """The pattern of a sensor: a station (TLS) or a timed run (the others)."""
+    if spec.kind == "tls":
+        return TLSScan(spec, resolution, step_rad)
+    if duration_s is None:
+        raise SimulationError(f"Expected a duration for {spec.name} ({spec.kind}), got none.")
+    if spec.kind == "spinning":
+        return SpinningScan(spec, duration_s)
+    return ProfileScan(spec, duration_s)
