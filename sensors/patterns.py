@@ -7,7 +7,7 @@ streams in bounded memory.
 
 - ``TLSScan`` (Z+F IMAGER-type): a mirror rotating about the horizontal axis sweeps a
   vertical great circle at ``measurement_rate_hz / n_slots`` revolutions per second,
-  n_slots = round(2 pi / step); the head turns continuously by one step per mirror
+  n_slots = round(2 pi / step) (the effective step is 2 pi / n_slots); the head turns continuously by one step per mirror
   revolution through ``head_sweep`` (180 deg: each vertical circle covers both sides).
   Slot i of revolution j sits at mirror angle beta = (i + 1/2) step from the zenith and
   head azimuth phi = (j + i / n_slots) step; slots within the blind cone around nadir
@@ -67,7 +67,7 @@ class TLSScan:
     """A full TLS station at one angular step (see module doc)."""
 
     def __init__(self, spec: SensorSpec, resolution: str | None = None,
-                 step_rad: float | None = None):
+                 step_rad: float | None = None, window_rad=None):
         if spec.kind != "tls":
             raise SimulationError(f"Expected a TLS sensor for a station scan, got "
                                   f"{spec.name} ({spec.kind}).")
@@ -82,8 +82,11 @@ class TLSScan:
         if not (np.isfinite(step_rad) and 1e-6 <= step_rad <= np.deg2rad(10)):
             raise SimulationError(f"Expected an angular step between 1e-6 rad and 10 deg, "
                                   f"got {step_rad} rad.")
-        self.spec, self.resolution, self.step_rad = spec, resolution, step_rad
+        self.spec, self.resolution = spec, resolution
+        # The mirror revolution is divided evenly (pixels per 360 deg, as vendors name
+        # their resolutions): the effective step is 2 pi / n_slots.
         self.n_slots = int(round(2 * np.pi / step_rad))
+        self.step_rad = step_rad = 2 * np.pi / self.n_slots
         self.n_lines = int(round(p.head_sweep_rad / step_rad))
         beta = (np.arange(self.n_slots) + 0.5) * step_rad
         alpha = np.where(beta <= np.pi, beta, beta - 2 * np.pi)   # signed, from zenith
@@ -95,6 +98,24 @@ class TLSScan:
         self._row = np.empty(len(order), dtype=np.int32)
         self._row[order] = np.arange(len(order), dtype=np.int32)
         self.rate_hz = p.measurement_rate_hz
+        # Scan window (azimuth min/max, elevation min/max in the sensor frame), as the
+        # instrument's "scan section": only lines that can reach it are generated, and
+        # pulses outside it are dropped (their time slots stay).
+        self.window = None
+        self._lines = np.arange(self.n_lines)
+        if window_rad is not None:
+            w = np.asarray(window_rad, dtype=np.float64)
+            if w.shape != (4,) or not np.isfinite(w).all() or w[1] <= w[0] or w[3] <= w[2]:
+                raise SimulationError(f"Expected a window (az_min, az_max, el_min, el_max) "
+                                      f"in radians with min < max, got {window_rad!r}.")
+            self.window = w
+            phi = self._lines * step_rad
+            keep = np.zeros(self.n_lines, dtype=bool)
+            for side in (0.0, np.pi):
+                a = np.mod(phi + side - w[0], 2 * np.pi)
+                keep |= a <= (w[1] - w[0]) + 2 * step_rad
+            self._lines = self._lines[keep]
+        self._n_pulses = None
 
     @property
     def points_per_line(self) -> int:
@@ -102,7 +123,17 @@ class TLSScan:
 
     @property
     def n_pulses(self) -> int:
-        return self.points_per_line * self.n_lines
+        if self.window is None:
+            return self.points_per_line * self.n_lines
+        if self._n_pulses is None:
+            self._n_pulses = sum(len(c) for c in self.chunks())
+        return self._n_pulses
+
+    def _in_window(self, d):
+        w = self.window
+        az = np.mod(np.arctan2(d[:, 1], d[:, 0]) - w[0], 2 * np.pi)
+        el = np.arcsin(np.clip(d[:, 2], -1.0, 1.0))
+        return (az <= w[1] - w[0]) & (el >= w[2]) & (el <= w[3])
 
     @property
     def duration_s(self) -> float:
@@ -113,18 +144,22 @@ class TLSScan:
         lines_per = max(1, _check_chunk(chunk_pulses) // per)
         slot = self._slot.astype(np.float64)
         sa, ca = np.sin(self._alpha), np.cos(self._alpha)
-        for j0 in range(0, self.n_lines, lines_per):
-            j = np.arange(j0, min(self.n_lines, j0 + lines_per), dtype=np.float64)
+        for j0 in range(0, len(self._lines), lines_per):
+            j = self._lines[j0:j0 + lines_per].astype(np.float64)
             t = (j[:, None] * self.n_slots + slot[None, :]) / self.rate_hz
             phi = (j[:, None] + slot[None, :] / self.n_slots) * self.step_rad
             d = np.empty((len(j), per, 3))
             d[..., 0] = sa[None, :] * np.cos(phi)
             d[..., 1] = sa[None, :] * np.sin(phi)
             d[..., 2] = np.broadcast_to(ca, (len(j), per))
-            yield Pulses(t.ravel(), d.reshape(-1, 3),
-                         np.tile(self._row, len(j)),
+            out = Pulses(t.ravel(), d.reshape(-1, 3), np.tile(self._row, len(j)),
                          np.repeat(j.astype(np.int32), per),
                          np.zeros(len(j) * per, dtype=np.int32))
+            if self.window is not None:
+                m = self._in_window(out.direction)
+                out = Pulses(out.time[m], out.direction[m], out.channel[m], out.column[m],
+                             out.frame[m])
+            yield out
 
 
 class SpinningScan:
@@ -219,10 +254,10 @@ class ProfileScan:
 
 
 def scan_for(spec: SensorSpec, *, duration_s: float | None = None, resolution=None,
-             step_rad=None):
+             step_rad=None, window_rad=None):
     """The pattern of a sensor: a station (TLS) or a timed run (the others)."""
     if spec.kind == "tls":
-        return TLSScan(spec, resolution, step_rad)
+        return TLSScan(spec, resolution, step_rad, window_rad)
     if duration_s is None:
         raise SimulationError(f"Expected a duration for {spec.name} ({spec.kind}), got none.")
     if spec.kind == "spinning":

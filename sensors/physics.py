@@ -23,8 +23,9 @@ Model (per pulse, R range, rho reflectivity, theta incidence angle):
 - Beam divergence: sub-rays in the footprint cone (centre, 6 at half the divergence
   angle, 12 at the full half-angle), Gaussian weights exp(-2 r^2); the return is the
   strongest sub-return or the energy-weighted mean range ("mixed pixels" at edges).
-- Airborne particles: a return at a distance drawn from an exponential law with rate
-  ``particle_rate_per_m`` (scattering events per metre), from a target of
+- Airborne particles: a return at range_min + a distance drawn from an exponential
+  law with rate ``particle_rate_per_m`` (scattering events per metre; events nearer
+  than the minimum range are invisible), from a target of
   ``particle_reflectivity`` at normal incidence; it wins if it is detected before
   the surface.
 """

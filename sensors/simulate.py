@@ -124,7 +124,9 @@ class Run:
         # Random streams, always in this order (see sensors.physics).
         jit = rng.normal(0.0, phys.angle_sigma_rad, (n, 2)) \
             if st.angle_jitter and phys.angle_sigma_rad > 0 else np.empty((0, 2))
-        dpart = rng.exponential(1.0 / st.particle_rate_per_m, n) \
+        # Scattering closer than the minimum range is invisible; by the exponential
+        # law's lack of memory the first visible event is range_min + Exp(rate).
+        dpart = phys.range_min_m + rng.exponential(1.0 / st.particle_rate_per_m, n) \
             if st.particle_rate_per_m > 0 else None
         u_part = rng.random(n) if dpart is not None else None
         u_det = rng.random(n)
@@ -151,7 +153,7 @@ class Run:
             r, p, cos, flag, tri = self._subrays(origin, dw, method, rho_faces, rho_default)
         n_hit = int(np.count_nonzero(flag))
         if dpart is not None:
-            cand = (dpart < np.minimum(r, phys.range_max_m)) & (dpart >= phys.range_min_m)
+            cand = dpart < np.minimum(r, phys.range_max_m)
             pp = ph.power(st.particle_reflectivity, 1.0, dpart, st.attenuation_per_m)
             won = cand & (u_part < ph.detection_probability(pp, phys)) if st.detection \
                 else cand
@@ -228,18 +230,22 @@ def _check_scene(scene):
 
 def simulate_station(scene, sensor, position, *, attitude: Rotation | None = None,
                      resolution: str | None = None, step_rad: float | None = None,
-                     settings: ph.Settings | None = None, seed: int = 0,
+                     window_rad=None, settings: ph.Settings | None = None, seed: int = 0,
                      reflectivity=None, chunk_pulses: int = CHUNK_PULSES) -> Run:
     """A TLS station at ``position`` (3,) world, level unless ``attitude`` is given.
 
     ``resolution`` names a preset of the sensor (e.g. "superhigh"), or ``step_rad``
-    gives the angular step. ``reflectivity``: one value or one per input face (e.g.
+    gives the angular step; ``window_rad`` (az_min, az_max, el_min, el_max) limits the
+    scan to a section, as the instrument allows. ``reflectivity``: one value or one per input face (e.g.
     the PLY face property); else ``settings.reflectivity``. A position outside the
     mesh's bounding box gives a warning (the station sees the mesh from outside).
     """
     _check_scene(scene)
     spec = _as_sensor(sensor)
-    scan = scan_for(spec, resolution=resolution, step_rad=step_rad)
+    if spec.kind != "tls":
+        raise SimulationError(f"Expected a TLS sensor for a station, got {spec.name} "
+                              f"({spec.kind}); use simulate_drive with a static trajectory.")
+    scan = scan_for(spec, resolution=resolution, step_rad=step_rad, window_rad=window_rad)
     pos = np.asarray(position, dtype=np.float64)
     if pos.shape != (3,) or not np.isfinite(pos).all():
         raise SimulationError(f"Expected a station position of 3 finite coordinates, got "
