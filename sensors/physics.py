@@ -1,8 +1,9 @@
 """Return physics: what a pulse that reached the mesh turns into, per device.
 
-All vectorised over a chunk, all switchable (``Settings``), all seeded: a chunk draws
-its random numbers from ``numpy.random.default_rng([seed, chunk_index])`` in a fixed
-order, so the output depends on the seed and the chunking only, never on threads.
+All vectorised over a chunk, all switchable (``Settings``), all seeded: each random
+stream (jitter, particles, detection, noise) comes in fixed blocks of pulses from
+``numpy.random.default_rng([seed, stream, block])``, so the output depends on the seed
+only: not on the chunk size, not on the thread count.
 
 Model (per pulse, R range, rho reflectivity, theta incidence angle):
 

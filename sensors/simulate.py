@@ -40,6 +40,9 @@ from .patterns import CHUNK_PULSES, scan_for
 from .spec import SensorSpec, load_sensor
 from .trajectory import Mount, Trajectory
 
+#: Pulses per block of random numbers (see ``_Streams``).
+RANDOM_BLOCK = 1 << 16
+
 POINT_DTYPE = np.dtype([
     ("x", "f8"), ("y", "f8"), ("z", "f8"), ("sx", "f8"), ("sy", "f8"), ("sz", "f8"),
     ("range", "f8"), ("azimuth", "f4"), ("elevation", "f4"), ("time", "f8"),
@@ -90,8 +93,8 @@ class Run:
     def __iter__(self):
         t_start = _time.perf_counter()
         n_pulses = n_points = n_hits = 0
-        for k, pulses in enumerate(self.scan.chunks(self.chunk_pulses)):
-            pts, hits = self._chunk(k, pulses)
+        for pulses in self.scan.chunks(self.chunk_pulses):
+            pts, hits = self._chunk(n_pulses, pulses)
             n_pulses += len(pulses)
             n_points += len(pts)
             n_hits += hits
@@ -111,26 +114,27 @@ class Run:
         return write_points(self, path, fmt=fmt, progress=progress, **kwargs)
 
     # ------------------------------------------------------------------ one chunk
-    def _chunk(self, k, pulses):
-        """Simulate one chunk of pulses; returns (points, number of pulses that hit)."""
+    def _chunk(self, first, pulses):
+        """Simulate one chunk of pulses (``first``: index of its first pulse in the
+        run); returns (points, number of pulses that hit)."""
         st, phys = self.settings, self.sensor.physics
-        rng = np.random.default_rng([self.seed, k])
         n = len(pulses)
+        rng = _Streams(self.seed, first, n)
         t_abs = pulses.time + self.t0
         pos, rot = self._poses(t_abs)
         single = self.station is not None
         mats = rot.as_matrix().reshape(-1, 3, 3)
         pos = np.ascontiguousarray(np.asarray(pos, dtype=np.float64).reshape(-1, 3))
         # Random streams, always in this order (see sensors.physics).
-        jit = rng.normal(0.0, phys.angle_sigma_rad, (n, 2)) \
+        jit = phys.angle_sigma_rad * rng.normal(0, 2) \
             if st.angle_jitter and phys.angle_sigma_rad > 0 else np.empty((0, 2))
         # Scattering closer than the minimum range is invisible; by the exponential
         # law's lack of memory the first visible event is range_min + Exp(rate).
-        dpart = phys.range_min_m + rng.exponential(1.0 / st.particle_rate_per_m, n) \
+        dpart = phys.range_min_m + rng.exponential(1) / st.particle_rate_per_m \
             if st.particle_rate_per_m > 0 else None
-        u_part = rng.random(n) if dpart is not None else None
-        u_det = rng.random(n)
-        z = rng.standard_normal(n)
+        u_part = rng.uniform(2) if dpart is not None else None
+        u_det = rng.uniform(3)
+        z = rng.normal(4, 1)
         dw = np.empty((n, 3))
         world_directions(pulses.direction, jit, mats, dw)
         origin = pos[0] if single else pos
@@ -216,6 +220,33 @@ class Run:
         r = np.where(any_hit, r, np.inf)
         return (r, p, cos[rows, j], flag.astype(np.uint8),
                 np.where(any_hit, tri[rows, j], -1).astype(np.int32))
+
+
+class _Streams:
+    """Random numbers for pulses [first, first + n) of a run, independent of how the
+    run is chunked: stream s of block b (``RANDOM_BLOCK`` pulses) comes from
+    ``default_rng([seed, s, b])``, and a chunk takes the slices it covers."""
+
+    def __init__(self, seed, first, n):
+        self.seed, self.first, self.n = seed, first, n
+
+    def _take(self, stream, draw, width):
+        b0 = self.first // RANDOM_BLOCK
+        b1 = (self.first + max(self.n, 1) - 1) // RANDOM_BLOCK
+        parts = [draw(np.random.default_rng([self.seed, stream, b]), (RANDOM_BLOCK, width))
+                 for b in range(b0, b1 + 1)]
+        off = self.first - b0 * RANDOM_BLOCK
+        out = np.concatenate(parts)[off:off + self.n]
+        return out[:, 0] if width == 1 else out
+
+    def normal(self, stream, width=2):
+        return self._take(stream, lambda g, s: g.standard_normal(s), width)
+
+    def uniform(self, stream):
+        return self._take(stream, lambda g, s: g.random(s), 1)
+
+    def exponential(self, stream):
+        return self._take(stream, lambda g, s: g.standard_exponential(s), 1)
 
 
 def _as_sensor(sensor) -> SensorSpec:
