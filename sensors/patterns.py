@@ -176,8 +176,10 @@ class SpinningScan:
             raise SimulationError(f"Expected a positive scan duration, got {duration_s} s.")
         self.duration_s = float(duration_s)
         self.T = p.column_period_s
-        # Columns whose first pulse lies within the duration.
-        self.n_columns = int(np.ceil(self.duration_s / self.T - 1e-9))
+        # Whole columns within the duration (last pulse at k T + max offset <= duration),
+        # so that every pulse has a pose on a trajectory of that length.
+        last = float(p.firing_offsets_s.max())
+        self.n_columns = max(0, int(np.floor((self.duration_s - last) / self.T + 1e-9)) + 1)
         self.columns_per_rev = 1.0 / (self.rotation_hz * self.T)
 
     @property
@@ -219,7 +221,8 @@ class ProfileScan:
         p = spec.pattern
         self.spec = spec
         self.duration_s = float(duration_s)
-        self.n_profiles = int(np.ceil(self.duration_s * p.profile_rate_hz - 1e-9))
+        # Whole profiles within the duration.
+        self.n_profiles = int(np.floor(self.duration_s * p.profile_rate_hz + 1e-9))
         n = p.points_per_profile
         gamma = 2 * np.pi * (np.arange(n) + 0.5) / n
         b0, b1 = (np.mod(b, 2 * np.pi) for b in p.blind_sector_rad)

@@ -71,6 +71,16 @@ class TunnelsimCLIError(TunnelsimError, ValueError):
     """A command-line value is malformed."""
 
 
+def _cmd_sensors(args) -> int:
+    from sensors import list_sensors, load_sensor
+
+    for name in list_sensors():
+        spec = load_sensor(name)
+        print(f"{name:18s} {spec.kind:9s} {spec.vendor} {spec.model}  "
+              f"range {spec.physics.range_min_m:g}-{spec.physics.range_max_m:g} m")
+    return 0
+
+
 def _cmd_tunnel(args) -> int:
     import time
     from pathlib import Path
@@ -117,6 +127,146 @@ def _cmd_tunnel(args) -> int:
         for p in written:
             print(f"wrote {p}")
     return 0
+
+
+class _Progress:
+    """A one-line progress bar on stderr (only on a terminal)."""
+
+    def __init__(self, quiet):
+        import time
+
+        self.on = not quiet and sys.stderr.isatty()
+        self.t0 = time.perf_counter()
+
+    def __call__(self, done, total):
+        import time
+
+        if not self.on:
+            return
+        dt = time.perf_counter() - self.t0
+        frac = done / max(total, 1)
+        eta = dt / frac - dt if frac > 0 else 0.0
+        bar = "#" * int(30 * frac)
+        sys.stderr.write(f"\r[{bar:<30}] {100 * frac:5.1f} %  {done / 1e6:.1f}M/"
+                         f"{total / 1e6:.1f}M rays  {done / max(dt, 1e-9) / 1e6:.2f} "
+                         f"Mrays/s  ETA {eta:.0f} s ")
+        sys.stderr.flush()
+
+    def close(self):
+        if self.on:
+            sys.stderr.write("\n")
+
+
+def _settings(args):
+    from sensors import Settings
+
+    if args.ideal:
+        base = Settings.ideal()
+    else:
+        base = Settings(range_noise=not args.no_noise, angle_jitter=not args.no_noise,
+                        detection=not args.no_detection)
+    from dataclasses import replace
+
+    return replace(base, beam_subrays=args.beam_subrays, mixed=args.mixed,
+                   attenuation_per_m=args.attenuation, particle_rate_per_m=args.particles)
+
+
+def _xyz(text, what):
+    return _parse_window(text.replace(",", ":"), f"{what} as X,Y,Z in metres", 3)
+
+
+def _finish_run(args, run, label):
+    from raytrace import set_threads
+
+    if args.threads:
+        set_threads(args.threads)
+    prog = _Progress(args.quiet)
+    try:
+        stats = run.write(args.output, progress=prog)
+    finally:
+        prog.close()
+    if not args.quiet:
+        print(f"{label}: {stats['pulses']:,} pulses, {stats['points']:,} points "
+              f"(hit ratio {100 * stats['hit_ratio']:.1f} %), {stats['seconds']:.1f} s, "
+              f"{stats['rays_per_s'] / 1e6:.2f} Mrays/s -> {stats['path']}")
+    return 0
+
+
+def _cmd_scan(args) -> int:
+    from scipy.spatial.transform import Rotation
+
+    from sensors import load_sensor, simulate_station
+    from sensors.meshes import load_mesh
+
+    spec = load_sensor(args.sensor)
+    scene, refl = load_mesh(args.mesh)
+    run = simulate_station(scene, spec, _xyz(args.at, "--at"),
+                           attitude=Rotation.from_euler("z", args.heading_deg, degrees=True),
+                           resolution=args.resolution,
+                           step_rad=None if args.step_deg is None else np.deg2rad(args.step_deg),
+                           settings=_settings(args), seed=args.seed,
+                           reflectivity=refl if refl is not None else args.reflectivity)
+    return _finish_run(args, run, f"{spec.name} {run.scan.resolution or 'custom step'}")
+
+
+def _cmd_drive(args) -> int:
+    from sensors import Mount, Trajectory, load_sensor, simulate_drive
+    from sensors.meshes import load_mesh
+
+    spec = load_sensor(args.sensor)
+    scene, refl = load_mesh(args.mesh)
+    if args.trajectory:
+        traj = Trajectory.read(args.trajectory)
+    else:
+        if args.along != "centreline" or args.speed is None:
+            raise TunnelsimCLIError("Expected --trajectory FILE, or --along centreline with "
+                                    "--speed V, got neither.")
+        from .tunnel_io import TunnelFileError, sidecar
+        from .alignment import Alignment
+        import json
+
+        js = sidecar(args.mesh)
+        if not js.is_file():
+            raise TunnelFileError(f"Expected the tunnel metadata '{js}' for --along "
+                                  "centreline (made by 'tunnelsim tunnel'), got none; pass "
+                                  "--trajectory instead.")
+        al = Alignment.from_dict(json.loads(js.read_text())["alignment"])
+        c0, c1 = al.chainage_range
+        s = np.arange(c0 + args.margin, c1 - args.margin, 0.5)
+        pts = al.to_world(s, args.offset, args.height)
+        traj = Trajectory.along_polyline(pts, args.speed)
+    if args.mount == "down":
+        mount = Mount.pointing_down(_xyz(args.lever, "--lever"))
+    else:
+        mount = Mount(_xyz(args.lever, "--lever"))
+    t_end = None if args.duration is None else traj.start_s + args.duration
+    run = simulate_drive(scene, spec, traj, mount, settings=_settings(args), seed=args.seed,
+                         reflectivity=refl if refl is not None else args.reflectivity,
+                         t_end=t_end)
+    return _finish_run(args, run, f"{spec.name} drive {run.duration_s:.1f} s")
+
+
+def _physics_options(p):
+    p.add_argument("--ideal", action="store_true",
+                   help="exact geometry: no noise, no jitter, every return detected")
+    p.add_argument("--no-noise", action="store_true", help="no range noise, no angle jitter")
+    p.add_argument("--no-detection", action="store_true",
+                   help="keep every return within range (no detection probability)")
+    p.add_argument("--beam-subrays", type=int, default=1, choices=[1, 7, 19],
+                   help="sub-rays per pulse for beam divergence (default 1: off)")
+    p.add_argument("--mixed", default="average", choices=["average", "strongest"],
+                   help="how sub-returns combine (default average)")
+    p.add_argument("--attenuation", type=float, default=0.0, metavar="PER_M",
+                   help="dust/fog extinction coefficient in 1/m (default 0)")
+    p.add_argument("--particles", type=float, default=0.0, metavar="PER_M",
+                   help="rate of airborne-particle returns per metre (default 0)")
+    p.add_argument("--reflectivity", type=float, default=0.5,
+                   help="reflectivity where the mesh has none (default 0.5)")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("--threads", type=int, help="Numba threads (default: all cores)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    p.add_argument("-o", "--output", required=True,
+                   help="output points: .laz, .las, .ply, .npz (or .e57 for stations)")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -170,6 +320,56 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="roughness seed (default 0)")
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(func=_cmd_tunnel)
+
+    p = sub.add_parser(
+        "scan", help="simulate a TLS station on a mesh",
+        description="Simulate a terrestrial laser scanner station on a mesh and stream the "
+                    "points to a file (LAS/LAZ, PLY, NPZ, E57).",
+        epilog="Example: tunnelsim scan --mesh bfo.ply --sensor zf_imager_5016 "
+               "--resolution superhigh --at 150,2,1.5 -o station.laz")
+    p.add_argument("--mesh", required=True, help="mesh file (PLY with reflectivity, OBJ, ...)")
+    p.add_argument("--sensor", default="zf_imager_5016",
+                   help="sensor name ('tunnelsim sensors' lists them) or a .toml file")
+    p.add_argument("--at", required=True, metavar="X,Y,Z", help="station position (m)")
+    p.add_argument("--resolution", help="resolution preset of the sensor (e.g. superhigh)")
+    p.add_argument("--step-deg", type=float, metavar="DEG",
+                   help="angular step in degrees instead of a preset")
+    p.add_argument("--heading-deg", type=float, default=0.0, metavar="DEG",
+                   help="station heading, degrees counter-clockwise from +x")
+    _physics_options(p)
+    p.set_defaults(func=_cmd_scan)
+
+    p = sub.add_parser(
+        "drive", help="simulate a moving lidar or profiler along a trajectory",
+        description="Simulate a sensor on a moving platform: each pulse is cast from the pose "
+                    "at its own time (rolling shutter).",
+        epilog="Example: tunnelsim drive --mesh bfo.ply --sensor robosense_airy --along "
+               "centreline --speed 1 --mount down --lever 0,0,0.5 -o drive.laz")
+    p.add_argument("--mesh", required=True, help="mesh file")
+    p.add_argument("--sensor", default="robosense_airy", help="sensor name or a .toml file")
+    p.add_argument("--trajectory", help="TUM text (t x y z qx qy qz qw) or CSV trajectory")
+    p.add_argument("--along", choices=["centreline"],
+                   help="drive along the tunnel centreline (needs the mesh's .json)")
+    p.add_argument("--speed", type=float, metavar="M_S", help="speed along the centreline")
+    p.add_argument("--height", type=float, default=0.5, metavar="M",
+                   help="platform height above the centreline (default 0.5)")
+    p.add_argument("--offset", type=float, default=0.0, metavar="M",
+                   help="platform offset left of the centreline (default 0)")
+    p.add_argument("--margin", type=float, default=1.0, metavar="M",
+                   help="distance kept from the portals (default 1)")
+    p.add_argument("--mount", choices=["level", "down"], default="level",
+                   help="sensor z up (level) or pointing down (default level)")
+    p.add_argument("--lever", default="0,0,0", metavar="X,Y,Z",
+                   help="lever arm platform -> sensor in metres (default 0,0,0)")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="simulate only the first S seconds")
+    _physics_options(p)
+    p.set_defaults(func=_cmd_drive)
+
+    p = sub.add_parser("sensors", help="list the sensor models",
+                       description="List the shipped sensor models with kind and source "
+                                   "file.", epilog="Example: tunnelsim sensors")
+    p.set_defaults(func=_cmd_sensors)
     return parser
 
 

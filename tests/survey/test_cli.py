@@ -95,3 +95,74 @@ def test_tunnel_bad_input_is_one_line(argv, match, capsys, tmp_path, monkeypatch
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and match in err
     assert not list(tmp_path.iterdir())
+
+
+@pytest.fixture(scope="module")
+def tbm(tmp_path_factory):
+    out = tmp_path_factory.mktemp("tbm") / "tbm.ply"
+    assert main(["tunnel", "-o", str(out), "--preset", "tbm", "--edge-length", "0.3",
+                 "--quiet"]) == 0
+    return out
+
+
+def test_sensors_lists_every_model(capsys):
+    from sensors import list_sensors
+    assert main(["sensors"]) == 0
+    out = capsys.readouterr().out
+    assert all(name in out for name in list_sensors())
+
+
+def test_scan_writes_a_station_with_the_mesh_reflectivity(tbm, tmp_path, capsys):
+    import laspy
+
+    from survey.tunnel_io import read_tunnel
+    out = tmp_path / "st.laz"
+    assert main(["scan", "--mesh", str(tbm), "--at", "50,0,1.5", "--resolution", "preview",
+                 "--ideal", "-o", str(out)]) == 0
+    assert "points" in capsys.readouterr().out
+    las = laspy.read(out)
+    tun = read_tunnel(tbm)
+    tri = np.asarray(las["triangle"])
+    assert len(las.points) > 500_000 and tri.min() >= 0
+    # intensity follows the label reflectivity: dark cable faces return weaker than
+    # lining faces at similar range and incidence
+    refl = tun.reflectivity[tri]
+    rng = np.asarray(las["range"])
+    inc = np.asarray(las["incidence"])
+    band = (rng > 2.0) & (rng < 3.0) & (inc < 0.3)
+    cable = band & (refl < 0.1)
+    lining = band & (np.abs(refl - 0.4) < 1e-6)
+    assert cable.sum() > 20 and lining.sum() > 20
+    assert np.median(las.intensity[cable]) < np.median(las.intensity[lining])
+
+
+def test_drive_along_the_centreline(tbm, tmp_path, capsys):
+    import laspy
+    out = tmp_path / "dr.laz"
+    assert main(["drive", "--mesh", str(tbm), "--sensor", "velodyne_vlp16", "--along",
+                 "centreline", "--speed", "2", "--duration", "0.3", "-o", str(out)]) == 0
+    las = laspy.read(out)
+    t = np.asarray(las.gps_time)
+    assert len(t) > 10_000 and t.max() <= 0.3 + 1e-9
+    assert set(np.unique(las.point_source_id)) <= {0, 1, 2, 3}       # frames at 10 Hz
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["scan", "--mesh", "nope.ply", "--at", "1,2,3", "-o", "x.laz"], "does not exist"),
+    (["scan", "--mesh", "TBM", "--at", "1,2", "-o", "x.laz"], "X,Y,Z"),
+    (["scan", "--mesh", "TBM", "--at", "50,0,1.5", "--sensor", "nope", "-o", "x.laz"],
+     "zf_imager_5016"),
+    (["scan", "--mesh", "TBM", "--at", "50,0,1.5", "--resolution", "max", "-o", "x.laz"],
+     "resolution"),
+    (["scan", "--mesh", "TBM", "--at", "50,0,1.5", "--resolution", "preview", "-o", "x.txt"],
+     "format"),
+    (["drive", "--mesh", "TBM", "-o", "x.laz"], "--trajectory"),
+    (["drive", "--mesh", "TBM", "--trajectory", "none.txt", "-o", "x.laz"], "does not exist"),
+])
+def test_scan_and_drive_bad_input(argv, match, tbm, capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    argv = [str(tbm) if a == "TBM" else a for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and match in err
+    assert not list(tmp_path.iterdir())
