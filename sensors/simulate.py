@@ -74,7 +74,7 @@ class Run:
     def __init__(self, scene, sensor, scan, poses, *, settings, seed, reflectivity,
                  chunk_pulses, station=None, t0=0.0):
         self.scene, self.sensor, self.scan = scene, sensor, scan
-        self._poses = poses          # callable(times) -> (positions (n, 3), Rotation)
+        self._poses = poses          # callable(times) -> (positions, matrices (k, 3, 3))
         self.settings, self.seed = settings, int(seed)
         self._rho = _reflectivity(scene, reflectivity)
         self.chunk_pulses = int(chunk_pulses)
@@ -105,13 +105,14 @@ class Run:
         s = self.stats.get("seconds", 0.0)
         self.stats["rays_per_s"] = n_pulses * self.settings.beam_subrays / s if s else 0.0
 
-    def write(self, path, *, fmt: str | None = None, progress=None, **kwargs):
+    def write(self, path, *, fmt: str | None = None, progress=None, fields=None):
         """Stream every chunk into ``path`` (format from the suffix or ``fmt``:
         las, laz, ply, npz, e57); atomic. ``progress(done_pulses, total)`` is called
-        after each chunk. Returns ``stats``."""
+        after each chunk; ``fields`` picks the LAS extra bytes (see
+        ``sensors.writers``). Returns ``stats``."""
         from .writers import write_points
 
-        return write_points(self, path, fmt=fmt, progress=progress, **kwargs)
+        return write_points(self, path, fmt=fmt, progress=progress, fields=fields)
 
     # ------------------------------------------------------------------ one chunk
     def _chunk(self, first, pulses):
@@ -121,9 +122,9 @@ class Run:
         n = len(pulses)
         rng = _Streams(self.seed, first, n)
         t_abs = pulses.time + self.t0
-        pos, rot = self._poses(t_abs)
+        pos, mats = self._poses(t_abs)
         single = self.station is not None
-        mats = rot.as_matrix().reshape(-1, 3, 3)
+        mats = np.ascontiguousarray(mats.reshape(-1, 3, 3))
         pos = np.ascontiguousarray(np.asarray(pos, dtype=np.float64).reshape(-1, 3))
         # Random streams, always in this order (see sensors.physics).
         jit = phys.angle_sigma_rad * rng.normal(0, 2) \
@@ -287,9 +288,10 @@ def simulate_station(scene, sensor, position, *, attitude: Rotation | None = Non
                       f"{lo.tolist()} - {hi.tolist()}; it will see the mesh from outside.",
                       UserWarning, stacklevel=2)
     rot = Rotation.identity() if attitude is None else attitude
+    mat = rot.as_matrix()[None]
 
     def poses(t):
-        return pos[None, :], rot
+        return pos[None, :], mat
 
     return Run(scene, spec, scan, poses, settings=settings or ph.Settings(), seed=seed,
                reflectivity=reflectivity, chunk_pulses=chunk_pulses, station=(pos, rot))
@@ -314,7 +316,7 @@ def simulate_drive(scene, sensor, trajectory: Trajectory, mount: Mount | None = 
     scan = scan_for(spec, duration_s=b - a)
 
     def poses(t):
-        return trajectory.sensor_poses(t, mount)
+        return trajectory.sensor_matrices(t, mount)
 
     return Run(scene, spec, scan, poses, settings=settings or ph.Settings(), seed=seed,
                reflectivity=reflectivity, chunk_pulses=chunk_pulses, t0=a)

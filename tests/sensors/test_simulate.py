@@ -256,3 +256,16 @@ def test_trajectory_interpolation_files_and_errors(tmp_path):
     (tmp_path / "bad.txt").write_text("0 1 2\n")
     with pytest.raises(TrajectoryError, match="8 columns"):
         Trajectory.read(tmp_path / "bad.txt")
+
+
+def test_fast_pose_path_equals_scipy_slerp():
+    rng = np.random.default_rng(0)
+    t = np.cumsum(rng.uniform(0.05, 0.2, 12))
+    tr = Trajectory(t, rng.normal(0, 10, (12, 3)) + [451000.0, 5352000.0, 300.0],
+                    Rotation.random(12, random_state=1))
+    mount = Mount.from_degrees((0.1, -0.2, 0.5), 10.0, -5.0, 90.0)
+    q = np.linspace(t[0], t[-1], 1001)
+    pos_a, rot_a = tr.sensor_poses(q, mount)
+    pos_b, mat_b = tr.sensor_matrices(q, mount)
+    np.testing.assert_allclose(pos_b, pos_a, atol=1e-9)
+    np.testing.assert_allclose(mat_b, rot_a.as_matrix(), atol=1e-12)

@@ -36,7 +36,7 @@ def points(utm_scene):
 @pytest.mark.parametrize("suffix", ["laz", "las"])
 def test_las_round_trip_keeps_a_tenth_of_a_millimetre(utm_scene, points, tmp_path, suffix):
     path = tmp_path / f"s.{suffix}"
-    stats = _station(utm_scene).write(path)
+    stats = _station(utm_scene).write(path, fields="full")
     assert stats["points"] == len(points)
     las = laspy.read(path)
     assert las.header.version.minor == 4 and las.header.point_format.id == 6
@@ -49,6 +49,14 @@ def test_las_round_trip_keeps_a_tenth_of_a_millimetre(utm_scene, points, tmp_pat
     np.testing.assert_array_equal(las["triangle"], points["triangle"])
     np.testing.assert_array_equal(las.intensity, np.round(points["intensity"] * 65535))
     assert np.all(las.return_number == 1)
+    import json
+    vlr = las.header.vlrs.get_by_id("tunnelsim", [1])[0]
+    info = json.loads(vlr.record_data)
+    assert info["station_position"] == (UTM + [30.0, 0.0, 1.5]).tolist()
+    compact = laspy.read(_station(utm_scene).write(tmp_path / f"c.{suffix}")["path"])
+    assert set(compact.point_format.extra_dimension_names) == {"channel", "column",
+                                                                "triangle", "flag"}
+    np.testing.assert_array_equal(compact.X, las.X)
 
 
 def test_e57_round_trip_with_the_station_pose(utm_scene, tmp_path):
