@@ -182,7 +182,7 @@ def _finish_run(args, run, label):
         set_threads(args.threads)
     prog = _Progress(args.quiet)
     try:
-        stats = run.write(args.output, progress=prog)
+        stats = run.write(args.output, progress=prog, fields=args.fields)
     finally:
         prog.close()
     if not args.quiet:
@@ -265,6 +265,9 @@ def _physics_options(p):
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--threads", type=int, help="Numba threads (default: all cores)")
     p.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    p.add_argument("--fields", choices=["compact", "full"],
+                   help="LAS/LAZ extra bytes: compact (stations' default) or full (every "
+                        "field; moving platforms' default)")
     p.add_argument("-o", "--output", required=True,
                    help="output points: .laz, .las, .ply, .npz (or .e57 for stations)")
 

@@ -118,7 +118,7 @@ def test_scan_writes_a_station_with_the_mesh_reflectivity(tbm, tmp_path, capsys)
     from survey.tunnel_io import read_tunnel
     out = tmp_path / "st.laz"
     assert main(["scan", "--mesh", str(tbm), "--at", "50,0,1.5", "--resolution", "preview",
-                 "--ideal", "-o", str(out)]) == 0
+                 "--ideal", "--fields", "full", "-o", str(out)]) == 0
     assert "points" in capsys.readouterr().out
     las = laspy.read(out)
     tun = read_tunnel(tbm)
