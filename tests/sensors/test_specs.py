@@ -60,3 +60,11 @@ def test_unknown_name_lists_the_valid_ones():
     with pytest.raises(SensorSpecError, match="zf_imager_5016") as exc:
         load_sensor("leica_rtc360")
     assert "robosense_airy" in str(exc.value)
+
+
+def test_package_docstring_example_runs():
+    import doctest
+
+    import sensors
+    result = doctest.testmod(sensors)
+    assert result.attempted >= 3 and result.failed == 0
