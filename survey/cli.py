@@ -272,6 +272,62 @@ def _physics_options(p):
                    help="output points: .laz, .las, .ply, .npz (or .e57 for stations)")
 
 
+def _write_text(path, text):
+    from raytrace.fileio import atomic_writer
+
+    from pathlib import Path
+    path = Path(path)
+    if not path.parent.exists():
+        raise TunnelsimCLIError(f"Expected an existing folder for '{path}', got none.")
+    with atomic_writer(path, "w") as fh:
+        fh.write(text)
+
+
+def _cmd_adjust(args) -> int:
+    import json
+
+    from .controlpoints import match, read_control_points
+    from .helmert import fit_helmert
+    from .reports import helmert_report
+
+    a = read_control_points(args.source)
+    b = read_control_points(args.target)
+    ia, ib = match(a, b)
+    res = fit_helmert(a.xyz[ia], b.xyz[ib], model=args.model,
+                      sigma_source=None if a.sigma is None else a.sigma[ia],
+                      sigma_target=None if b.sigma is None else b.sigma[ib],
+                      ids=[a.ids[i] for i in ia])
+    text = helmert_report(res)
+    if args.report:
+        _write_text(args.report, text)
+    if args.json:
+        _write_text(args.json, json.dumps(res.to_dict(), indent=1))
+    if not args.quiet:
+        print(text, end="")
+    return 0
+
+
+def _cmd_transform(args) -> int:
+    import json
+    from pathlib import Path
+
+    from .cloudio import map_cloud
+    from .helmert import HelmertResult
+
+    p = Path(args.helmert)
+    if not p.is_file():
+        raise TunnelsimCLIError(f"Expected a Helmert JSON (from 'tunnelsim adjust --json'), "
+                                f"got '{p}' which does not exist.")
+    try:
+        res = HelmertResult.from_dict(json.loads(p.read_text()))
+    except json.JSONDecodeError as exc:
+        raise TunnelsimCLIError(f"Expected JSON in '{p}', got invalid text ({exc}).") from exc
+    n = map_cloud(args.cloud, args.output, lambda xyz, t: res.apply(xyz))
+    if not args.quiet:
+        print(f"transformed {n:,} points -> {args.output}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="tunnelsim",
@@ -368,6 +424,34 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulate only the first S seconds")
     _physics_options(p)
     p.set_defaults(func=_cmd_drive)
+
+    p = sub.add_parser(
+        "adjust", help="Helmert adjustment between two control-point files",
+        description="Least-squares Helmert transformation (PROJ form, position-vector "
+                    "convention) between two CSV files of control points (id,x,y,z"
+                    "[,sigma|sx,sy,sz]) matched by id, with residuals, sigma0, global "
+                    "test and outlier tests.",
+        epilog="Example: tunnelsim adjust mls_cp.csv total_station.csv --model 7 "
+               "--report adjust.md --json helmert.json")
+    p.add_argument("source", help="control points in the source system (CSV)")
+    p.add_argument("target", help="control points in the target system (CSV)")
+    p.add_argument("--model", choices=["7", "6", "9"], default="7",
+                   help="7 similarity (default), 6 rigid, 9 scale per axis")
+    p.add_argument("--report", help="write the Markdown report here")
+    p.add_argument("--json", help="write the result (parameters and statistics) here")
+    p.add_argument("--quiet", action="store_true", help="do not print the report")
+    p.set_defaults(func=_cmd_adjust)
+
+    p = sub.add_parser(
+        "transform", help="apply a Helmert transform to a point cloud",
+        description="Apply the Helmert transform of 'tunnelsim adjust --json' to a LAS/LAZ "
+                    "or binary PLY cloud, chunk by chunk, keeping every other field.",
+        epilog="Example: tunnelsim transform --helmert helmert.json mls.laz -o mls_utm.laz")
+    p.add_argument("cloud", help="input cloud (.las, .laz, .ply)")
+    p.add_argument("--helmert", required=True, help="Helmert JSON from 'tunnelsim adjust'")
+    p.add_argument("-o", "--output", required=True, help="output cloud (same kind)")
+    p.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(func=_cmd_transform)
 
     p = sub.add_parser("sensors", help="list the sensor models",
                        description="List the shipped sensor models with kind and source "

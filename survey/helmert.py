@@ -164,9 +164,36 @@ class HelmertResult:
         return s + (" +exact" if exact else "")
 
     def to_dict(self) -> dict:
+        """JSON-ready dict with every field (the CLI's ``--json``)."""
         def f(v):
-            return np.asarray(v).tolist() if isinstance(v, np.ndarray) else v
-        return {k: f(v) for k, v in self.__dict__.items() if k != "extra"}
+            if isinstance(v, np.ndarray):
+                return np.where(np.isfinite(v), v, None).tolist() if v.dtype.kind == "f" \
+                    else v.tolist()
+            if isinstance(v, float) and not np.isfinite(v):
+                return None
+            return v
+        out = {k: f(v) for k, v in self.__dict__.items() if k != "extra"}
+        out["convention"] = "position_vector"
+        out["form"] = "x_target = t + (1 + s 1e-6) R x_source, R = Rx(rx) Ry(ry) Rz(rz)"
+        return out
+
+    @classmethod
+    def from_dict(cls, d) -> "HelmertResult":
+        """The transform back from ``to_dict`` output (parameters; statistics as
+        stored)."""
+        try:
+            model = str(d["model"])
+            t = np.asarray(d["translation_m"], dtype=np.float64)
+            r = np.asarray(d["rotation_arcsec"], dtype=np.float64)
+            s = d["scale_ppm"]
+        except (KeyError, TypeError) as exc:
+            raise HelmertError("Expected a Helmert JSON with model, translation_m, "
+                               "rotation_arcsec and scale_ppm (as written by "
+                               "'tunnelsim adjust --json').") from exc
+        res = from_parameters(t, r, 0.0)
+        res.model = model
+        res.scale_ppm = np.asarray(s, dtype=np.float64) if model == "9" else float(s)
+        return res
 
 
 def from_parameters(translation_m, rotation_arcsec, scale_ppm=0.0, *,

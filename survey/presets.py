@@ -19,8 +19,8 @@ galleries:
 - a drainage channel 25 cm wide, 15 cm deep along the right side of the floor;
 - a wet floor stretch from 180 to 230 m;
 - rock-bolt plates every 2 m at five angles around the arch between 20 and 280 m;
-- monitoring prisms on both walls every 25 m (chainage 12.5 to 287.5 m): the control
-  points;
+- monitoring prisms on both walls and at the crown every 25 m (chainage 12.5 to
+  287.5 m, 36 in all): the control points;
 - the monitoring epoch: 5 mm radial convergence between chainage 120 and 160 m
   (5 m tapers), the example of the generator's issue.
 
@@ -57,7 +57,7 @@ def bfo_parts(origin=(0.0, 0.0, 0.0), heading_rad: float = 0.0):
         F.Drainage(-0.70, 0.25, 0.15),
         F.WetFloor(180.0, 230.0),
         F.Bolts((-0.9, -0.45, 0.0, 0.45, 0.9), spacing_m=2.0, start_m=20.0, end_m=280.0),
-        F.Prisms(tuple(np.arange(12.5, 300.0, 25.0)), (1.25, -1.25)),
+        F.Prisms(tuple(np.arange(12.5, 300.0, 25.0)), (1.25, 0.0, -1.25)),
     ]
     deform = [Convergence(120.0, 160.0, 0.005, taper_m=5.0)]
     return al, prof, feats, deform
