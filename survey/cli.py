@@ -328,6 +328,49 @@ def _cmd_transform(args) -> int:
     return 0
 
 
+def _cmd_correct(args) -> int:
+    from pathlib import Path
+
+    from sensors import Trajectory
+
+    from .cloudio import map_cloud
+    from .controlpoints import ControlPointError, match, read_control_points
+    from .drift import fit_drift, leave_one_out
+    from .reports import drift_report
+
+    traj = Trajectory.read(args.trajectory)
+    world = read_control_points(args.control)
+    seen = read_control_points(args.observed)
+    if seen.time is None:
+        raise ControlPointError(f"Expected a 'time' column in '{args.observed}' (when each "
+                                "control point was observed by the MLS), got none.")
+    ia, ib = match(seen, world)
+    m, t, g = seen.xyz[ia], seen.time[ia], world.xyz[ib]
+    sw = None if world.sigma is None else world.sigma[ib].mean(axis=1)
+    ids = [seen.ids[i] for i in ia]
+    corr = fit_drift(m, t, g, model=args.model, sigma_world=sw, ids=ids)
+    loo = leave_one_out(m, t, g, model=args.model, sigma_world=sw)
+    out = Path(args.output)
+    n = map_cloud(args.cloud, out, lambda xyz, tt: corr.apply(xyz, tt) if tt is not None
+                  else _no_time(args.cloud))
+    fixed = corr.apply_trajectory(traj)
+    traj_out = out.with_name(out.stem + "_trajectory.txt")
+    fixed.write(traj_out)
+    report = out.with_name(out.stem + "_report.md")
+    _write_text(report, drift_report(corr, loo, traj=traj,
+                                     plot_path=out.with_name(out.stem + "_correction.png")))
+    if not args.quiet:
+        rms = np.sqrt(np.mean(np.sum(loo ** 2, axis=1)))
+        print(f"corrected {n:,} points with {len(ids)} control points ({args.model}); "
+              f"check-point RMS {rms * 1000:.1f} mm -> {out}, {traj_out.name}, {report.name}")
+    return 0
+
+
+def _no_time(path):
+    raise TunnelsimCLIError(f"Expected GPS time per point in '{path}' to correct drift, got "
+                            "none.")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="tunnelsim",
@@ -452,6 +495,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output cloud (same kind)")
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(func=_cmd_transform)
+
+    p = sub.add_parser(
+        "correct", help="correct the drift of an MLS run with control points",
+        description="Correct a drifting MLS run (trajectory and cloud with GPS time) with "
+                    "control points: world coordinates (--control, id,x,y,z[,sigma]) and "
+                    "their MLS-frame coordinates with observation time (--observed, "
+                    "id,x,y,z,time). Writes the corrected cloud, the corrected trajectory "
+                    "(_trajectory.txt), a report (_report.md) and a plot of the correction.",
+        epilog="Example: tunnelsim correct --trajectory slam.txt --cloud mls.laz --control "
+               "cp.csv --observed cp_mls.csv -o corrected.laz")
+    p.add_argument("--trajectory", required=True, help="MLS trajectory (TUM or CSV)")
+    p.add_argument("--cloud", required=True, help="MLS cloud with GPS time (.las/.laz/.ply)")
+    p.add_argument("--control", required=True, help="control points, world coordinates (CSV)")
+    p.add_argument("--observed", required=True,
+                   help="the same points in the MLS frame with their time (CSV)")
+    p.add_argument("--model", choices=["piecewise", "global"], default="piecewise",
+                   help="piecewise rigid per control section (default) or one similarity")
+    p.add_argument("-o", "--output", required=True, help="corrected cloud")
+    p.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(func=_cmd_correct)
 
     p = sub.add_parser("sensors", help="list the sensor models",
                        description="List the shipped sensor models with kind and source "

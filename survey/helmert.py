@@ -152,6 +152,16 @@ class HelmertResult:
             return self.translation_m + sc * (p @ r.T)
         return self.translation_m + (p * sc) @ r.T
 
+    def apply_trajectory(self, traj):
+        """A transformed copy of a ``sensors.Trajectory`` (positions and attitudes;
+        the scale does not change attitudes)."""
+        from scipy.spatial.transform import Rotation
+
+        from sensors import Trajectory
+
+        r = Rotation.from_matrix(self.rotation_matrix)
+        return Trajectory(traj.times, self.apply(traj.positions), r * traj.rotations)
+
     def to_proj(self, *, exact: bool = True) -> str:
         """The PROJ pipeline string of this transform (models 6 and 7)."""
         if self.model == "9":

@@ -48,3 +48,59 @@ def helmert_report(res, *, title: str = "Helmert adjustment") -> str:
                      f"{res.redundancy[i].mean():.2f} | {res.w_tests[i]:.2f} | "
                      f"{res.mdb_m[i] * 1000:.1f} |")
     return "\n".join(lines) + "\n"
+
+
+def drift_report(corr, loo, *, traj=None, plot_path=None,
+                 title: str = "MLS drift correction") -> str:
+    """Markdown report of a ``DriftCorrection``: fit residuals and leave-one-out
+    check-point residuals per control point, and (with the MLS trajectory) the
+    correction magnitude along the distance travelled, plotted to ``plot_path``."""
+    fit = corr.residuals
+    rms_fit = float(np.sqrt(np.mean(np.sum(fit ** 2, axis=1))))
+    rms_loo = float(np.sqrt(np.mean(np.sum(loo ** 2, axis=1))))
+    lines = [f"# {title}", "",
+             f"Model: {corr.model}" + (f" ({corr.interpolation} blending, "
+                                       f"{len(corr.times)} control sections)"
+                                       if corr.model == "piecewise" else ""), "",
+             f"Control points: {len(fit)}. RMS of the fit residuals: "
+             f"{rms_fit * 1000:.1f} mm. RMS of the leave-one-out check-point residuals "
+             f"(each point predicted without it, the honest accuracy): "
+             f"{rms_loo * 1000:.1f} mm.", ""]
+    if traj is not None:
+        p = traj.positions
+        dist = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+        mag = corr.magnitude(p, traj.times)
+        lines.append(f"Correction along the run: up to {mag.max():.3f} m "
+                     f"(at {dist[np.argmax(mag)]:.0f} m), mean {mag.mean():.3f} m.")
+        if plot_path is not None:
+            _plot_correction(dist, mag, plot_path)
+            lines += ["", f"![correction along the run]({plot_path.name})"]
+        lines.append("")
+    lines += ["| point | fit dx | fit dy | fit dz | check dx | check dy | check dz | "
+              "check |v| |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for i, pid in enumerate(corr.ids or range(len(fit))):
+        a, b = fit[i] * 1000, loo[i] * 1000
+        lines.append(f"| {pid} | {a[0]:.1f} | {a[1]:.1f} | {a[2]:.1f} | {b[0]:.1f} | "
+                     f"{b[1]:.1f} | {b[2]:.1f} | {np.linalg.norm(b):.1f} |")
+    lines.append("")
+    lines.append("Residuals in mm (corrected minus control coordinates).")
+    return "\n".join(lines) + "\n"
+
+
+def _plot_correction(dist, mag, path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from raytrace.fileio import atomic_writer
+
+    fig, ax = plt.subplots(figsize=(7, 3))
+    ax.plot(dist, mag * 1000)
+    ax.set_xlabel("distance along the run (m)")
+    ax.set_ylabel("correction (mm)")
+    ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    with atomic_writer(path) as fh:
+        fig.savefig(fh, format="png", dpi=120)
+    plt.close(fig)

@@ -166,3 +166,114 @@ def test_scan_and_drive_bad_input(argv, match, tbm, capsys, tmp_path, monkeypatc
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and match in err
     assert not list(tmp_path.iterdir())
+
+
+def _cp_files(tmp_path, n=8, seed=0):
+    from survey.controlpoints import ControlPoints
+    from survey.helmert import from_parameters
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(-100, 100, (n, 3))
+    h = from_parameters([451000.0, 5352000.0, 600.0], [10.0, -5.0, 300.0], 5.0)
+    dst = h.apply(src) + rng.normal(0, 0.002, src.shape)
+    ids = [f"P{i}" for i in range(n)]
+    ControlPoints(ids, src).write(tmp_path / "src.csv")
+    ControlPoints(ids, dst, np.full((n, 3), 0.002)).write(tmp_path / "dst.csv")
+    return h, src, dst
+
+
+def test_adjust_and_transform(tmp_path, capsys):
+    import json
+
+    import laspy
+    h, src, dst = _cp_files(tmp_path)
+    assert main(["adjust", str(tmp_path / "src.csv"), str(tmp_path / "dst.csv"), "--json",
+                 str(tmp_path / "h.json"), "--report", str(tmp_path / "h.md")]) == 0
+    out = capsys.readouterr().out
+    assert "σ0 a posteriori" in out and "Baarda w" in out
+    res = json.loads((tmp_path / "h.json").read_text())
+    assert res["model"] == "7" and len(res["residuals"]) == 8
+    np.testing.assert_allclose(res["rotation_arcsec"], [10.0, -5.0, 300.0], atol=20.0)
+    # transform a small LAS cloud and compare with the fitted transform
+    hdr = laspy.LasHeader(point_format=6, version="1.4")
+    hdr.scales = [1e-4] * 3
+    las = laspy.LasData(hdr)
+    las.x, las.y, las.z = src.T
+    las.gps_time = np.arange(len(src), dtype=float)
+    las.write(tmp_path / "c.las")
+    assert main(["transform", str(tmp_path / "c.las"), "--helmert", str(tmp_path / "h.json"),
+                 "-o", str(tmp_path / "c2.laz")]) == 0
+    from survey.helmert import HelmertResult
+    want = HelmertResult.from_dict(res).apply(np.stack([las.x, las.y, las.z], 1))
+    back = laspy.read(tmp_path / "c2.laz")
+    np.testing.assert_allclose(np.stack([back.x, back.y, back.z], 1), want, atol=1e-4)
+    np.testing.assert_array_equal(back.gps_time, las.gps_time)
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["adjust", "SRC", "missing.csv"], "does not exist"),
+    (["adjust", "SRC", "SRC", "--model", "8"], "invalid choice"),
+    (["transform", "c.las", "--helmert", "none.json", "-o", "x.laz"], "Helmert JSON"),
+    (["correct", "--trajectory", "t.txt", "--cloud", "c.laz", "--control", "SRC",
+      "--observed", "SRC", "-o", "x.laz"], "does not exist"),
+])
+def test_adjust_transform_correct_bad_input(argv, match, tmp_path, capsys, monkeypatch):
+    _cp_files(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    argv = [str(tmp_path / "src.csv") if a == "SRC" else a for a in argv]
+    before = set(tmp_path.iterdir())
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and match in err
+    assert set(tmp_path.iterdir()) == before
+
+
+def test_correct_end_to_end(tmp_path, capsys):
+    """A straight run with a known linear drift: the CLI's corrected cloud matches the
+    truth and its report and plot are written."""
+    import laspy
+    from scipy.spatial.transform import Rotation
+
+    from sensors import Trajectory
+    from survey.controlpoints import ControlPoints
+    t = np.linspace(0, 100, 201)
+    true_pos = np.stack([t, 0 * t, 0 * t + 1.0], 1) + [451000.0, 5352000.0, 600.0]
+    drift = np.stack([0 * t, 0.002 * t, 0.0005 * t], 1)          # 20 cm lateral at 100 s
+    Trajectory(t, true_pos + drift, Rotation.identity(len(t))).write(tmp_path / "slam.txt")
+    rng = np.random.default_rng(1)
+    ids, g, m, tau = [], [], [], []
+    for k, c in enumerate(np.arange(5.0, 100.0, 10.0)):
+        for j, (dy, dz) in enumerate(((1.4, 1.0), (-1.4, 1.0), (0.0, 2.8))):
+            ids.append(f"S{k}_{j}")
+            p = np.array([451000.0 + c, 5352000.0 + dy, 600.0 + dz])
+            g.append(p)
+            m.append(p + drift[int(c * 2)])
+            tau.append(c)
+    ControlPoints(ids, np.array(g), np.full((len(g), 3), 0.0015)).write(tmp_path / "cp.csv")
+    ControlPoints(ids, np.array(m), time=np.array(tau)).write(tmp_path / "cp_mls.csv")
+    tt = rng.uniform(5, 95, 5000)
+    truth = np.stack([451000.0 + tt, 5352000.0 + rng.uniform(-1.4, 1.4, 5000),
+                      600.0 + rng.uniform(0, 2.8, 5000)], 1)
+    mls = truth + np.stack([0 * tt, 0.002 * tt, 0.0005 * tt], 1)
+    hdr = laspy.LasHeader(point_format=6, version="1.4")
+    hdr.scales = [1e-4] * 3
+    hdr.offsets = [451000.0, 5352000.0, 600.0]
+    las = laspy.LasData(hdr)
+    las.x, las.y, las.z = mls.T
+    las.gps_time = tt
+    las.write(tmp_path / "mls.laz")
+    assert main(["correct", "--trajectory", str(tmp_path / "slam.txt"), "--cloud",
+                 str(tmp_path / "mls.laz"), "--control", str(tmp_path / "cp.csv"),
+                 "--observed", str(tmp_path / "cp_mls.csv"), "-o",
+                 str(tmp_path / "fixed.laz")]) == 0
+    assert "check-point RMS" in capsys.readouterr().out
+    back = laspy.read(tmp_path / "fixed.laz")
+    err = np.stack([back.x, back.y, back.z], 1) - truth
+    # Each section's pose also leans on its neighbours (weighted), which see a drift
+    # 2 cm different: a few mm of bias at the walls for this drift, against 20 cm
+    # removed (the model trades it for noise robustness, see survey.drift).
+    assert np.abs(mls - truth).max() > 0.15
+    assert np.abs(err).max() < 0.004
+    assert (tmp_path / "fixed_report.md").is_file() and (tmp_path / "fixed_correction.png").is_file()
+    fixed = Trajectory.read(tmp_path / "fixed_trajectory.txt")
+    inner = (fixed.times > 5) & (fixed.times < 95)
+    np.testing.assert_allclose(fixed.positions[inner], true_pos[inner], atol=0.004)

@@ -170,3 +170,22 @@ def test_control_point_files(tmp_path):
         read_control_points(tmp_path / "bad.csv")
     with pytest.raises(ControlPointError, match="at least 3"):
         match(a, ControlPoints(["A", "B"], _pts(2)))
+
+
+def test_transform_applies_to_trajectories():
+    from sensors import Trajectory
+    src = _pts(6, seed=12)
+    h = from_parameters([1.0, 2.0, 3.0], [0.0, 0.0, 3600.0 * 90], 0.0)
+    tr = Trajectory(np.arange(6.0), src, Rotation.identity(6))
+    out = h.apply_trajectory(tr)
+    np.testing.assert_allclose(out.positions, h.apply(src), atol=1e-9)
+    np.testing.assert_allclose(out.rotations.as_matrix(), np.tile(h.rotation_matrix, (6, 1, 1)),
+                               atol=1e-12)
+
+
+def test_package_exports_the_documented_api():
+    import survey
+    assert survey.fit_helmert is fit_helmert
+    res = survey.fit_helmert(_pts(5), _pts(5) + 1.0, model="6")
+    np.testing.assert_allclose(res.translation_m, [1.0, 1.0, 1.0], atol=1e-8)
+    assert res.w_tests.shape == (5,) and res.residuals.shape == (5, 3)
