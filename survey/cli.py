@@ -371,6 +371,34 @@ def _no_time(path):
                             "none.")
 
 
+def _cmd_preprocess(args) -> int:
+    from .cloudio import cloud_bounds, iter_points, write_points_las
+    from .preprocess import VoxelGrid, radius_outliers, statistical_outliers
+
+    lo, hi, n_in = cloud_bounds(args.cloud)
+    if args.voxel is not None:
+        grid = VoxelGrid(args.voxel, lo)
+        for xyz in iter_points(args.cloud):
+            grid.add(xyz)
+        pts, counts = grid.result()
+    else:
+        pts = np.concatenate(list(iter_points(args.cloud)))
+        counts = np.ones(len(pts), dtype=np.int64)
+    keep = np.ones(len(pts), dtype=bool)
+    if args.sor:
+        k, ratio = _parse_window(args.sor.replace(",", ":"), "--sor as K,STD_RATIO", 2)
+        keep &= ~statistical_outliers(pts, int(k), ratio)
+    if args.ror:
+        nb, rad = _parse_window(args.ror.replace(",", ":"), "--ror as N,RADIUS_M", 2)
+        keep &= ~radius_outliers(pts, int(nb), rad)
+    write_points_las(args.output, pts[keep],
+                     {"voxel_count": counts[keep].astype(np.uint32)})
+    if not args.quiet:
+        print(f"{n_in:,} points -> {len(pts):,} after the voxel grid -> {int(keep.sum()):,} "
+              f"after outlier removal -> {args.output}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="tunnelsim",
@@ -515,6 +543,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="corrected cloud")
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(func=_cmd_correct)
+
+    p = sub.add_parser(
+        "preprocess", help="voxel-grid downsampling and outlier removal of a cloud",
+        description="Stream a cloud (LAS/LAZ/PLY/XYZ/NPZ/E57) through a voxel grid "
+                    "(centroid per voxel, Open3D semantics), then remove statistical and "
+                    "radius outliers (Open3D semantics) and write LAS/LAZ with the number "
+                    "of points per voxel.",
+        epilog="Example: tunnelsim preprocess mls.laz -o clean.laz --voxel 0.02 --sor 8,2.0")
+    p.add_argument("cloud", help="input cloud")
+    p.add_argument("-o", "--output", required=True, help="output cloud (.las/.laz)")
+    p.add_argument("--voxel", type=float, metavar="M", help="voxel size in metres")
+    p.add_argument("--sor", metavar="K,STD_RATIO",
+                   help="statistical outlier removal: K neighbours (the point included), "
+                        "threshold mean + STD_RATIO x std")
+    p.add_argument("--ror", metavar="N,RADIUS_M",
+                   help="radius outlier removal: at least N other points within RADIUS_M")
+    p.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(func=_cmd_preprocess)
 
     p = sub.add_parser("sensors", help="list the sensor models",
                        description="List the shipped sensor models with kind and source "

@@ -89,6 +89,99 @@ _PLY = {"double": "<f8", "float": "<f4", "float64": "<f8", "float32": "<f4", "in
 
 
 def _map_ply(src, dst, fn, chunk):
+    data, head = _ply_memmap(src)
+    text = [h.decode("ascii", "replace").split() for h in head]
+    if len([t for t in text if t and t[0] == "element"]) != 1:
+        raise CloudFileError(f"Expected a point-cloud PLY (vertex element only), got "
+                             f"'{src}'; transform meshes with their own tools.")
+    n = len(data)
+    dt = data.dtype
+    has_time = "time" in dt.names
+    with atomic_writer(dst) as out:
+        out.write(b"".join(head))
+        for i in range(0, n, chunk):
+            c = np.array(data[i:i + chunk])
+            xyz = np.stack([c["x"], c["y"], c["z"]], 1).astype(np.float64)
+            new = np.asarray(fn(xyz, c["time"] if has_time else None), dtype=np.float64)
+            c["x"], c["y"], c["z"] = new.T
+            out.write(c.tobytes())
+    del data
+    return n
+
+
+def cloud_bounds(path, *, chunk: int = CHUNK):
+    """(min (3,), max (3,), count) of a cloud; from the LAS header when it has one."""
+    path = Path(path)
+    if not path.is_file():
+        raise CloudFileError(f"Expected a point cloud, got '{path}' which does not exist.")
+    if path.suffix.lower() in (".las", ".laz"):
+        import laspy
+
+        with laspy.open(path) as r:
+            h = r.header
+            if h.point_count == 0:
+                raise CloudFileError(f"Expected points in '{path}', got an empty cloud.")
+            return np.asarray(h.mins, float), np.asarray(h.maxs, float), int(h.point_count)
+    lo, hi, n = np.full(3, np.inf), np.full(3, -np.inf), 0
+    for xyz in iter_points(path, chunk=chunk):
+        lo = np.minimum(lo, xyz.min(axis=0))
+        hi = np.maximum(hi, xyz.max(axis=0))
+        n += len(xyz)
+    if n == 0:
+        raise CloudFileError(f"Expected points in '{path}', got an empty cloud.")
+    return lo, hi, n
+
+
+def iter_points(path, *, chunk: int = CHUNK):
+    """Coordinates (n, 3) float64 of a cloud, chunk by chunk: LAS/LAZ (laspy chunks),
+    binary PLY (memory map), XYZ/TXT/CSV text (x y z in the first three columns),
+    NPZ (tunnelsim's fields x, y, z) and E57 (pye57, whole scans: not chunked)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CloudFileError(f"Expected a point cloud, got '{path}' which does not exist.")
+    kind = path.suffix.lower()
+    if kind in (".las", ".laz"):
+        import laspy
+
+        with laspy.open(path) as r:
+            for pts in r.chunk_iterator(chunk):
+                yield np.stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)], 1)
+    elif kind == ".ply":
+        data, _ = _ply_memmap(path)
+        for i in range(0, len(data), chunk):
+            c = data[i:i + chunk]
+            yield np.stack([c["x"], c["y"], c["z"]], 1).astype(np.float64)
+    elif kind in (".xyz", ".txt", ".csv"):
+        delim = "," if kind == ".csv" else None
+        with open(path) as fh:
+            while True:
+                try:
+                    a = np.loadtxt(fh, delimiter=delim, max_rows=chunk, ndmin=2,
+                                   usecols=(0, 1, 2), comments="#")
+                except ValueError as exc:
+                    raise CloudFileError(f"Expected numeric x y z columns in '{path}', got "
+                                         f"unreadable text ({exc}).") from exc
+                if len(a) == 0:
+                    break
+                yield a
+    elif kind == ".npz":
+        d = np.load(path)
+        for i in range(0, len(d["x"]), chunk):
+            yield np.stack([d["x"][i:i + chunk], d["y"][i:i + chunk],
+                            d["z"][i:i + chunk]], 1)
+    elif kind == ".e57":
+        import pye57
+
+        e = pye57.E57(str(path))
+        for s_ in range(e.scan_count):
+            d = e.read_scan(s_, ignore_missing_fields=True)   # world frame (pose applied)
+            yield np.stack([d["cartesianX"], d["cartesianY"], d["cartesianZ"]], 1)
+    else:
+        raise CloudFileError(f"Expected a .las, .laz, .ply, .xyz, .txt, .csv, .npz or .e57 "
+                             f"cloud, got '{path}'.")
+
+
+def _ply_memmap(src):
     with open(src, "rb") as fh:
         head = []
         while True:
@@ -103,21 +196,43 @@ def _map_ply(src, dst, fn, chunk):
     if ["format", "binary_little_endian", "1.0"] not in text:
         raise CloudFileError(f"Expected a binary little-endian PLY, got '{src}'.")
     elems = [t for t in text if t and t[0] == "element"]
-    if len(elems) != 1 or elems[0][1] != "vertex":
-        raise CloudFileError(f"Expected a point-cloud PLY (vertex element only), got "
-                             f"'{src}'; transform meshes with their own tools.")
+    if not elems or elems[0][1] != "vertex":
+        raise CloudFileError(f"Expected a PLY whose first element is 'vertex', got '{src}'.")
     n = int(elems[0][2])
-    fields = [(t[2], _PLY[t[1]]) for t in text if t and t[0] == "property"]
-    dt = np.dtype(fields)
-    data = np.memmap(src, dtype=dt, mode="r", offset=start, shape=(n,))
-    has_time = "time" in dt.names
-    with atomic_writer(dst) as out:
-        out.write(b"".join(head))
-        for i in range(0, n, chunk):
-            c = np.array(data[i:i + chunk])
-            xyz = np.stack([c["x"], c["y"], c["z"]], 1).astype(np.float64)
-            new = np.asarray(fn(xyz, c["time"] if has_time else None), dtype=np.float64)
-            c["x"], c["y"], c["z"] = new.T
-            out.write(c.tobytes())
-    del data
-    return n
+    fields = []
+    for t in text:
+        if t and t[0] == "element" and t[1] != "vertex":
+            break
+        if t and t[0] == "property":
+            if t[1] == "list":
+                raise CloudFileError(f"Expected scalar vertex properties in '{src}'.")
+            fields.append((t[2], _PLY[t[1]]))
+    return np.memmap(src, dtype=np.dtype(fields), mode="r", offset=start, shape=(n,)), head
+
+
+def write_points_las(path, xyz, extra=None):
+    """Write points (n, 3) as LAS/LAZ 1.4 (format 6, 0.1 mm scale, offset near the data)
+    with optional extra dimensions {name: (n,) array}; atomic."""
+    import laspy
+
+    path = Path(path)
+    xyz = np.asarray(xyz, dtype=np.float64)
+    head = laspy.LasHeader(point_format=6, version="1.4")
+    head.scales = np.full(3, LAS_SCALE)
+    head.offsets = np.round((xyz[0] if len(xyz) else np.zeros(3)) / 1000.0) * 1000.0
+    extra = extra or {}
+    head.add_extra_dims([laspy.ExtraBytesParams(name=k, type=np.asarray(v).dtype)
+                         for k, v in extra.items()])
+    with atomic_writer(path) as fh:
+        with laspy.open(fh, mode="w", header=head, closefd=False,
+                        do_compress=path.suffix.lower() == ".laz") as w:
+            for i in range(0, max(len(xyz), 1), CHUNK):
+                rec = laspy.ScaleAwarePointRecord.zeros(len(xyz[i:i + CHUNK]), header=head)
+                for k, name in enumerate("XYZ"):
+                    rec.array[name] = np.round((xyz[i:i + CHUNK, k] - head.offsets[k]) /
+                                               LAS_SCALE)
+                rec.array["bit_fields"] = 0x11
+                for k, v in extra.items():
+                    rec.array[k] = np.asarray(v)[i:i + CHUNK]
+                w.write_points(rec)
+    return path

@@ -277,3 +277,41 @@ def test_correct_end_to_end(tmp_path, capsys):
     fixed = Trajectory.read(tmp_path / "fixed_trajectory.txt")
     inner = (fixed.times > 5) & (fixed.times < 95)
     np.testing.assert_allclose(fixed.positions[inner], true_pos[inner], atol=0.004)
+
+
+def test_preprocess_streams_a_cloud(tmp_path, capsys):
+    import laspy
+
+    from survey.cloudio import write_points_las
+    from survey.preprocess import statistical_outliers, voxel_down_sample
+    rng = np.random.default_rng(5)
+    p = rng.normal(0, 2, (30_000, 3)) + [451_000.0, 5_352_000.0, 600.0]
+    p[:20] += rng.normal(0, 40, (20, 3))
+    write_points_las(tmp_path / "in.laz", p)
+    q = laspy.read(tmp_path / "in.laz")
+    stored = np.stack([q.x, q.y, q.z], 1)                  # 0.1 mm quantised input
+    assert main(["preprocess", str(tmp_path / "in.laz"), "-o", str(tmp_path / "out.laz"),
+                 "--voxel", "0.5", "--sor", "8,2.0"]) == 0
+    assert "after outlier removal" in capsys.readouterr().out
+    out = laspy.read(tmp_path / "out.laz")
+    lo = np.asarray(q.header.mins)                        # the grid anchor the CLI uses
+    from survey.preprocess import VoxelGrid
+    g = VoxelGrid(0.5, lo)
+    g.add(stored)
+    want, counts = g.result()
+    want = want[~statistical_outliers(want, 8, 2.0)]
+    got = np.stack([out.x, out.y, out.z], 1)
+    assert len(got) == len(want)
+    np.testing.assert_allclose(got, want, atol=0.6e-4)
+    assert np.asarray(out["voxel_count"]).sum() <= len(p)
+    assert len(voxel_down_sample(stored, 0.5)) == len(counts)
+
+
+def test_preprocess_bad_input(tmp_path, capsys):
+    (tmp_path / "bad.xyz").write_text("1 2 x\n")
+    assert main(["preprocess", str(tmp_path / "bad.xyz"), "-o", str(tmp_path / "o.laz"),
+                 "--voxel", "0.1"]) == 2
+    assert "numeric" in capsys.readouterr().err
+    assert main(["preprocess", str(tmp_path / "none.laz"), "-o", str(tmp_path / "o.laz")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "o.laz").exists()
