@@ -164,3 +164,17 @@ def test_alignment_dict_round_trip(curved):
     np.testing.assert_array_equal(back.point(s), curved.point(s))
     with pytest.raises(AlignmentError, match="alignment dictionary"):
         Alignment.from_dict({"elements": []})
+
+
+def test_short_clothoids_use_8_nodes_without_losing_precision(monkeypatch):
+    """Chains of short clothoids (as Alignment.fit makes) take the 8-node rule; it
+    agrees with the 24-node rule to 1e-12 m."""
+    import survey.alignment as A
+    rng = np.random.default_rng(0)
+    k = np.concatenate([[0.0], np.cumsum(rng.normal(0, 0.002, 150))])
+    al = Alignment([A.Element(2.0, k[i], k[i + 1]) for i in range(150)])
+    s = np.linspace(0, al.length_m, 997)
+    fast = al.point(s)
+    monkeypatch.setattr(A, "_SHORT_PANEL_M", 0.0)
+    slow = Alignment(list(al.elements)).point(s)
+    np.testing.assert_allclose(fast, slow, atol=1e-12, rtol=0)
