@@ -399,6 +399,38 @@ def _cmd_preprocess(args) -> int:
     return 0
 
 
+def _cmd_mesh(args) -> int:
+    import json
+
+    from .alignment import Alignment
+    from .cloudio import iter_points
+    from .reconstruct import reconstruct_tunnel
+
+    cell_m, cell_deg = _parse_window(args.cell.replace(",", ":"), "--cell as M,DEG", 2)
+    pts = np.concatenate(list(iter_points(args.cloud)))
+    al = hc = None
+    if args.tunnel_json:
+        from pathlib import Path
+        js = Path(args.tunnel_json)
+        if not js.is_file():
+            raise TunnelsimCLIError(f"Expected a tunnel JSON, got '{js}' which does not "
+                                    "exist.")
+        meta = json.loads(js.read_text())
+        al = Alignment.from_dict(meta["alignment"])
+        from .profiles import Profile
+        hc = float(Profile.from_dict(meta["profile"]).centroid[1])
+    rec = reconstruct_tunnel(pts, alignment=al, centre_height_m=hc, cell_m=cell_m,
+                             cell_rad=np.deg2rad(cell_deg), min_points=args.min_points)
+    rec.write(args.output)
+    if not args.quiet:
+        q = rec.quality
+        print(f"{q['points']:,} points -> {q['triangles']:,} triangles -> {args.output}; "
+              f"point-to-surface mean {q['mean_m'] * 1000:.1f} mm, median "
+              f"{q['median_m'] * 1000:.1f} mm, 95 % {q['p95_m'] * 1000:.1f} mm, max "
+              f"{q['max_m'] * 1000:.1f} mm; extrapolated {100 * q['extrapolated_share']:.1f} %")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="tunnelsim",
@@ -561,6 +593,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="radius outlier removal: at least N other points within RADIUS_M")
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(func=_cmd_preprocess)
+
+    p = sub.add_parser(
+        "mesh", help="reconstruct a tunnel mesh from a cleaned cloud",
+        description="Tunnel-aware reconstruction: unroll the lining around the centreline "
+                    "(estimated, or from a tunnel JSON), take a median radius per cell, "
+                    "fill gaps (vertex property support = 0), triangulate; open portals.",
+        epilog="Example: tunnelsim mesh clean.laz -o tunnel.ply --cell 0.1,2")
+    p.add_argument("cloud", help="input cloud (.las/.laz/.ply/.xyz/.npz/.e57)")
+    p.add_argument("-o", "--output", required=True, help="output mesh (.ply)")
+    p.add_argument("--cell", default="0.1,2", metavar="M,DEG",
+                   help="cell size along the axis (m) and around it (deg), default 0.1,2")
+    p.add_argument("--min-points", type=int, default=3,
+                   help="cells with fewer points are interpolated (default 3)")
+    p.add_argument("--tunnel-json", help="use the alignment of a generated tunnel's JSON")
+    p.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(func=_cmd_mesh)
 
     p = sub.add_parser("sensors", help="list the sensor models",
                        description="List the shipped sensor models with kind and source "

@@ -147,7 +147,7 @@ def estimate_axis(points, *, slice_m: float = 2.0, knot_spacing_m: float = 15.0,
 def reconstruct_tunnel(points, *, alignment: Alignment | None = None,
                        centre_height_m: float | None = None, cell_m: float = 0.1,
                        cell_rad: float = np.deg2rad(2.0), min_points: int = 3,
-                       margin_m: float = 0.0) -> ReconstructedTunnel:
+                       margin_m: float = 0.0, rows_at=None) -> ReconstructedTunnel:
     """Mesh a tunnel lining from points (see module doc).
 
     alignment, centre_height_m : optional known centreline and height of the profile
@@ -155,6 +155,9 @@ def reconstruct_tunnel(points, *, alignment: Alignment | None = None,
     cell_m, cell_rad : cell size along the axis (m) and around it (rad).
     min_points : cells with fewer points are interpolated (support 0).
     margin_m : chainage trimmed at both ends of the point coverage.
+    rows_at : optional increasing chainages of the mesh rings (e.g. the chainages of
+        measured profiles); each point goes to the nearest ring within half the local
+        spacing. Default: rings every ``cell_m``.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or not np.isfinite(p).all():
@@ -178,12 +181,25 @@ def reconstruct_tunnel(points, *, alignment: Alignment | None = None,
     if use.sum() == 0:
         raise ReconstructionError("Expected points along the alignment, got none within "
                                   "its chainage range.")
-    s_lo, s_hi = s[use].min() + margin_m, s[use].max() - margin_m
-    n_s = max(2, int(np.ceil((s_hi - s_lo) / cell_m)))
     n_a = max(8, int(np.round(2 * np.pi / cell_rad)))
-    ds, da = (s_hi - s_lo) / n_s, 2 * np.pi / n_a
-    use &= (s >= s_lo) & (s <= s_hi)
-    i = np.clip(((s[use] - s_lo) / ds).astype(np.int64), 0, n_s - 1)
+    da = 2 * np.pi / n_a
+    if rows_at is None:
+        s_lo, s_hi = s[use].min() + margin_m, s[use].max() - margin_m
+        n_s = max(2, int(np.ceil((s_hi - s_lo) / cell_m)))
+        ds = (s_hi - s_lo) / n_s
+        sc = s_lo + (np.arange(n_s) + 0.5) * ds
+        use &= (s >= s_lo) & (s <= s_hi)
+        i = np.clip(((s[use] - s_lo) / ds).astype(np.int64), 0, n_s - 1)
+    else:
+        sc = np.asarray(rows_at, dtype=np.float64)
+        if sc.ndim != 1 or len(sc) < 2 or (np.diff(sc) <= 0).any():
+            raise ReconstructionError("Expected `rows_at` as at least 2 increasing "
+                                      "chainages.")
+        n_s = len(sc)
+        edges = np.concatenate([[sc[0] - (sc[1] - sc[0]) / 2], (sc[1:] + sc[:-1]) / 2,
+                                [sc[-1] + (sc[-1] - sc[-2]) / 2]])
+        use &= (s >= edges[0]) & (s < edges[-1])
+        i = np.searchsorted(edges, s[use], side="right") - 1
     j = np.mod(np.floor((phi[use] + np.pi) / da).astype(np.int64), n_a)
     cell = i * n_a + j
     r = rho[use]
@@ -209,11 +225,10 @@ def reconstruct_tunnel(points, *, alignment: Alignment | None = None,
     for col in grid.T:
         ok = np.isfinite(col)
         if ok.any() and not ok.all():
-            col[~ok] = np.interp(np.flatnonzero(~ok), np.flatnonzero(ok), col[ok])
+            col[~ok] = np.interp(sc[~ok], sc[ok], col[ok])
     if not np.isfinite(grid).all():
         raise ReconstructionError("Expected points around the whole lining, got too few to "
                                   "fill the unrolled grid; use larger cells.")
-    sc = s_lo + (np.arange(n_s) + 0.5) * ds
     ac = -np.pi + (np.arange(n_a) + 0.5) * da
     o = grid * np.sin(ac)[None, :]
     z = hc + grid * np.cos(ac)[None, :]

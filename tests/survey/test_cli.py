@@ -315,3 +315,26 @@ def test_preprocess_bad_input(tmp_path, capsys):
     assert main(["preprocess", str(tmp_path / "none.laz"), "-o", str(tmp_path / "o.laz")]) == 2
     assert "does not exist" in capsys.readouterr().err
     assert not (tmp_path / "o.laz").exists()
+
+
+def test_mesh_reconstructs_a_generated_tunnel(tbm, tmp_path, capsys):
+    """Points sampled on the tbm tunnel's lining (with 1 mm noise): the mesh command
+    rebuilds it, with support per vertex, using the tunnel's own alignment."""
+    from survey.cloudio import write_points_las
+    from survey.tunnel import LABEL
+    from survey.tunnel_io import read_ply, read_tunnel
+    tun = read_tunnel(tbm)
+    rng = np.random.default_rng(0)
+    lin = tun.faces[np.isin(tun.labels, [LABEL["lining"], LABEL["floor"]])]
+    tri = tun.vertices[lin[rng.integers(0, len(lin), 200_000)]]
+    w = rng.dirichlet([1, 1, 1], len(tri))
+    pts = np.einsum("nk,nkj->nj", w, tri) + rng.normal(0, 0.001, (len(tri), 3))
+    write_points_las(tmp_path / "c.laz", pts)
+    assert main(["mesh", str(tmp_path / "c.laz"), "-o", str(tmp_path / "m.ply"), "--cell",
+                 "0.5,4", "--tunnel-json", str(tbm.with_suffix(".json"))]) == 0
+    assert "point-to-surface" in capsys.readouterr().out
+    back = read_ply(tmp_path / "m.ply")
+    assert back["support"].max() > 0 and len(back["faces"]) > 1000
+    s, o, h = tun.alignment.to_local(back["vertices"])
+    r = np.hypot(o, h - 2.5)                                  # tbm: circle r 2.5 m
+    assert np.median(np.abs(r[back["support"] > 0] - 2.5)) < 0.01
