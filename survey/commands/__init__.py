@@ -1,0 +1,1 @@
+"""The subcommands of ``tunnelsim``, grouped by topic; ``survey.cli`` builds the parser."""

@@ -1,0 +1,67 @@
+"""Commands on point clouds: preprocess (voxel grid, outliers), mesh (reconstruction)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..cli import TunnelsimCLIError, _parse_window
+
+
+def cmd_preprocess(args) -> int:
+    from ..cloudio import cloud_bounds, iter_points, write_points_las
+    from ..preprocess import VoxelGrid, radius_outliers, statistical_outliers
+
+    lo, hi, n_in = cloud_bounds(args.cloud)
+    if args.voxel is not None:
+        grid = VoxelGrid(args.voxel, lo)
+        for xyz in iter_points(args.cloud):
+            grid.add(xyz)
+        pts, counts = grid.result()
+    else:
+        pts = np.concatenate(list(iter_points(args.cloud)))
+        counts = np.ones(len(pts), dtype=np.int64)
+    keep = np.ones(len(pts), dtype=bool)
+    if args.sor:
+        k, ratio = _parse_window(args.sor.replace(",", ":"), "--sor as K,STD_RATIO", 2)
+        keep &= ~statistical_outliers(pts, int(k), ratio)
+    if args.ror:
+        nb, rad = _parse_window(args.ror.replace(",", ":"), "--ror as N,RADIUS_M", 2)
+        keep &= ~radius_outliers(pts, int(nb), rad)
+    write_points_las(args.output, pts[keep],
+                     {"voxel_count": counts[keep].astype(np.uint32)})
+    if not args.quiet:
+        print(f"{n_in:,} points -> {len(pts):,} after the voxel grid -> {int(keep.sum()):,} "
+              f"after outlier removal -> {args.output}")
+    return 0
+
+
+def cmd_mesh(args) -> int:
+    import json
+
+    from ..alignment import Alignment
+    from ..cloudio import iter_points
+    from ..reconstruct import reconstruct_tunnel
+
+    cell_m, cell_deg = _parse_window(args.cell.replace(",", ":"), "--cell as M,DEG", 2)
+    pts = np.concatenate(list(iter_points(args.cloud)))
+    al = hc = None
+    if args.tunnel_json:
+        from pathlib import Path
+        js = Path(args.tunnel_json)
+        if not js.is_file():
+            raise TunnelsimCLIError(f"Expected a tunnel JSON, got '{js}' which does not "
+                                    "exist.")
+        meta = json.loads(js.read_text())
+        al = Alignment.from_dict(meta["alignment"])
+        from ..profiles import Profile
+        hc = float(Profile.from_dict(meta["profile"]).centroid[1])
+    rec = reconstruct_tunnel(pts, alignment=al, centre_height_m=hc, cell_m=cell_m,
+                             cell_rad=np.deg2rad(cell_deg), min_points=args.min_points)
+    rec.write(args.output)
+    if not args.quiet:
+        q = rec.quality
+        print(f"{q['points']:,} points -> {q['triangles']:,} triangles -> {args.output}; "
+              f"point-to-surface mean {q['mean_m'] * 1000:.1f} mm, median "
+              f"{q['median_m'] * 1000:.1f} mm, 95 % {q['p95_m'] * 1000:.1f} mm, max "
+              f"{q['max_m'] * 1000:.1f} mm; extrapolated {100 * q['extrapolated_share']:.1f} %")
+    return 0
