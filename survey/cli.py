@@ -244,7 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "(centroid per voxel, Open3D semantics), then remove statistical and "
                     "radius outliers (Open3D semantics) and write LAS/LAZ with the number "
                     "of points per voxel.",
-        epilog="Example: tunnelsim preprocess mls.laz -o clean.laz --voxel 0.02 --sor 8,2.0")
+        epilog="Example: tunnelsim preprocess mls.laz -o clean.laz --voxel 0.02 --sor 8,2.0 "
+               "--segment")
     p.add_argument("cloud", help="input cloud")
     p.add_argument("-o", "--output", required=True, help="output cloud (.las/.laz)")
     p.add_argument("--voxel", type=float, metavar="M", help="voxel size in metres")
@@ -253,6 +254,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "threshold mean + STD_RATIO x std")
     p.add_argument("--ror", metavar="N,RADIUS_M",
                    help="radius outlier removal: at least N other points within RADIUS_M")
+    p.add_argument("--segment", action="store_true",
+                   help="classify lining (64), floor (2), attachments (65), objects (66), "
+                        "noise (7) as LAS classification")
+    p.add_argument("--tunnel-json", help="alignment for --segment from a generated tunnel's "
+                                         "JSON (default: estimated from the cloud)")
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(func=clouds.cmd_preprocess)
 

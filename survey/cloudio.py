@@ -210,9 +210,10 @@ def _ply_memmap(src):
     return np.memmap(src, dtype=np.dtype(fields), mode="r", offset=start, shape=(n,)), head
 
 
-def write_points_las(path, xyz, extra=None):
+def write_points_las(path, xyz, extra=None, classification=None):
     """Write points (n, 3) as LAS/LAZ 1.4 (format 6, 0.1 mm scale, offset near the data)
-    with optional extra dimensions {name: (n,) array}; atomic."""
+    with optional extra dimensions {name: (n,) array} and classification codes (n,);
+    atomic."""
     import laspy
 
     path = Path(path)
@@ -232,6 +233,8 @@ def write_points_las(path, xyz, extra=None):
                     rec.array[name] = np.round((xyz[i:i + CHUNK, k] - head.offsets[k]) /
                                                LAS_SCALE)
                 rec.array["bit_fields"] = 0x11
+                if classification is not None:
+                    rec.array["classification"] = np.asarray(classification)[i:i + CHUNK]
                 for k, v in extra.items():
                     rec.array[k] = np.asarray(v)[i:i + CHUNK]
                 w.write_points(rec)

@@ -27,34 +27,49 @@ def cmd_preprocess(args) -> int:
     if args.ror:
         nb, rad = _parse_window(args.ror.replace(",", ":"), "--ror as N,RADIUS_M", 2)
         keep &= ~radius_outliers(pts, int(nb), rad)
+    cls = None
+    if args.segment:
+        from ..segment import CLASS_NAMES, segment_tunnel
+
+        al, hc = _tunnel_axis(args.tunnel_json)
+        cls = segment_tunnel(pts[keep], alignment=al, centre_height_m=hc)
     write_points_las(args.output, pts[keep],
-                     {"voxel_count": counts[keep].astype(np.uint32)})
+                     {"voxel_count": counts[keep].astype(np.uint32)}, classification=cls)
     if not args.quiet:
         print(f"{n_in:,} points -> {len(pts):,} after the voxel grid -> {int(keep.sum()):,} "
               f"after outlier removal -> {args.output}")
+        if cls is not None:
+            u, c = np.unique(cls, return_counts=True)
+            print("classes: " + ", ".join(f"{CLASS_NAMES[k]} ({k}) {v:,}"
+                                          for k, v in zip(u.tolist(), c.tolist())))
     return 0
 
 
-def cmd_mesh(args) -> int:
+def _tunnel_axis(path):
+    """(Alignment, profile-centre height) from a tunnel JSON, or (None, None)."""
+    if not path:
+        return None, None
     import json
+    from pathlib import Path
 
     from ..alignment import Alignment
+    from ..profiles import Profile
+
+    js = Path(path)
+    if not js.is_file():
+        raise TunnelsimCLIError(f"Expected a tunnel JSON, got '{js}' which does not exist.")
+    meta = json.loads(js.read_text())
+    return (Alignment.from_dict(meta["alignment"]),
+            float(Profile.from_dict(meta["profile"]).centroid[1]))
+
+
+def cmd_mesh(args) -> int:
     from ..cloudio import iter_points
     from ..reconstruct import reconstruct_tunnel
 
     cell_m, cell_deg = _parse_window(args.cell.replace(",", ":"), "--cell as M,DEG", 2)
     pts = np.concatenate(list(iter_points(args.cloud)))
-    al = hc = None
-    if args.tunnel_json:
-        from pathlib import Path
-        js = Path(args.tunnel_json)
-        if not js.is_file():
-            raise TunnelsimCLIError(f"Expected a tunnel JSON, got '{js}' which does not "
-                                    "exist.")
-        meta = json.loads(js.read_text())
-        al = Alignment.from_dict(meta["alignment"])
-        from ..profiles import Profile
-        hc = float(Profile.from_dict(meta["profile"]).centroid[1])
+    al, hc = _tunnel_axis(args.tunnel_json)
     rec = reconstruct_tunnel(pts, alignment=al, centre_height_m=hc, cell_m=cell_m,
                              cell_rad=np.deg2rad(cell_deg), min_points=args.min_points)
     rec.write(args.output)

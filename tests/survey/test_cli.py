@@ -338,3 +338,32 @@ def test_mesh_reconstructs_a_generated_tunnel(tbm, tmp_path, capsys):
     s, o, h = tun.alignment.to_local(back["vertices"])
     r = np.hypot(o, h - 2.5)                                  # tbm: circle r 2.5 m
     assert np.median(np.abs(r[back["support"] > 0] - 2.5)) < 0.01
+
+
+def test_preprocess_segment_writes_classes(tbm, tmp_path, capsys):
+    import laspy
+
+    from survey.cloudio import write_points_las
+    from survey.tunnel import LABEL
+    from survey.tunnel_io import read_tunnel
+    tun = read_tunnel(tbm)
+    rng = np.random.default_rng(1)
+    # Dense enough for the 0.25 m x 2 deg cells: 20 m of the tunnel (~500 points/m^2).
+    window = np.flatnonzero((tun.vertex_chainage[tun.faces[:, 0]] > 40.0) &
+                            (tun.vertex_chainage[tun.faces[:, 0]] < 60.0))
+    pick = window[rng.integers(0, len(window), 150_000)]
+    tri = tun.vertices[tun.faces[pick]]
+    pts = np.einsum("nk,nkj->nj", rng.dirichlet([1, 1, 1], len(tri)), tri)
+    write_points_las(tmp_path / "c.laz", pts)
+    assert main(["preprocess", str(tmp_path / "c.laz"), "-o", str(tmp_path / "s.laz"),
+                 "--segment", "--tunnel-json", str(tbm.with_suffix(".json"))]) == 0
+    assert "classes:" in capsys.readouterr().out
+    cls = np.asarray(laspy.read(tmp_path / "s.laz").classification)
+    lab = tun.labels[pick]
+    cable = np.isin(lab, [LABEL["cable"], LABEL["prism"]])
+    # Points sampled all round the closed solids include their backs, a couple of cm
+    # from the wall (within the 2 cm lining tolerance); those clearly in front count.
+    s, o, h = tun.alignment.to_local(pts)
+    front = cable & (tun.profile.distance(np.stack([o, h], 1)) > 0.04)
+    assert np.mean(cls[front] == 65) > 0.95
+    assert np.mean(np.isin(cls[~cable], [64, 2])) > 0.95
