@@ -254,6 +254,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "threshold mean + STD_RATIO x std")
     p.add_argument("--ror", metavar="N,RADIUS_M",
                    help="radius outlier removal: at least N other points within RADIUS_M")
+    p.add_argument("--crop", metavar="START,END",
+                   help="keep the chainage range START..END in m (axis from --tunnel-json "
+                        "or estimated)")
     p.add_argument("--segment", action="store_true",
                    help="classify lining (64), floor (2), attachments (65), objects (66), "
                         "noise (7) as LAS classification")
@@ -272,6 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output mesh (.ply)")
     p.add_argument("--cell", default="0.1,2", metavar="M,DEG",
                    help="cell size along the axis (m) and around it (deg), default 0.1,2")
+    p.add_argument("--triangles", type=int, metavar="N",
+                   help="triangle budget: coarsen the cells until the mesh fits")
     p.add_argument("--min-points", type=int, default=3,
                    help="cells with fewer points are interpolated (default 3)")
     p.add_argument("--tunnel-json", help="use the alignment of a generated tunnel's JSON")

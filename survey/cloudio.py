@@ -119,6 +119,7 @@ def cloud_bounds(path, *, chunk: int = CHUNK):
 
         with laspy.open(path) as r:
             h = r.header
+            _check_las_scale(h, path)
             if h.point_count == 0:
                 raise CloudFileError(f"Expected points in '{path}', got an empty cloud.")
             return np.asarray(h.mins, float), np.asarray(h.maxs, float), int(h.point_count)
@@ -130,6 +131,19 @@ def cloud_bounds(path, *, chunk: int = CHUNK):
     if n == 0:
         raise CloudFileError(f"Expected points in '{path}', got an empty cloud.")
     return lo, hi, n
+
+
+#: Coarsest LAS coordinate scale accepted for tunnel work (m).
+MAX_LAS_SCALE = 0.01
+
+
+def _check_las_scale(header, path):
+    sc = np.asarray(header.scales, dtype=np.float64)
+    if not (np.isfinite(sc).all() and (sc > 0).all() and (sc <= MAX_LAS_SCALE).all()):
+        raise CloudFileError(f"Expected LAS coordinate scales between 0 and "
+                             f"{MAX_LAS_SCALE} m, got {sc.tolist()} in '{path}'; the "
+                             "coordinates are too coarse (or broken) for tunnel work: "
+                             "re-export with a scale of 0.001 m or finer.")
 
 
 def iter_points(path, *, chunk: int = CHUNK):
@@ -144,6 +158,7 @@ def iter_points(path, *, chunk: int = CHUNK):
         import laspy
 
         with laspy.open(path) as r:
+            _check_las_scale(r.header, path)
             for pts in r.chunk_iterator(chunk):
                 yield np.stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)], 1)
     elif kind == ".ply":

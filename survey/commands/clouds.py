@@ -21,6 +21,14 @@ def cmd_preprocess(args) -> int:
         pts = np.concatenate(list(iter_points(args.cloud)))
         counts = np.ones(len(pts), dtype=np.int64)
     keep = np.ones(len(pts), dtype=bool)
+    if args.crop:
+        s0, s1 = _parse_window(args.crop.replace(",", ":"), "--crop as START,END in m", 2)
+        al, _ = _tunnel_axis(args.tunnel_json)
+        if al is None:
+            from ..reconstruct import estimate_axis
+            al, _ = estimate_axis(pts)
+        s, _, _ = al.to_local(pts)
+        keep &= (s >= s0) & (s <= s1)
     if args.sor:
         k, ratio = _parse_window(args.sor.replace(",", ":"), "--sor as K,STD_RATIO", 2)
         keep &= ~statistical_outliers(pts, int(k), ratio)
@@ -72,6 +80,19 @@ def cmd_mesh(args) -> int:
     al, hc = _tunnel_axis(args.tunnel_json)
     rec = reconstruct_tunnel(pts, alignment=al, centre_height_m=hc, cell_m=cell_m,
                              cell_rad=np.deg2rad(cell_deg), min_points=args.min_points)
+    f = 1.0
+    while args.triangles and len(rec.faces) > args.triangles:
+        # A triangle budget: the same reconstruction on proportionally larger cells
+        # (both directions scaled alike; cell counts round, so step until it fits),
+        # which keeps the grid regular and the support meaningful.
+        f *= max(1.02, np.sqrt(len(rec.faces) / args.triangles))
+        rec = reconstruct_tunnel(pts, alignment=rec.alignment,
+                                 centre_height_m=rec.centre_height_m, cell_m=cell_m * f,
+                                 cell_rad=min(np.deg2rad(cell_deg) * f, np.pi / 4 - 1e-9),
+                                 min_points=args.min_points)
+        if f > 1e3:
+            raise TunnelsimCLIError(f"Expected a reachable triangle budget, got "
+                                    f"{args.triangles}; ask for more triangles.")
     rec.write(args.output)
     if not args.quiet:
         q = rec.quality

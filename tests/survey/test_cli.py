@@ -367,3 +367,35 @@ def test_preprocess_segment_writes_classes(tbm, tmp_path, capsys):
     front = cable & (tun.profile.distance(np.stack([o, h], 1)) > 0.04)
     assert np.mean(cls[front] == 65) > 0.95
     assert np.mean(np.isin(cls[~cable], [64, 2])) > 0.95
+
+
+def test_mesh_budget_crop_and_coarse_las(tbm, tmp_path, capsys):
+    import laspy
+
+    from survey.cloudio import write_points_las
+    from survey.tunnel import LABEL
+    from survey.tunnel_io import read_ply, read_tunnel
+    tun = read_tunnel(tbm)
+    rng = np.random.default_rng(2)
+    lin = tun.faces[np.isin(tun.labels, [LABEL["lining"], LABEL["floor"]])]
+    tri = tun.vertices[lin[rng.integers(0, len(lin), 100_000)]]
+    pts = np.einsum("nk,nkj->nj", rng.dirichlet([1, 1, 1], len(tri)), tri)
+    write_points_las(tmp_path / "c.laz", pts)
+    js = str(tbm.with_suffix(".json"))
+    assert main(["mesh", str(tmp_path / "c.laz"), "-o", str(tmp_path / "m.ply"), "--cell",
+                 "0.5,4", "--tunnel-json", js, "--triangles", "5000", "--quiet"]) == 0
+    assert len(read_ply(tmp_path / "m.ply")["faces"]) <= 5000
+    assert main(["preprocess", str(tmp_path / "c.laz"), "-o", str(tmp_path / "p.laz"),
+                 "--crop", "20,30", "--tunnel-json", js, "--quiet"]) == 0
+    out = laspy.read(tmp_path / "p.laz")
+    s, _, _ = tun.alignment.to_local(np.stack([out.x, out.y, out.z], 1))
+    assert len(s) > 1000 and s.min() >= 20 - 1e-3 and s.max() <= 30 + 1e-3
+    # A LAS written with a 10 cm scale is refused with the reason.
+    hdr = laspy.LasHeader(point_format=6, version="1.4")
+    hdr.scales = [0.1, 0.1, 0.1]
+    las = laspy.LasData(hdr)
+    las.x, las.y, las.z = pts[:100].T
+    las.write(tmp_path / "coarse.las")
+    assert main(["preprocess", str(tmp_path / "coarse.las"), "-o", str(tmp_path / "x.laz")]) == 2
+    err = capsys.readouterr().err
+    assert "too coarse" in err and len(err.strip().splitlines()) == 1
