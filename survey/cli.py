@@ -275,6 +275,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output mesh (.ply)")
     p.add_argument("--cell", default="0.1,2", metavar="M,DEG",
                    help="cell size along the axis (m) and around it (deg), default 0.1,2")
+    p.add_argument("--method", choices=["tunnel", "poisson"], default="tunnel",
+                   help="tunnel-aware mesher (default) or Open3D Poisson (optional extra)")
+    p.add_argument("--depth", type=int, default=10,
+                   help="Poisson octree depth (default 10)")
     p.add_argument("--triangles", type=int, metavar="N",
                    help="triangle budget: coarsen the cells until the mesh fits")
     p.add_argument("--min-points", type=int, default=3,

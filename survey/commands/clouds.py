@@ -78,6 +78,16 @@ def cmd_mesh(args) -> int:
     cell_m, cell_deg = _parse_window(args.cell.replace(",", ":"), "--cell as M,DEG", 2)
     pts = np.concatenate(list(iter_points(args.cloud)))
     al, hc = _tunnel_axis(args.tunnel_json)
+    if args.method == "poisson":
+        from ..reconstruct import poisson_tunnel
+        from ..tunnel_io import write_ply
+
+        v, f = poisson_tunnel(pts, alignment=al, centre_height_m=hc, depth=args.depth)
+        write_ply(args.output, v, f)
+        if not args.quiet:
+            print(f"{len(pts):,} points -> {len(f):,} triangles (Poisson, depth "
+                  f"{args.depth}, trimmed) -> {args.output}")
+        return 0
     rec = reconstruct_tunnel(pts, alignment=al, centre_height_m=hc, cell_m=cell_m,
                              cell_rad=np.deg2rad(cell_deg), min_points=args.min_points)
     f = 1.0
