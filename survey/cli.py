@@ -275,6 +275,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output mesh (.ply)")
     p.add_argument("--cell", default="0.1,2", metavar="M,DEG",
                    help="cell size along the axis (m) and around it (deg), default 0.1,2")
+    p.add_argument("--detail", action="store_true",
+                   help="add a detail layer: attachments (cables, pipes) as closed tubes "
+                        "(vertex support -1)")
     p.add_argument("--method", choices=["tunnel", "poisson"], default="tunnel",
                    help="tunnel-aware mesher (default) or Open3D Poisson (optional extra)")
     p.add_argument("--depth", type=int, default=10,

@@ -103,7 +103,23 @@ def cmd_mesh(args) -> int:
         if f > 1e3:
             raise TunnelsimCLIError(f"Expected a reachable triangle budget, got "
                                     f"{args.triangles}; ask for more triangles.")
-    rec.write(args.output)
+    if args.detail:
+        from ..detail import attachment_tubes
+        from ..segment import ATTACHMENT, segment_tunnel
+        from ..tunnel_io import write_ply
+
+        cls = segment_tunnel(pts, alignment=rec.alignment,
+                             centre_height_m=rec.centre_height_m)
+        tv, tf = attachment_tubes(pts[cls == ATTACHMENT], rec.alignment)
+        # Detail-layer vertices carry support -1.
+        write_ply(args.output, np.concatenate([rec.vertices, tv]),
+                  np.concatenate([rec.faces, tf + len(rec.vertices)]),
+                  vertex_fields={"support": np.concatenate(
+                      [rec.support.astype(np.float64), np.full(len(tv), -1.0)])})
+        if not args.quiet:
+            print(f"detail layer: {len(tf):,} triangles of attachment tubes")
+    else:
+        rec.write(args.output)
     if not args.quiet:
         q = rec.quality
         print(f"{q['points']:,} points -> {q['triangles']:,} triangles -> {args.output}; "

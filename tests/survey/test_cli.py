@@ -399,3 +399,31 @@ def test_mesh_budget_crop_and_coarse_las(tbm, tmp_path, capsys):
     assert main(["preprocess", str(tmp_path / "coarse.las"), "-o", str(tmp_path / "x.laz")]) == 2
     err = capsys.readouterr().err
     assert "too coarse" in err and len(err.strip().splitlines()) == 1
+
+
+def test_mesh_detail_layer_keeps_the_cable(tbm, tmp_path, capsys):
+    import trimesh
+
+    from survey.cloudio import write_points_las
+    from survey.tunnel_io import read_ply, read_tunnel
+    tun = read_tunnel(tbm)
+    rng = np.random.default_rng(3)
+    window = np.flatnonzero((tun.vertex_chainage[tun.faces[:, 0]] > 30.0) &
+                            (tun.vertex_chainage[tun.faces[:, 0]] < 50.0))
+    tri = tun.vertices[tun.faces[window[rng.integers(0, len(window), 200_000)]]]
+    pts = np.einsum("nk,nkj->nj", rng.dirichlet([1, 1, 1], len(tri)), tri)
+    write_points_las(tmp_path / "c.laz", pts)
+    assert main(["mesh", str(tmp_path / "c.laz"), "-o", str(tmp_path / "m.ply"),
+                 "--tunnel-json", str(tbm.with_suffix(".json")), "--detail"]) == 0
+    assert "detail layer" in capsys.readouterr().out
+    ply = read_ply(tmp_path / "m.ply")
+    detail = ply["support"] == -1
+    assert detail.sum() > 0
+    s, o, h = tun.alignment.to_local(ply["vertices"][detail])
+    t = tun.profile.t_at_height("left", 3.0)                  # tbm cable: 3 m, r 3 cm
+    c = tun.profile.points(t) - tun.profile.normals(t) * 0.06
+    near = np.hypot(o - c[0], h - c[1]) < 0.06
+    assert near.mean() > 0.5
+    tube = detail[ply["faces"]].all(axis=1)
+    mesh = trimesh.Trimesh(ply["vertices"], ply["faces"][tube], process=False)
+    assert tube.sum() > 0 and mesh.is_watertight and mesh.is_winding_consistent

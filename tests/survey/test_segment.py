@@ -64,3 +64,34 @@ def test_objects_and_noise_are_separated(scan):
                          centre_height_m=1.3)
     assert np.mean(cls[len(xyz):len(xyz) + 500] == OBJECT) > 0.95
     assert np.mean(cls[len(xyz) + 500:] == NOISE) > 0.95
+
+
+def test_detail_layer_recovers_the_cables(scan):
+    """Attachment points become closed tubes at the cables' true positions and radii
+    (the seed study's meshes lost its four cables)."""
+    import trimesh
+
+    from survey.detail import attachment_tubes
+    from survey.profiles import horseshoe
+    al, xyz, truth = scan
+    cls = segment_tunnel(xyz, alignment=al, centre_height_m=1.3)
+    v, f = attachment_tubes(xyz[cls == ATTACHMENT], al)
+    mesh = trimesh.Trimesh(v, f, process=False)
+    bodies = [b for b in mesh.split(only_watertight=False) if b.area > 0.5]
+    assert len(bodies) >= 2
+    prof = horseshoe(2.8)
+    want = []
+    for height, r in ((1.5, 0.02), (1.6, 0.015)):
+        t = prof.t_at_height("left", height)
+        want.append((prof.points(t) - prof.normals(t) * (0.03 + r), r))
+    for (c, r) in want:
+        best = None
+        for b in bodies:
+            s, o, h = al.to_local(b.vertices)
+            centre = np.array([np.median(o), np.median(h)])
+            if best is None or np.linalg.norm(centre - c) < np.linalg.norm(best[0] - c):
+                best = (centre, np.median(np.hypot(o - centre[0], h - centre[1])), b)
+        centre, radius, body = best
+        assert np.linalg.norm(centre - c) < 0.01, (centre, c)
+        assert abs(radius - r) < 0.006, (radius, r)
+        assert body.is_watertight and body.is_winding_consistent and body.volume > 0
