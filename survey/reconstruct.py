@@ -144,6 +144,42 @@ def estimate_axis(points, *, slice_m: float = 2.0, knot_spacing_m: float = 15.0,
     return al2, 0.0
 
 
+def unroll(points, alignment=None, centre_height_m=None):
+    """(alignment, h_c, s, offset, height, phi, rho) of points about the profile centre:
+    the alignment estimated when not given (its axis runs through the centre, h_c = 0),
+    phi from the crown positive to the left, rho the distance from the centre."""
+    if alignment is None:
+        alignment, _ = estimate_axis(points)
+    hc = 0.0 if centre_height_m is None else float(centre_height_m)
+    s, off, h = alignment.to_local(points)
+    return alignment, hc, s, off, h, np.arctan2(off, h - hc), np.hypot(off, h - hc)
+
+
+def cell_runs(cell, values):
+    """Values grouped by cell: (cell ids (k,), values sorted within each cell (n,),
+    start of each cell's run (k,), run lengths (k,))."""
+    order = np.lexsort((values, cell))
+    cs, vs = cell[order], values[order]
+    starts = np.flatnonzero(np.concatenate([[True], cs[1:] != cs[:-1]]))
+    return cs[starts], vs, starts, np.diff(np.append(starts, len(cs)))
+
+
+def fill_gaps(grid, axis_coords):
+    """NaN cells of a (rings, around) grid filled in place: periodic linear
+    interpolation around each ring, then linear along the axis at ``axis_coords``."""
+    n_a = grid.shape[1]
+    ang = np.arange(n_a)
+    for row in grid:
+        ok = np.isfinite(row)
+        if ok.any() and not ok.all():
+            row[~ok] = np.interp(ang[~ok], ang[ok], row[ok], period=n_a)
+    for col in grid.T:
+        ok = np.isfinite(col)
+        if ok.any() and not ok.all():
+            col[~ok] = np.interp(axis_coords[~ok], axis_coords[ok], col[ok])
+    return grid
+
+
 def reconstruct_tunnel(points, *, alignment: Alignment | None = None,
                        centre_height_m: float | None = None, cell_m: float = 0.1,
                        cell_rad: float = np.deg2rad(2.0), min_points: int = 3,
@@ -167,15 +203,7 @@ def reconstruct_tunnel(points, *, alignment: Alignment | None = None,
     if not (cell_m > 0 and 0 < cell_rad < np.pi / 4):
         raise ReconstructionError(f"Expected cell sizes > 0 m and in (0, pi/4) rad, got "
                                   f"{cell_m}, {cell_rad}.")
-    if alignment is None:
-        alignment, hc = estimate_axis(p)
-    else:
-        hc = 0.0
-    if centre_height_m is not None:
-        hc = float(centre_height_m)
-    s, off, h = alignment.to_local(p)
-    phi = np.arctan2(off, h - hc)
-    rho = np.hypot(off, h - hc)
+    alignment, hc, s, off, h, phi, rho = unroll(p, alignment, centre_height_m)
     c0, c1 = alignment.chainage_range
     use = (s > c0 + 1e-9) & (s < c1 - 1e-9)
     if use.sum() == 0:
@@ -203,29 +231,16 @@ def reconstruct_tunnel(points, *, alignment: Alignment | None = None,
     j = np.mod(np.floor((phi[use] + np.pi) / da).astype(np.int64), n_a)
     cell = i * n_a + j
     r = rho[use]
-    # Median radius per cell: sort by (cell, radius), take the middle element(s).
-    order = np.lexsort((r, cell))
-    cs, rs = cell[order], r[order]
-    starts = np.flatnonzero(np.concatenate([[True], cs[1:] != cs[:-1]]))
-    counts = np.diff(np.append(starts, len(cs)))
+    # Median radius per cell (the middle element(s) of each sorted run).
+    ids, rs, starts, counts = cell_runs(cell, r)
     med = 0.5 * (rs[starts + (counts - 1) // 2] + rs[starts + counts // 2])
     radius = np.full(n_s * n_a, np.nan)
     support = np.zeros(n_s * n_a, dtype=np.int64)
-    radius[cs[starts]] = med
-    support[cs[starts]] = counts
+    radius[ids] = med
+    support[ids] = counts
     radius[support < min_points] = np.nan
     support[support < min_points] = 0
-    grid = radius.reshape(n_s, n_a)
-    # Fill gaps around each ring (periodic), then along the axis.
-    ang = np.arange(n_a)
-    for row in grid:
-        ok = np.isfinite(row)
-        if ok.any() and not ok.all():
-            row[~ok] = np.interp(ang[~ok], ang[ok], row[ok], period=n_a)
-    for col in grid.T:
-        ok = np.isfinite(col)
-        if ok.any() and not ok.all():
-            col[~ok] = np.interp(sc[~ok], sc[ok], col[ok])
+    grid = fill_gaps(radius.reshape(n_s, n_a), sc)
     if not np.isfinite(grid).all():
         raise ReconstructionError("Expected points around the whole lining, got too few to "
                                   "fill the unrolled grid; use larger cells.")
@@ -270,18 +285,12 @@ def poisson_tunnel(points, *, alignment: Alignment | None = None,
     if p.ndim != 2 or p.shape[1] != 3 or len(p) < 100 or not np.isfinite(p).all():
         raise ReconstructionError(f"Expected at least 100 finite points (n, 3), got "
                                   f"{p.shape}.")
-    if alignment is None:
-        alignment, hc = estimate_axis(p)
-    else:
-        hc = 0.0
-    if centre_height_m is not None:
-        hc = float(centre_height_m)
+    alignment, hc, s, off, h, _, _ = unroll(p, alignment, centre_height_m)
     origin = np.round(p.mean(axis=0))
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p - origin))
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius_m,
                                                               max_nn=30))
     n = np.asarray(pc.normals)
-    s, off, h = alignment.to_local(p)
     axis = alignment.to_world(s, 0 * off, 0 * h + hc) - origin
     flip = np.einsum("ij,ij->i", n, axis - (p - origin)) < 0
     n[flip] *= -1.0                                   # towards the axis (the scanner side)

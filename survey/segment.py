@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .reconstruct import ReconstructionError, estimate_axis
+from .reconstruct import ReconstructionError, cell_runs, fill_gaps, unroll
 
 #: Class codes (LAS 1.4 classification values).
 FLOOR, LINING, ATTACHMENT, OBJECT, NOISE = 2, 64, 65, 66, 7
@@ -55,40 +55,20 @@ def segment_tunnel(points, *, alignment=None, centre_height_m: float | None = No
     if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0 or not np.isfinite(p).all():
         raise ReconstructionError(f"Expected a non-empty finite cloud of shape (n, 3), got "
                                   f"{p.shape}.")
-    if alignment is None:
-        alignment, hc = estimate_axis(p)
-    else:
-        hc = 0.0
-    if centre_height_m is not None:
-        hc = float(centre_height_m)
-    s, off, h = alignment.to_local(p)
-    phi = np.arctan2(off, h - hc)
-    rho = np.hypot(off, h - hc)
+    alignment, hc, s, off, h, phi, rho = unroll(p, alignment, centre_height_m)
     s_lo, s_hi = s.min(), s.max()
     n_s = max(1, int(np.ceil((s_hi - s_lo) / cell_m)))
     n_a = max(8, int(np.round(2 * np.pi / cell_rad)))
     i = np.clip(((s - s_lo) / max(s_hi - s_lo, 1e-9) * n_s).astype(np.int64), 0, n_s - 1)
     j = np.mod(np.floor((phi + np.pi) / (2 * np.pi / n_a)).astype(np.int64), n_a)
     cell = i * n_a + j
-    # Quantile of the radii per cell (sort by cell, then radius).
-    order = np.lexsort((rho, cell))
-    cs, rs = cell[order], rho[order]
-    starts = np.flatnonzero(np.concatenate([[True], cs[1:] != cs[:-1]]))
-    counts = np.diff(np.append(starts, len(cs)))
+    # Quantile of the radii per cell.
+    ids, rs, starts, counts = cell_runs(cell, rho)
     q = rs[starts + np.minimum(counts - 1, (LINING_QUANTILE * counts).astype(np.int64))]
     grid = np.full(n_s * n_a, np.nan)
     ok = counts >= min_points
-    grid[cs[starts][ok]] = q[ok]
-    grid = grid.reshape(n_s, n_a)
-    ang = np.arange(n_a)
-    for row in grid:
-        good = np.isfinite(row)
-        if good.any() and not good.all():
-            row[~good] = np.interp(ang[~good], ang[good], row[good], period=n_a)
-    for col in grid.T:
-        good = np.isfinite(col)
-        if good.any() and not good.all():
-            col[~good] = np.interp(np.flatnonzero(~good), np.flatnonzero(good), col[good])
+    grid[ids[ok]] = q[ok]
+    grid = fill_gaps(grid.reshape(n_s, n_a), np.arange(n_s, dtype=np.float64))
     if not np.isfinite(grid).all():
         raise ReconstructionError("Expected points around the whole lining, got too few "
                                   "to estimate it; use larger cells.")
@@ -100,7 +80,7 @@ def segment_tunnel(points, *, alignment=None, centre_height_m: float | None = No
     padded = np.concatenate([grid[:, -ka:], grid, grid[:, :ka]], axis=1)
     grid = median_filter(padded, size=SMOOTH_CELLS, mode="nearest")[:, ka:ka + n_a]
     # Outward normal of the lining around each ring, from neighbouring cell points.
-    ac = -np.pi + (ang + 0.5) * 2 * np.pi / n_a
+    ac = -np.pi + (np.arange(n_a) + 0.5) * 2 * np.pi / n_a
     yo = grid * np.sin(ac)
     zo = grid * np.cos(ac)
     ty = np.roll(yo, -1, axis=1) - np.roll(yo, 1, axis=1)
