@@ -95,3 +95,22 @@ def test_detail_layer_recovers_the_cables(scan):
         assert np.linalg.norm(centre - c) < 0.01, (centre, c)
         assert abs(radius - r) < 0.006, (radius, r)
         assert body.is_watertight and body.is_winding_consistent and body.volume > 0
+
+
+def test_bad_segment_and_detail_input(tmp_path):
+    from survey.detail import attachment_tubes
+    from survey.reconstruct import ReconstructionError
+    from survey.tunnel_io import TunnelFileError, read_tunnel
+    al = Alignment([straight(10.0)])
+    with pytest.raises(ReconstructionError, match="non-empty finite cloud"):
+        segment_tunnel(np.empty((0, 3)), alignment=al)
+    with pytest.raises(ReconstructionError, match="shape"):
+        segment_tunnel(np.zeros((5, 2)), alignment=al)
+    v, f = attachment_tubes(np.zeros((3, 3)), al)          # too few points: no tube
+    assert v.shape == (0, 3) and f.shape == (0, 3)
+    (tmp_path / "t.ply").write_bytes(b"ply\n")
+    with pytest.raises(TunnelFileError, match="metadata file"):
+        read_tunnel(tmp_path / "t.ply")
+    (tmp_path / "t.json").write_text('{"format": "other"}')
+    with pytest.raises(TunnelFileError, match="format"):
+        read_tunnel(tmp_path / "t.ply")
