@@ -92,7 +92,7 @@ def _write_text(path, text):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .commands import adjustment, clouds, scanning, world
+    from .commands import adjustment, analysis, clouds, scanning, world
 
     parser = _Parser(
         prog="tunnelsim",
@@ -289,6 +289,101 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tunnel-json", help="use the alignment of a generated tunnel's JSON")
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(func=clouds.cmd_mesh)
+
+    p = sub.add_parser(
+        "compare", help="cloud-to-cloud or cloud-to-mesh distances, with statistics",
+        description="Distances from one or more clouds to a reference, CloudCompare "
+                    "semantics: exact nearest neighbour (C2C) or signed distance to a mesh "
+                    "(C2M, positive on the side of the triangle normal). The last path is "
+                    "the reference (cloud, or a mesh .ply/.obj/.stl). Writes stats.csv, "
+                    "stats.md (mean, median, std, 95 %, RMS per scan), histogram.png and "
+                    "each cloud as LAZ with the scalar field 'distance'.",
+        epilog="Example: tunnelsim compare station_sim.laz station_real.laz --max-dist 0.5 "
+               "-o compare/")
+    p.add_argument("clouds", nargs="+", metavar="CLOUD",
+                   help="compared cloud(s), then the reference")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--max-dist", type=float, metavar="M",
+                   help="clamp distances at M metres (points farther get M)")
+    p.add_argument("--split", action="store_true",
+                   help="also write the X/Y/Z components (compared - nearest reference)")
+    p.add_argument("--model", choices=["plane"],
+                   help="local model of the reference: least-squares plane of --k points")
+    p.add_argument("--k", type=int, default=6, help="neighbours for --model (default 6)")
+    p.add_argument("--threads", type=int, help="Numba threads (default: all cores)")
+    p.add_argument("--force", action="store_true", help="write into a non-empty folder")
+    p.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(func=analysis.cmd_compare)
+
+    p = sub.add_parser(
+        "plan", help="TLS station planning: coverage of spacings, optimised station set",
+        description="Quality of every lining cell (coverage, point spacing from the "
+                    "preset's angular step and range, incidence, range) for stations on "
+                    "the axis at fixed spacings, and optionally the smallest station set "
+                    "reaching a target coverage (MILP, greedy bound). Writes plan.csv, "
+                    "plan.md and coverage.png (unrolled chainage x angle).",
+        epilog="Example: tunnelsim plan --mesh bfo.ply --sensor zf_imager_5016 "
+               "--resolution high --spacing 5,10 --optimize --target 0.99 -o plan/")
+    p.add_argument("--mesh", required=True, help="tunnel mesh (its .json gives the axis)")
+    p.add_argument("--sensor", default="zf_imager_5016", help="TLS sensor name or .toml")
+    p.add_argument("--resolution", help="resolution preset (default: the sensor's)")
+    p.add_argument("--spacing", default="5,10", metavar="M[,M...]",
+                   help="station spacings to compare in metres (default 5,10)")
+    p.add_argument("--optimize", action="store_true",
+                   help="find the smallest station set for --target")
+    p.add_argument("--target", type=float, default=0.99,
+                   help="coverage share to reach with --optimize (default 0.99)")
+    p.add_argument("--candidate-step", type=float, default=2.5, metavar="M",
+                   help="candidate stations every M metres (default 2.5)")
+    p.add_argument("--time-limit", type=float, default=60.0, metavar="S",
+                   help="MILP time limit in seconds (default 60)")
+    p.add_argument("--spacing-mm", type=float, default=5.0,
+                   help="point-spacing threshold in mm (default 5)")
+    p.add_argument("--incidence-deg", type=float, default=70.0,
+                   help="incidence threshold in degrees (default 70)")
+    p.add_argument("--range", type=float, default=30.0, metavar="M",
+                   help="range threshold in metres (default 30)")
+    p.add_argument("--cell", default="0.25,2", metavar="M,DEG",
+                   help="lining cell size along (m) and around (deg) (default 0.25,2)")
+    p.add_argument("--height", type=float, default=1.5, metavar="M",
+                   help="instrument height above the floor (default 1.5)")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--threads", type=int, help="Numba threads (default: all cores)")
+    p.add_argument("--force", action="store_true", help="write into a non-empty folder")
+    p.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(func=analysis.cmd_plan)
+
+    p = sub.add_parser(
+        "study", help="MLS speed x scan-rate x mounting study",
+        description="Drive a spinning lidar (or profiler) through an evaluation strip at "
+                    "each speed, rate and mounting: density on lining and floor, empty "
+                    "lining share, along-track line spacing, rolling-shutter distortion. "
+                    "Writes study.csv, study.md and study.png (floor rings per speed, "
+                    "density vs speed).",
+        epilog="Example: tunnelsim study --mesh bfo.ply --sensor robosense_airy --speeds "
+               "0,1,3 --rates 10,20 --mounts down -o study/")
+    p.add_argument("--mesh", required=True, help="tunnel mesh (its .json gives the axis)")
+    p.add_argument("--sensor", default="robosense_airy", help="sensor name or .toml")
+    p.add_argument("--speeds", default="0,1,3", metavar="V[,V...]",
+                   help="speeds in m/s (default 0,1,3)")
+    p.add_argument("--rates", default="10", metavar="HZ[,HZ...]",
+                   help="rotation (profile) rates in Hz (default 10)")
+    p.add_argument("--mounts", default="level,down", metavar="level,down",
+                   help="mountings (default level,down)")
+    p.add_argument("--strip", metavar="START,END",
+                   help="evaluation strip in chainage (default: 5 m mid-tunnel)")
+    p.add_argument("--lead", type=float, default=5.0, metavar="M",
+                   help="drive this far before and after the strip (default 5)")
+    p.add_argument("--height", type=float, default=0.5, metavar="M",
+                   help="sensor height above the floor (default 0.5)")
+    p.add_argument("--ideal", action="store_true",
+                   help="exact geometry: no noise, every return detected")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--threads", type=int, help="Numba threads (default: all cores)")
+    p.add_argument("--force", action="store_true", help="write into a non-empty folder")
+    p.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(func=analysis.cmd_study)
 
     p = sub.add_parser("sensors", help="list the sensor models",
                        description="List the shipped sensor models with kind and source "

@@ -58,3 +58,57 @@ def naive_cast(vertices, faces, origins, directions, t_min=0.0, t_max=np.inf):
         out_v[i] = vv[best]
         margin[i] = abs(min(u[best], vv[best], 1 - u[best] - vv[best]))
     return out_t, out_tri, out_u, out_v, margin
+
+
+def naive_nearest(points, reference):
+    """Exact nearest reference point of each point by all pairs: (distance (n,), index (n,))."""
+    p = np.asarray(points, dtype=np.float64)
+    r = np.asarray(reference, dtype=np.float64)
+    d = np.empty(len(p))
+    idx = np.empty(len(p), dtype=np.int64)
+    for i in range(len(p)):
+        dd = np.sqrt(((r - p[i]) ** 2).sum(axis=1))
+        idx[i] = int(np.argmin(dd))
+        d[i] = dd[idx[i]]
+    return d, idx
+
+
+def _segment_closest(p, a, b):
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.einsum("ij,ij->i", ab, ab), 0, 1)
+    return a + t[:, None] * ab
+
+
+def naive_point_mesh(points, vertices, faces):
+    """Unsigned distance of each point to a mesh, every triangle tried: the foot of the
+    perpendicular when it falls inside the triangle (barycentric coordinates by solving
+    the 2x2 normal equations), else the nearest of the three edges. (distance (n,),
+    triangle (n,))."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    e1, e2 = b - a, c - a
+    g11 = np.einsum("ij,ij->i", e1, e1)
+    g12 = np.einsum("ij,ij->i", e1, e2)
+    g22 = np.einsum("ij,ij->i", e2, e2)
+    det = g11 * g22 - g12 * g12
+    out = np.empty(len(points))
+    tri = np.empty(len(points), dtype=np.int64)
+    for i, p in enumerate(np.asarray(points, dtype=np.float64)):
+        w = p - a
+        r1 = np.einsum("ij,ij->i", w, e1)
+        r2 = np.einsum("ij,ij->i", w, e2)
+        u = (g22 * r1 - g12 * r2) / det
+        vv = (g11 * r2 - g12 * r1) / det
+        inside = (u >= 0) & (vv >= 0) & (u + vv <= 1)
+        foot = a + u[:, None] * e1 + vv[:, None] * e2
+        P = np.broadcast_to(p, a.shape)
+        best = np.where(inside[:, None], foot, _segment_closest(P, a, b))
+        for q in (_segment_closest(P, b, c), _segment_closest(P, c, a)):
+            better = (~inside) & (np.linalg.norm(q - p, axis=1) <
+                                  np.linalg.norm(best - p, axis=1))
+            best = np.where(better[:, None], q, best)
+        d = np.linalg.norm(best - p, axis=1)
+        tri[i] = int(np.argmin(d))
+        out[i] = d[tri[i]]
+    return out, tri

@@ -1,0 +1,1 @@
+"""Private Numba kernels of the survey layer."""
