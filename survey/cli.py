@@ -385,6 +385,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(func=analysis.cmd_study)
 
+    p = sub.add_parser(
+        "gazebo", help="export the tunnel and a lidar robot as a Gazebo world (SDF 1.9)",
+        description="Write a Gazebo world folder: world.sdf (underground lighting, the "
+                    "tunnel as a static model, a LIMO-sized differential-drive robot "
+                    "carrying the lidar as a gpu_lidar sensor), the tunnel model (Collada "
+                    "visual, decimated STL collision) in local coordinates, and a README. "
+                    "What SDF cannot express about the sensor is listed.",
+        epilog="Example: tunnelsim gazebo --mesh bfo.ply --sensor robosense_airy -o world/")
+    p.add_argument("--mesh", required=True, help="tunnel mesh (its .json gives the axis)")
+    p.add_argument("--sensor", default="robosense_airy",
+                   help="spinning lidar or profiler, name or .toml (default robosense_airy)")
+    p.add_argument("--mount", choices=["level", "down"], default="level",
+                   help="lidar z up (level) or pointing down (default level)")
+    p.add_argument("--chainage", type=float, metavar="M",
+                   help="robot start chainage (default: first chainage + 1 m)")
+    p.add_argument("-o", "--output", required=True, help="output world folder (new)")
+    p.add_argument("--force", action="store_true", help="replace an existing folder")
+    p.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.set_defaults(func=world.cmd_gazebo)
+
     p = sub.add_parser("sensors", help="list the sensor models",
                        description="List the shipped sensor models with kind and source "
                                    "file.", epilog="Example: tunnelsim sensors")

@@ -201,3 +201,28 @@ def read_tunnel(path):
         disp = np.stack([ply["dx"], ply["dy"], ply["dz"]], 1).astype(np.float64)
     return TunnelMesh(ply["vertices"], ply["faces"], ply["label"].astype(np.uint8),
                       ply["chainage"], ply["profile_t"], al, prof, meta, disp)
+
+
+def tunnel_frame(mesh_path, scene=None):
+    """(Scene, reflectivity, Alignment, profile-centre height) of a mesh: the axis from
+    the generated tunnel's JSON beside it, else estimated from the mesh vertices."""
+    import json
+
+    from sensors.meshes import load_mesh
+
+    from .alignment import Alignment
+    from .profiles import Profile
+
+    sc, refl = load_mesh(mesh_path) if scene is None else (scene, None)
+    js = sidecar(mesh_path)
+    if js.is_file():
+        meta = json.loads(js.read_text())
+        if "alignment" in meta and "profile" in meta:
+            return (sc, refl, Alignment.from_dict(meta["alignment"]),
+                    float(Profile.from_dict(meta["profile"]).centroid[1]))
+    from .reconstruct import estimate_axis
+
+    import trimesh
+    v = np.asarray(trimesh.load(str(mesh_path), force="mesh", process=False).vertices)
+    al, hc = estimate_axis(v)
+    return sc, refl, al, hc

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..cli import TunnelsimCLIError, _parse_window
+from ..tunnel_io import tunnel_frame
 
 
 def out_dir(path, force=False) -> Path:
@@ -35,32 +36,6 @@ def _floats(text, what):
     if not vals:
         raise TunnelsimCLIError(f"Expected {what} as comma-separated numbers, got {text!r}.")
     return vals
-
-
-def tunnel_frame(mesh_path, scene=None):
-    """(Scene, reflectivity, Alignment, profile-centre height) of a mesh: the axis from
-    the generated tunnel's JSON beside it, else estimated from the mesh vertices."""
-    import json
-
-    from sensors.meshes import load_mesh
-
-    from ..alignment import Alignment
-    from ..profiles import Profile
-    from ..tunnel_io import sidecar
-
-    sc, refl = load_mesh(mesh_path) if scene is None else (scene, None)
-    js = sidecar(mesh_path)
-    if js.is_file():
-        meta = json.loads(js.read_text())
-        if "alignment" in meta and "profile" in meta:
-            return (sc, refl, Alignment.from_dict(meta["alignment"]),
-                    float(Profile.from_dict(meta["profile"]).centroid[1]))
-    from ..reconstruct import estimate_axis
-
-    import trimesh
-    v = np.asarray(trimesh.load(str(mesh_path), force="mesh", process=False).vertices)
-    al, hc = estimate_axis(v)
-    return sc, refl, al, hc
 
 
 def _say(args, text):

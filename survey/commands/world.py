@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import platform
+import sys
 from importlib import metadata
 
 import numpy as np
@@ -83,4 +84,31 @@ def cmd_tunnel(args) -> int:
               f"{len(tun.metadata['control_points'])} control points, {dt:.1f} s")
         for p in written:
             print(f"wrote {p}")
+    return 0
+
+
+def cmd_gazebo(args) -> int:
+    import warnings
+
+    from sensors import load_sensor
+
+    from ..gazebo import export_gazebo
+
+    spec = load_sensor(args.sensor)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            info = export_gazebo(args.mesh, spec, args.output, force=args.force,
+                                 mount=args.mount, chainage_m=args.chainage)
+        finally:   # unit warnings first: they often explain a later failure
+            for w in caught:
+                print(f"tunnelsim: warning: {w.message}", file=sys.stderr)
+    if not args.quiet:
+        print(f"wrote {info['path']}/world.sdf and models/tunnel ({info['triangles']:,} "
+              f"triangles, collision {info['collision_triangles']:,}); local origin "
+              f"{' '.join(f'{x:.3f}' for x in info['origin'])} m")
+        print(f"{spec.name} as gpu_lidar; SDF cannot express:")
+        for x in info["limitations"]:
+            print(f"  - {x}")
+        print(f"run: cd {info['path']} && GZ_SIM_RESOURCE_PATH=$PWD/models gz sim world.sdf")
     return 0
