@@ -92,7 +92,7 @@ def _write_text(path, text):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .commands import adjustment, analysis, clouds, scanning, world
+    from .commands import adjustment, analysis, clouds, runner, scanning, world
 
     parser = _Parser(
         prog="tunnelsim",
@@ -154,7 +154,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mesh", required=True, help="mesh file (PLY with reflectivity, OBJ, ...)")
     p.add_argument("--sensor", default="zf_imager_5016",
                    help="sensor name ('tunnelsim sensors' lists them) or a .toml file")
-    p.add_argument("--at", required=True, metavar="X,Y,Z", help="station position (m)")
+    g = p.add_mutually_exclusive_group(required=True)
+    g.add_argument("--at", metavar="X,Y,Z", help="station position (m)")
+    g.add_argument("--chainage", type=float, metavar="M",
+                   help="station on the tunnel axis at this chainage, --height above the "
+                        "floor (axis from --tunnel-json or the mesh's .json)")
+    p.add_argument("--height", type=float, default=1.5, metavar="M",
+                   help="instrument height above the floor with --chainage (default 1.5)")
+    p.add_argument("--tunnel-json", help="axis for --chainage (default: the mesh's .json)")
     p.add_argument("--resolution", help="resolution preset of the sensor (e.g. superhigh)")
     p.add_argument("--step-deg", type=float, metavar="DEG",
                    help="angular step in degrees instead of a preset")
@@ -187,6 +194,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="lever arm platform -> sensor in metres (default 0,0,0)")
     p.add_argument("--duration", type=float, metavar="S",
                    help="simulate only the first S seconds")
+    p.add_argument("--chainage", metavar="START,END",
+                   help="with --along: drive only this chainage range in m")
+    p.add_argument("--rate", type=float, metavar="HZ",
+                   help="rotation (profile) rate in Hz instead of the spec's; the firing "
+                        "rate stays, so points per turn (per profile) change")
+    p.add_argument("--slam-drift", action="store_true",
+                   help="with --along: write the cloud in a drifting SLAM frame, with the "
+                        "SLAM and true trajectories (_trajectory.txt, _true_trajectory.txt) "
+                        "and the control points (_cp_world.csv, _cp_observed.csv) for "
+                        "'tunnelsim correct'")
     _physics_options(p)
     p.set_defaults(func=scanning.cmd_drive)
 
@@ -235,6 +252,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--model", choices=["piecewise", "global"], default="piecewise",
                    help="piecewise rigid per control section (default) or one similarity")
     p.add_argument("-o", "--output", required=True, help="corrected cloud")
+    p.add_argument("--json", help="also write the key figures (check-point RMS, largest "
+                                  "correction) as JSON")
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(func=adjustment.cmd_correct)
 
@@ -287,6 +306,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--min-points", type=int, default=3,
                    help="cells with fewer points are interpolated (default 3)")
     p.add_argument("--tunnel-json", help="use the alignment of a generated tunnel's JSON")
+    p.add_argument("--json", help="also write the reconstruction quality as JSON")
+    p.add_argument("--figure", metavar="PNG",
+                   help="also write the unrolled support map (points per cell) as PNG")
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(func=clouds.cmd_mesh)
 
@@ -405,11 +427,75 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="print nothing on success")
     p.set_defaults(func=world.cmd_gazebo)
 
+    p = sub.add_parser(
+        "demo", help="the whole seed workflow on a generated tunnel, with a report",
+        description="Run the shipped demo pipeline (print it with --print-config): "
+                    "generate the BFO-like tunnel, simulate and correct a drifting MLS "
+                    "run, preprocess and reconstruct, compare TLS stations on the "
+                    "reconstruction with the truth (Table 1), plan stations (Figure 6), "
+                    "study MLS speeds (Figure 7), export to Gazebo; writes report.md.",
+        epilog="Example: tunnelsim demo -o tunnelsim-demo")
+    p.add_argument("-o", "--output", default="tunnelsim-demo",
+                   help="output folder (default ./tunnelsim-demo)")
+    p.add_argument("--quick", action="store_true",
+                   help="smaller numbers throughout (under a minute; what the tests run)")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the demo pipeline (TOML for 'tunnelsim run') and exit")
+    p.add_argument("--seed", type=int, help="random seed for every step (default: the "
+                                            "pipeline's, 0)")
+    p.add_argument("--threads", type=int, help="Numba threads (default: all cores)")
+    p.add_argument("--force", action="store_true", help="write into a non-empty folder")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=runner.cmd_demo)
+
+    p = sub.add_parser(
+        "run", help="run a pipeline TOML file (a sequence of tunnelsim steps)",
+        description="Run the steps of a pipeline TOML file in order, inside one output "
+                    "folder, and write report.md. Each step is a tunnelsim command with "
+                    "its options; see 'tunnelsim demo --print-config' for an example.",
+        epilog="Example: tunnelsim run demo.toml -o my-demo --quick  (after 'tunnelsim "
+               "demo --print-config > demo.toml')")
+    p.add_argument("pipeline", help="pipeline TOML file")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--quick", action="store_true", help="apply the steps' [quick] options")
+    p.add_argument("--seed", type=int, help="random seed for every step that takes one")
+    p.add_argument("--threads", type=int, help="Numba threads (default: all cores)")
+    p.add_argument("--force", action="store_true", help="write into a non-empty folder")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.set_defaults(func=runner.cmd_run)
+
     p = sub.add_parser("sensors", help="list the sensor models",
                        description="List the shipped sensor models with kind and source "
                                    "file.", epilog="Example: tunnelsim sensors")
     p.set_defaults(func=world.cmd_sensors)
+    _coherent(sub)
     return parser
+
+
+#: Commands that draw random numbers (they take --seed).
+SEEDED = {"tunnel", "scan", "drive", "study", "demo", "run"}
+#: Commands that only print (no --quiet, no --threads).
+PRINTING = {"info", "sensors"}
+
+
+def _coherent(sub):
+    """The options every command shares, added where a command does not define them:
+    --debug everywhere; --quiet and --threads wherever work is done; --seed wherever
+    random numbers are drawn."""
+    for name, p in sub.choices.items():
+        have = p._option_string_actions
+        if "--debug" not in have:
+            p.add_argument("--debug", action="store_true",
+                           help="show tracebacks instead of one-line errors")
+        if name in PRINTING:
+            continue
+        if "--quiet" not in have:
+            p.add_argument("--quiet", action="store_true", help="print nothing on success")
+        if "--threads" not in have:
+            p.add_argument("--threads", type=int, metavar="N",
+                           help="Numba threads (default: all cores)")
+        if name in SEEDED and "--seed" not in have:
+            p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -421,6 +507,14 @@ def main(argv: list[str] | None = None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return EXIT_USAGE
+        threads = getattr(args, "threads", None)
+        if threads is not None:
+            from raytrace import set_threads
+
+            try:
+                set_threads(threads)
+            except ValueError as exc:
+                raise TunnelsimCLIError(f"--threads: {exc}") from exc
         return int(args.func(args) or 0)
     except (TunnelsimError, _UsageError) as exc:
         if debug:

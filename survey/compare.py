@@ -78,14 +78,14 @@ class ReferenceCloud:
         if model not in (None, "plane"):
             raise CompareError(f"Expected model None or 'plane', got {model!r}.")
         ub = np.inf if max_dist is None else float(max_dist)
-        d, idx = self.tree.query(p, k=1, distance_upper_bound=ub)
+        d, idx = self.tree.query(p, k=1, distance_upper_bound=ub, workers=-1)
         far = ~np.isfinite(d)
         idx = np.where(far, -1, idx).astype(np.int64)
         if model == "plane":
             kk = min(int(k), len(self.points))
             if kk < 3:
                 raise CompareError(f"Expected k >= 3 reference points for a plane, got {kk}.")
-            _, nb = self.tree.query(p, k=kk)
+            _, nb = self.tree.query(p, k=kk, workers=-1)
             q = self.tree.data[nb]                               # (n, k, 3)
             c = q.mean(axis=1)
             cov = np.einsum("nki,nkj->nij", q - c[:, None], q - c[:, None])
@@ -145,11 +145,11 @@ class ReferenceMesh:
         for b in range(0, len(p), BLOCK):
             q = p[b:b + BLOCK]
             # Upper bound: the nearest centroid lies on its triangle.
-            ub = np.min([t.query(q, k=1)[0] for _, t, _ in self.groups], axis=0)
+            ub = np.min([t.query(q, k=1, workers=-1)[0] for _, t, _ in self.groups], axis=0)
             # Exact: a triangle closer than ub has its centroid within ub + its radius.
             lists = []
             for ids, t, r in self.groups:
-                got = t.query_ball_point(q, ub + r + 1e-12)
+                got = t.query_ball_point(q, ub + r + 1e-12, workers=-1)
                 lists.append([ids[np.asarray(g, dtype=np.int64)] for g in got])
             cand = [np.concatenate(x) for x in zip(*lists)]
             start = np.zeros(len(q) + 1, dtype=np.int64)

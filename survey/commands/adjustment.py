@@ -83,8 +83,17 @@ def cmd_correct(args) -> int:
     report = out.with_name(out.stem + "_report.md")
     _write_text(report, drift_report(corr, loo, traj=traj,
                                      plot_path=out.with_name(out.stem + "_correction.png")))
+    rms = np.sqrt(np.mean(np.sum(loo ** 2, axis=1)))
+    if args.json:
+        import json
+
+        _write_text(args.json, json.dumps({
+            "model": args.model, "control_points": len(ids), "points": int(n),
+            "check_rms_m": float(rms),
+            "check_max_m": float(np.max(np.linalg.norm(loo, axis=1))),
+            "correction_max_m": float(np.max(np.linalg.norm(
+                fixed.positions - traj.positions, axis=1)))}, indent=2) + "\n")
     if not args.quiet:
-        rms = np.sqrt(np.mean(np.sum(loo ** 2, axis=1)))
         print(f"corrected {n:,} points with {len(ids)} control points ({args.model}); "
               f"check-point RMS {rms * 1000:.1f} mm -> {out}, {traj_out.name}, {report.name}")
     return 0

@@ -149,8 +149,15 @@ def cmd_plan(args) -> int:
     md = plan_markdown(plans, pl, info)
     _write_text(out / "plan.md", md)
     plot_coverage(plans, pl, out / "coverage.png")
+    import json
+    _write_text(out / "plan.json", json.dumps({
+        "sensor": spec.name, "resolution": pl.resolution,
+        "plans": [{"name": p.name, "stations": len(p.chainages), "coverage": p.coverage,
+                   "gaps": len(p.gaps), "chainages_m": p.chainages.tolist()}
+                  for p in plans],
+        "optimisation": info}, indent=2, default=float) + "\n")
     _say(args, md.split("\n## Largest")[0].rstrip() +
-         f"\n-> {out}/ (plan.csv, plan.md, coverage.png)")
+         f"\n-> {out}/ (plan.csv, plan.md, plan.json, coverage.png)")
     return 0
 
 

@@ -120,6 +120,14 @@ def cmd_mesh(args) -> int:
             print(f"detail layer: {len(tf):,} triangles of attachment tubes")
     else:
         rec.write(args.output)
+    if args.figure:
+        from ..reconstruct import plot_support
+        plot_support(rec, args.figure)
+    if args.json:
+        import json
+
+        from ..cli import _write_text
+        _write_text(args.json, json.dumps(rec.quality, indent=2) + "\n")
     if not args.quiet:
         q = rec.quality
         print(f"{q['points']:,} points -> {q['triangles']:,} triangles -> {args.output}; "

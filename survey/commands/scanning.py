@@ -6,7 +6,7 @@ import sys
 
 import numpy as np
 
-from ..cli import TunnelsimCLIError, _xyz
+from ..cli import TunnelsimCLIError, _parse_window, _xyz
 
 
 class Progress:
@@ -76,7 +76,11 @@ def cmd_scan(args) -> int:
 
     spec = load_sensor(args.sensor)
     scene, refl = load_mesh(args.mesh)
-    run = simulate_station(scene, spec, _xyz(args.at, "--at"),
+    if args.chainage is not None:
+        at = _station_on_axis(args, scene)
+    else:
+        at = _xyz(args.at, "--at")
+    run = simulate_station(scene, spec, at,
                            attitude=Rotation.from_euler("z", args.heading_deg, degrees=True),
                            resolution=args.resolution,
                            step_rad=None if args.step_deg is None else np.deg2rad(args.step_deg),
@@ -85,11 +89,43 @@ def cmd_scan(args) -> int:
     return _finish_run(args, run, f"{spec.name} {run.scan.resolution or 'custom step'}")
 
 
+def _station_on_axis(args, scene):
+    import json
+    from pathlib import Path
+
+    from ..alignment import Alignment
+    from ..planning import axis_stations
+    from ..profiles import Profile
+    from ..tunnel_io import sidecar
+
+    js = Path(args.tunnel_json) if args.tunnel_json else sidecar(args.mesh)
+    if not js.is_file():
+        raise TunnelsimCLIError(f"Expected a tunnel JSON for --chainage ('{js}'), got none; "
+                                "pass --tunnel-json or --at X,Y,Z.")
+    meta = json.loads(js.read_text())
+    al = Alignment.from_dict(meta["alignment"])
+    hc = float(Profile.from_dict(meta["profile"]).centroid[1])
+    c0, c1 = al.chainage_range
+    if not c0 <= args.chainage <= c1:
+        raise TunnelsimCLIError(f"Expected --chainage within [{c0:g}, {c1:g}] m, got "
+                                f"{args.chainage:g}.")
+    return axis_stations(scene, al, hc, [args.chainage], height_m=args.height)[0]
+
+
 def cmd_drive(args) -> int:
     from sensors import Mount, Trajectory, load_sensor, simulate_drive
     from sensors.meshes import load_mesh
 
     spec = load_sensor(args.sensor)
+    if args.rate is not None:
+        from dataclasses import replace
+
+        if not (np.isfinite(args.rate) and args.rate > 0) or spec.kind == "tls":
+            raise TunnelsimCLIError(f"Expected --rate as a positive rate for a spinning lidar "
+                                    f"or profiler, got {args.rate:g} Hz for {spec.name} "
+                                    f"({spec.kind}).")
+        key = "rotation_hz" if spec.kind == "spinning" else "profile_rate_hz"
+        spec = replace(spec, pattern=replace(spec.pattern, **{key: float(args.rate)}))
     scene, refl = load_mesh(args.mesh)
     if args.trajectory:
         traj = Trajectory.read(args.trajectory)
@@ -106,9 +142,17 @@ def cmd_drive(args) -> int:
             raise TunnelFileError(f"Expected the tunnel metadata '{js}' for --along "
                                   "centreline (made by 'tunnelsim tunnel'), got none; pass "
                                   "--trajectory instead.")
-        al = Alignment.from_dict(json.loads(js.read_text())["alignment"])
+        meta = json.loads(js.read_text())
+        al = Alignment.from_dict(meta["alignment"])
         c0, c1 = al.chainage_range
-        s = np.arange(c0 + args.margin, c1 - args.margin, 0.5)
+        a, b = c0 + args.margin, c1 - args.margin
+        if args.chainage:
+            a, b = _parse_window(args.chainage.replace(",", ":"),
+                                 "--chainage as START,END in m", 2)
+            if not (c0 <= a < b <= c1):
+                raise TunnelsimCLIError(f"Expected --chainage within [{c0:g}, {c1:g}] m with "
+                                        f"START < END, got {args.chainage!r}.")
+        s = np.append(np.arange(a, b, 0.5), b)
         pts = al.to_world(s, args.offset, args.height)
         traj = Trajectory.along_polyline(pts, args.speed)
     if args.mount == "down":
@@ -119,4 +163,77 @@ def cmd_drive(args) -> int:
     run = simulate_drive(scene, spec, traj, mount, settings=_settings(args), seed=args.seed,
                          reflectivity=refl if refl is not None else args.reflectivity,
                          t_end=t_end)
+    if args.slam_drift:
+        if not args.along:
+            raise TunnelsimCLIError("Expected --along centreline with --slam-drift (the "
+                                    "control points come from the tunnel's JSON), got a "
+                                    "trajectory file.")
+        run = _slam_run(args, run, traj, meta)
     return _finish_run(args, run, f"{spec.name} drive {run.duration_s:.1f} s")
+
+
+#: Prism centres picked from an MLS cloud, per axis (m): ASSUMED, typical of fitting a
+#: sphere/prism target in a dense profiler cloud.
+PRISM_SIGMA_MLS_M = 0.003
+#: Total-station control points, per axis (m): ASSUMED (a monitoring network).
+CONTROL_SIGMA_M = 0.0015
+
+
+class _MappedRun:
+    """A Run whose point chunks pass through ``fn`` (e.g. into a SLAM map frame)."""
+
+    def __init__(self, run, fn):
+        self._run, self._fn = run, fn
+
+    def __getattr__(self, name):
+        return getattr(self._run, name)
+
+    def __iter__(self):
+        for pts in self._run:
+            yield self._fn(pts)
+
+
+def _slam_run(args, run, traj, meta):
+    """Drifting SLAM: the cloud in the SLAM map frame, plus the SLAM and true
+    trajectories and the control points (world, and observed in the MLS frame)."""
+    from pathlib import Path
+
+    from ..controlpoints import ControlPoints
+    from ..slam import slam_trajectory, to_slam_frame
+
+    slam = slam_trajectory(traj, seed=args.seed + 1)
+    out = Path(args.output)
+    stem = out.with_name(out.stem)
+    slam.write(f"{stem}_trajectory.txt")
+    traj.write(f"{stem}_true_trajectory.txt")
+    cps = meta.get("control_points", [])
+    g = np.array([c["xyz"] for c in cps]).reshape(-1, 3)
+    ids = [c["id"] for c in cps]
+    # Observation time: when the platform is nearest to the point.
+    t = traj.times
+    near = np.argmin(np.linalg.norm(traj.positions[None, :, :2] - g[:, None, :2], axis=2),
+                     axis=1) if len(g) else np.zeros(0, dtype=int)
+    tau = t[near]
+    inside = (tau > t[0]) & (tau < t[-1])
+    rng = np.random.default_rng(args.seed + 2)
+    m = to_slam_frame(traj, slam, g[inside], tau[inside]) + \
+        rng.normal(0, PRISM_SIGMA_MLS_M, (int(inside.sum()), 3))
+    sel = [i for i, k in zip(ids, inside) if k]
+    ControlPoints(sel, m, time=tau[inside]).write(f"{stem}_cp_observed.csv")
+    gw = g + rng.normal(0, CONTROL_SIGMA_M, g.shape)
+    ControlPoints(ids, gw, sigma=np.full(g.shape, CONTROL_SIGMA_M)).write(
+        f"{stem}_cp_world.csv")
+
+    def to_map(pts):
+        if len(pts):
+            xyz = to_slam_frame(traj, slam, np.stack([pts["x"], pts["y"], pts["z"]], 1),
+                                pts["time"])
+            pts = pts.copy()
+            pts["x"], pts["y"], pts["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+        return pts
+
+    if not args.quiet:
+        print(f"SLAM drift: {len(sel)} control points observed; wrote {stem.name}_trajectory"
+              f".txt, {stem.name}_true_trajectory.txt, {stem.name}_cp_observed.csv, "
+              f"{stem.name}_cp_world.csv")
+    return _MappedRun(run, to_map)

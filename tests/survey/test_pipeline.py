@@ -1,0 +1,164 @@
+"""The demo end to end (--quick), pipelines, and what every command shares."""
+
+from __future__ import annotations
+
+import json
+import re
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from survey.cli import PRINTING, SEEDED, build_parser, main
+from survey.pipeline import PipelineError, demo_text, load_pipeline, step_argv
+
+
+def _commands():
+    for a in build_parser()._actions:
+        if a.__class__.__name__ == "_SubParsersAction":
+            return a.choices
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo") / "d"
+    assert main(["demo", "--quick", "-o", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_demo_quick_key_numbers_are_sane(demo):
+    s = json.loads((demo / "summary.json").read_text())
+    # MLS: the correction removes the drift to below 1 cm between the control points,
+    # and the leave-one-out check points agree within 1 cm RMS.
+    assert s["corrected_drift_max_m"] < 0.01
+    assert s["corrected_check_rms_m"] < 0.01
+    assert s["corrected_drift_max_m"] < s["raw_drift_max_m"]
+    # Reconstruction: millimetre-level median fit.
+    assert s["reconstruction"]["median_m"] < 0.005
+    # Table 1: stations on the reconstruction agree with the truth at the cm level.
+    assert set(s["table1"]) == {"station25_reconstructed", "station50_reconstructed"}
+    for row in s["table1"].values():
+        assert row["n"] > 100_000 and 0 < row["median_m"] < 0.02
+    # Planning: 5 m beats 10 m, the optimised plan reaches the quick target (95 %).
+    p = s["plan"]
+    assert p["every 5 m"]["coverage"] > p["every 10 m"]["coverage"]
+    assert p["optimised"]["coverage"] >= 0.95 - 1e-9
+    assert p["optimised"]["stations"] <= p["greedy"]["stations"]
+    # Study: density per pass ~ 1/v; distortion max ~ v/f.
+    rows = {r["speed_mps"]: r for r in s["study"]}
+    assert rows[1.0]["density_floor"] / rows[3.0]["density_floor"] == pytest.approx(3, rel=0.05)
+    assert rows[3.0]["distortion_max_m"] == pytest.approx(0.3, rel=0.02)
+    assert s["gazebo_world"] and (demo / "gazebo" / "models" / "tunnel" / "model.sdf").is_file()
+
+
+def test_demo_report_links_every_figure(demo):
+    md = (demo / "report.md").read_text()
+    links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", md)
+    assert links and all((demo / link).is_file() for link in links)
+    pngs = {str(p.relative_to(demo)) for p in demo.rglob("*.png")}
+    assert pngs == set(links)
+    for png in pngs:
+        data = (demo / png).read_bytes()
+        assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
+    s = json.loads((demo / "summary.json").read_text())
+    assert f"{1000 * s['corrected_check_rms_m']:.1f}" in md
+    assert md.count("```\ntunnelsim ") == len(load_pipeline(demo_text())["steps"])
+
+
+def test_print_config_is_the_shipped_pipeline(capsys):
+    assert main(["demo", "--print-config"]) == 0
+    text = capsys.readouterr().out
+    assert text == demo_text()
+    pipe = load_pipeline(text)
+    assert [s["command"] for s in pipe["steps"]][:3] == ["tunnel", "drive", "correct"]
+    for st in pipe["steps"]:           # every step's options exist on its command
+        step_argv(st, quick=True)
+        step_argv(st)
+
+
+def test_run_a_small_pipeline(tmp_path):
+    (tmp_path / "p.toml").write_text('''
+[pipeline]
+name = "two steps"
+seed = 3
+
+[[steps]]
+command = "tunnel"
+[steps.options]
+output = "t.ply"
+preset = "tbm"
+edge-length = 0.5
+
+[[steps]]
+command = "plan"
+tables = ["plan/plan.md"]
+figures = ["plan/coverage.png"]
+[steps.options]
+mesh = "t.ply"
+spacing = "10,20"
+cell = "0.5,6"
+output = "plan"
+''')
+    out = tmp_path / "o"
+    assert main(["run", str(tmp_path / "p.toml"), "-o", str(out), "--quiet"]) == 0
+    md = (out / "report.md").read_text()
+    assert "tunnelsim tunnel --output t.ply --preset tbm --edge-length 0.5 --seed 3" in md
+    assert "![coverage](plan/coverage.png)" in md and "| every 10 m |" in md
+    meta = json.loads((out / "t.json").read_text())
+    assert meta["parameters"]["seed"] == 3
+
+
+@pytest.mark.parametrize("body, match", [
+    ("[[steps]]\ncommand = 'frobnicate'\n", "Expected a tunnelsim command"),
+    ("[[steps]]\ncommand = 'tunnel'\n[steps.options]\nbogus = 1\n", "'--bogus'"),
+    ("[[steps]]\ncommand = 'tunnel'\nwhat = 1\n", "Expected only"),
+    ("[pipeline\n", "syntax error"),
+    ("[pipeline]\nname = 'x'\n", "Expected \\[\\[steps\\]\\]"),
+    ("[[steps]]\ncommand = 'tunnel'\n[steps.options]\noutput = 'x.obj'\n",
+     "Expected step 1 'tunnel' to succeed"),
+])
+def test_bad_pipelines_are_one_line(tmp_path, capsys, body, match):
+    (tmp_path / "p.toml").write_text(body)
+    assert main(["run", str(tmp_path / "p.toml"), "-o", str(tmp_path / "o"), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert re.search(match, err[-1]) and err[-1].startswith("tunnelsim: error:")
+
+
+def test_run_missing_file(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "none.toml"), "-o", str(tmp_path / "o")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_every_command_shares_the_common_options():
+    cmds = _commands()
+    assert {"tunnel", "scan", "drive", "adjust", "transform", "correct", "preprocess",
+            "mesh", "compare", "plan", "study", "gazebo", "sensors", "demo", "info",
+            "run"} <= set(cmds)
+    for name, p in cmds.items():
+        have = p._option_string_actions
+        assert "--debug" in have, name
+        assert ("Example: tunnelsim " + name) in (p.epilog or ""), name
+        if name not in PRINTING:
+            assert {"--quiet", "--threads"} <= set(have), name
+        if name in SEEDED:
+            assert "--seed" in have, name
+
+
+@pytest.mark.parametrize("name", sorted(_commands()))
+def test_every_command_rejects_a_bad_option_in_one_line(name, capsys):
+    assert main([name, "--no-such-option"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and ("unrecognized arguments" in err[0] or "required" in err[0])
+
+
+def test_bad_thread_count_is_one_line(tmp_path, capsys):
+    assert main(["tunnel", "-o", str(tmp_path / "t.ply"), "--threads", "999"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--threads" in err[0]
+
+
+def test_pipeline_toml_is_valid_toml():
+    data = tomllib.loads(demo_text())
+    assert data["pipeline"]["seed"] == 0 and len(data["steps"]) >= 10
+    assert np.isfinite([s.get("expect_s", 1) for s in data["steps"]]).all()
