@@ -411,7 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
         "gazebo", help="export the tunnel and a lidar robot as a Gazebo world (SDF 1.9)",
         description="Write a Gazebo world folder: world.sdf (underground lighting, the "
                     "tunnel as a static model, a LIMO-sized differential-drive robot "
-                    "carrying the lidar as a gpu_lidar sensor), the tunnel model (Collada "
+                    "carrying the lidar as a gpu_lidar sensor), the tunnel model (OBJ "
                     "visual, decimated STL collision) in local coordinates, and a README. "
                     "What SDF cannot express about the sensor is listed.",
         epilog="Example: tunnelsim gazebo --mesh bfo.ply --sensor robosense_airy -o world/")

@@ -5,7 +5,7 @@ later): a world folder that loads as is.
       world.sdf                      the world: scene, lights, physics, tunnel, robot
       models/tunnel/model.config     Gazebo model metadata (local origin recorded)
       models/tunnel/model.sdf        static model: visual mesh + collision mesh
-      models/tunnel/meshes/tunnel.dae            visual mesh (Collada), local coordinates
+      models/tunnel/meshes/tunnel.obj            visual mesh (OBJ), local coordinates
       models/tunnel/meshes/tunnel_collision.stl  collision mesh (decimated when large)
       README.txt                     how to run it, and what SDF cannot express
 
@@ -337,7 +337,7 @@ def export_gazebo(mesh_path, sensor, out_dir, *, force=False, mount="level",
     <tunnelsim:origin>{org}</tunnelsim:origin>
     <link name="lining">
       <visual name="visual">
-        <geometry><mesh><uri>model://tunnel/meshes/tunnel.dae</uri></mesh></geometry>
+        <geometry><mesh><uri>model://tunnel/meshes/tunnel.obj</uri></mesh></geometry>
       </visual>
       <collision name="collision">
         <geometry><mesh><uri>model://tunnel/meshes/tunnel_collision.stl</uri></mesh>
@@ -364,9 +364,7 @@ def export_gazebo(mesh_path, sensor, out_dir, *, force=False, mount="level",
         _write(tmp / "models" / "tunnel" / "model.sdf", model)
         _write(tmp / "models" / "tunnel" / "model.config", config)
         mdir = tmp / "models" / "tunnel" / "meshes"
-        vis = trimesh.Trimesh(v - origin, f, process=False)
-        vis.visual.face_colors = [150, 150, 145, 255]
-        (mdir / "tunnel.dae").write_bytes(trimesh.exchange.dae.export_collada(vis))
+        write_obj(mdir / "tunnel.obj", v - origin, f)
         trimesh.Trimesh(cv, cf, process=False).export(mdir / "tunnel_collision.stl")
         _write(tmp / "README.txt",
                f"Gazebo world for {Path(mesh_path).name} with {sensor.name} on a LIMO-sized "
@@ -388,6 +386,20 @@ def export_gazebo(mesh_path, sensor, out_dir, *, force=False, mount="level",
     return {"path": str(out), "triangles": int(len(f)), "collision_triangles": int(len(cf)),
             "origin": origin.tolist(), "limitations": limits, "warnings": warns,
             "robot_pose": [float(floor[0]), float(floor[1]), float(floor[2]), yaw]}
+
+
+def write_obj(path, vertices, faces):
+    """Wavefront OBJ (vertices to 0.1 mm, 1-based faces), streamed; atomic. OBJ needs
+    no extra package and Gazebo (Classic and Sim) loads it."""
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64) + 1
+    with atomic_writer(path, "w") as fh:
+        fh.write(f"# tunnelsim: {len(v)} vertices, {len(f)} triangles, metres, Z up\n")
+        for i in range(0, len(v), 200_000):
+            np.savetxt(fh, v[i:i + 200_000], fmt="v %.4f %.4f %.4f")
+        for i in range(0, len(f), 200_000):
+            np.savetxt(fh, f[i:i + 200_000], fmt="f %d %d %d")
+    return path
 
 
 def _write(path, text):

@@ -67,7 +67,7 @@ def test_world_validates_with_sdformat(sdf_check, tunnel_ply, tmp_path, name):
     rc, out = _check(sdf_check, tmp_path / "w")
     assert rc == 0, out
     assert "error" not in out
-    assert "mesh visual model://tunnel/meshes/tunnel.dae -> ok" in out
+    assert "mesh visual model://tunnel/meshes/tunnel.obj -> ok" in out
     assert "mesh collision model://tunnel/meshes/tunnel_collision.stl -> ok" in out
     li = _lidar_line(out)
     ph = spec.physics
@@ -178,15 +178,28 @@ def test_cm_mesh_warns_on_cli(tmp_path, capsys):
 
 
 def test_crash_leaves_no_partial_world(tunnel_ply, tmp_path, monkeypatch):
-    import trimesh
+    import survey.gazebo as gz
 
     def boom(*a, **k):
         raise RuntimeError("disk full")
 
-    monkeypatch.setattr(trimesh.exchange.dae, "export_collada", boom)
+    monkeypatch.setattr(gz, "write_obj", boom)
     with pytest.raises(RuntimeError):
         export_gazebo(tunnel_ply, load_sensor("velodyne_vlp16"), tmp_path / "w")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_obj_round_trip(tmp_path):
+    import trimesh
+
+    from survey.gazebo import write_obj
+
+    t = make_tunnel(Alignment([straight(5.0)]), horseshoe(5.0), edge_length_m=0.3,
+                    roughness_rms_m=0.0)
+    write_obj(tmp_path / "m.obj", t.vertices, t.faces)
+    m = trimesh.load(tmp_path / "m.obj", process=False, maintain_order=True)
+    np.testing.assert_allclose(m.vertices, t.vertices, atol=5e-5)
+    np.testing.assert_array_equal(m.faces, t.faces)
 
 
 def test_decimate_bounds_the_error():
