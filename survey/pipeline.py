@@ -117,32 +117,30 @@ def step_argv(step: dict, *, quick=False, seed=None, threads=None, quiet=True) -
 
 
 class _Bar:
-    """One progress line per step on stderr, with an estimate of the time left."""
+    """One progress line per step on stderr: a bar of the work done and an estimate of
+    the time left, from the steps' expected times scaled by how the finished steps
+    compared with theirs."""
 
     def __init__(self, steps, quick, quiet):
         self.expect = [float(s.get("expect_s", 10.0)) * (0.25 if quick else 1.0)
                        for s in steps]
+        self.actual = []
         self.quiet = quiet
-        self.t0 = time.perf_counter()
 
     def start(self, i, step):
         if self.quiet:
             return
-        done = sum(self.expect[:i])
-        total = sum(self.expect)
-        bar = "#" * int(20 * done / total)
-        left = max(total - done, 0.0)
+        done = sum(self.actual)
+        ratio = done / sum(self.expect[:i]) if i and sum(self.expect[:i]) > 0 else 1.0
+        left = ratio * sum(self.expect[i:])
+        frac = done / (done + left) if done + left > 0 else 0.0
+        bar = "#" * int(20 * frac)
         print(f"[{bar:<20}] {i + 1}/{len(self.expect)} {step['name']}: "
               f"{step.get('about', step['command'])} (about {left:.0f} s left)",
               file=sys.stderr, flush=True)
 
     def end(self, i, seconds):
-        # Rescale the remaining estimates by how this step compared with its own.
-        if self.expect[i] > 0 and seconds > 0:
-            f = min(max(seconds / self.expect[i], 0.2), 5.0)
-            for j in range(i + 1, len(self.expect)):
-                self.expect[j] *= f ** 0.5
-        self.expect[i] = seconds
+        self.actual.append(seconds)
 
 
 def run_pipeline(pipe: dict, out_dir, *, quick=False, seed=None, threads=None,
