@@ -31,6 +31,8 @@ import tomllib
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
+
 from raytrace.errors import TunnelsimError
 
 
@@ -131,8 +133,10 @@ class _Bar:
         if self.quiet:
             return
         done = sum(self.actual)
-        ratio = done / sum(self.expect[:i]) if i and sum(self.expect[:i]) > 0 else 1.0
-        left = ratio * sum(self.expect[i:])
+        # Median of the finished steps' actual/expected ratios, with a prior of 1: one
+        # slow step (the first run compiling the Numba kernels) does not swing it.
+        ratios = [1.0] + [a / e for a, e in zip(self.actual, self.expect) if e > 0]
+        left = float(np.median(ratios)) * sum(self.expect[i:])
         frac = done / (done + left) if done + left > 0 else 0.0
         bar = "#" * int(20 * frac)
         print(f"[{bar:<20}] {i + 1}/{len(self.expect)} {step['name']}: "
