@@ -254,3 +254,56 @@ def write_points_las(path, xyz, extra=None, classification=None):
                     rec.array[k] = np.asarray(v)[i:i + CHUNK]
                 w.write_points(rec)
     return path
+
+
+def annotate_las(src, dst, fn, *, chunk: int = CHUNK) -> int:
+    """Write ``dst`` = LAS/LAZ ``src`` with every point record kept (coordinates, intensity,
+    GPS time, classification, extra bytes, VLRs) plus the extra dimensions that
+    ``fn(xyz (n, 3))`` returns as {name: (n,) array}, chunk by chunk; an input extra
+    dimension of the same name is replaced. Atomic. Returns the point count."""
+    import laspy
+
+    src, dst = Path(src), Path(dst)
+    if src.suffix.lower() not in (".las", ".laz") or dst.suffix.lower() not in (".las",
+                                                                                 ".laz"):
+        raise CloudFileError(f"Expected .las/.laz input and output, got '{src}' -> '{dst}'.")
+    n = 0
+    with laspy.open(src) as reader:
+        head = reader.header
+        _check_las_scale(head, src)
+        writer = None
+        with atomic_writer(dst) as fh:
+            try:
+                for pts in reader.chunk_iterator(chunk):
+                    xyz = np.stack([np.asarray(pts.x), np.asarray(pts.y),
+                                    np.asarray(pts.z)], 1)
+                    extra = {k: np.asarray(v) for k, v in fn(xyz).items()}
+                    if writer is None:
+                        keep = [e for e in head.point_format.extra_dimension_names
+                                if e not in extra]
+                        fmt = laspy.PointFormat(head.point_format.id)
+                        out_head = laspy.LasHeader(point_format=fmt, version=head.version)
+                        out_head.vlrs.extend(v for v in head.vlrs if not isinstance(
+                            v, laspy.vlrs.known.ExtraBytesVlr))
+                        out_head.scales, out_head.offsets = head.scales, head.offsets
+                        dims = [laspy.ExtraBytesParams(name=e, type=pts.array.dtype[e])
+                                for e in keep]
+                        dims += [laspy.ExtraBytesParams(name=k, type=v.dtype)
+                                 for k, v in extra.items()]
+                        out_head.add_extra_dims(dims)
+                        writer = laspy.open(fh, mode="w", header=out_head, closefd=False,
+                                            do_compress=dst.suffix.lower() == ".laz")
+                    rec = laspy.ScaleAwarePointRecord.zeros(len(xyz), header=writer.header)
+                    for name in rec.array.dtype.names:
+                        if name in extra:
+                            rec.array[name] = extra[name]
+                        elif name in pts.array.dtype.names:
+                            rec.array[name] = pts.array[name]
+                    writer.write_points(rec)
+                    n += len(xyz)
+                if writer is None:
+                    raise CloudFileError(f"Expected points in '{src}', got none.")
+            finally:
+                if writer is not None:
+                    writer.close()
+    return n

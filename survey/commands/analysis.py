@@ -69,7 +69,7 @@ def _load_reference(path):
 def cmd_compare(args) -> int:
     from raytrace import set_threads
 
-    from ..cloudio import iter_points, write_points_las
+    from ..cloudio import annotate_las, iter_points, write_points_las
     from ..compare import (distance_stats, plot_histogram, stats_csv, stats_markdown)
     from ..cli import _write_text
 
@@ -90,20 +90,31 @@ def cmd_compare(args) -> int:
     out = out_dir(args.output, args.force)
     rows, hist = {}, {}
     for c in compared:
-        pts = np.concatenate(list(iter_points(c)))
-        if kind == "mesh":
-            r = ref.distances(pts, max_dist=args.max_dist)
-        else:
-            r = ref.distances(pts, max_dist=args.max_dist, split=args.split,
-                              model=args.model, k=args.k)
         name = Path(c).stem
-        rows[name] = distance_stats(r.distance)
-        hist[name] = r.distance
-        extra = {"distance": r.distance.astype(np.float32)}
-        if args.split:
-            extra.update(dx=r.dx.astype(np.float32), dy=r.dy.astype(np.float32),
-                         dz=r.dz.astype(np.float32))
-        write_points_las(out / f"{name}_distance.laz", pts, extra)
+        got = []
+
+        def dist(xyz):
+            if kind == "mesh":
+                r = ref.distances(xyz, max_dist=args.max_dist)
+            else:
+                r = ref.distances(xyz, max_dist=args.max_dist, split=args.split,
+                                  model=args.model, k=args.k)
+            got.append(r.distance)
+            extra = {"distance": r.distance.astype(np.float32)}
+            if args.split:
+                extra.update(dx=r.dx.astype(np.float32), dy=r.dy.astype(np.float32),
+                             dz=r.dz.astype(np.float32))
+            return extra
+
+        dst = out / f"{name}_distance.laz"
+        if Path(c).suffix.lower() in (".las", ".laz"):
+            # Streamed, and every input field (intensity, time, classes...) kept.
+            annotate_las(c, dst, dist)
+        else:
+            pts = np.concatenate(list(iter_points(c)))
+            write_points_las(dst, pts, dist(pts))
+        rows[name] = distance_stats(np.concatenate(got))
+        hist[name] = np.concatenate(got)
     title = "C2M (signed)" if kind == "mesh" else "C2C"
     _write_text(out / "stats.csv", stats_csv(rows))
     md = stats_markdown(rows, title=title)

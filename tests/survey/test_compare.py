@@ -182,3 +182,29 @@ def test_cli_compare_cloud_to_cloud_split(tmp_path):
     d, _ = naive_nearest(q, rq)
     np.testing.assert_allclose(las["distance"], np.minimum(d, 0.2), atol=1e-6)
     assert set(["dx", "dy", "dz"]) <= set(las.point_format.extra_dimension_names)
+
+
+def test_cli_compare_keeps_the_input_fields(tmp_path):
+    import laspy
+
+    from survey.cloudio import write_points_las
+
+    rng = np.random.default_rng(6)
+    ref = rng.uniform(0, 5, size=(2000, 3)) + UTM
+    cmp_ = rng.uniform(0, 5, size=(700, 3)) + UTM
+    write_points_las(tmp_path / "r.laz", ref)
+    write_points_las(tmp_path / "c.las", cmp_, extra={"range": rng.uniform(1, 9, 700)},
+                     classification=np.full(700, 64, dtype=np.uint8))
+    las = laspy.read(tmp_path / "c.las")
+    las.intensity = rng.integers(0, 65535, 700).astype(np.uint16)
+    las.gps_time = np.arange(700) * 1e-3
+    las.write(tmp_path / "c.las")
+    assert main(["compare", str(tmp_path / "c.las"), str(tmp_path / "r.laz"), "-o",
+                 str(tmp_path / "o"), "--quiet"]) == 0
+    a = laspy.read(tmp_path / "c.las")
+    b = laspy.read(tmp_path / "o" / "c_distance.laz")
+    for f in ("X", "Y", "Z", "intensity", "gps_time", "classification", "range"):
+        np.testing.assert_array_equal(np.asarray(a[f]), np.asarray(b[f]), err_msg=f)
+    r = laspy.read(tmp_path / "r.laz")
+    d, _ = naive_nearest(np.stack([a.x, a.y, a.z], 1), np.stack([r.x, r.y, r.z], 1))
+    np.testing.assert_allclose(b["distance"], d, atol=1e-6)
