@@ -5,13 +5,12 @@ from __future__ import annotations
 import json
 import re
 import tomllib
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from survey.cli import PRINTING, SEEDED, build_parser, main
-from survey.pipeline import PipelineError, demo_text, load_pipeline, step_argv
+from survey.pipeline import demo_text, load_pipeline, step_argv
 
 
 def _commands():
