@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import re
 import tomllib
 
@@ -161,3 +162,32 @@ def test_pipeline_toml_is_valid_toml():
     data = tomllib.loads(demo_text())
     assert data["pipeline"]["seed"] == 0 and len(data["steps"]) >= 10
     assert np.isfinite([s.get("expect_s", 1) for s in data["steps"]]).all()
+
+
+def test_ctrl_c_leaves_no_partial_output(tmp_path):
+    """SIGINT while a drive is being written: exit 130, one line, no output file and no
+    temporary left behind."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    assert main(["tunnel", "-o", str(tmp_path / "t.ply"), "--preset", "tbm",
+                 "--edge-length", "0.5", "--quiet"]) == 0
+    out = tmp_path / "drive.laz"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "survey.cli", "drive", "--mesh", str(tmp_path / "t.ply"),
+         "--sensor", "robosense_airy", "--along", "centreline", "--speed", "0.5",
+         "-o", str(out), "--quiet"], stderr=subprocess.PIPE, text=True,
+        env=dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2])))
+    deadline = time.time() + 120
+    while not list(tmp_path.glob(".drive.laz.*.part")):
+        assert proc.poll() is None and time.time() < deadline, "writing never started"
+        time.sleep(0.05)
+    time.sleep(0.3)
+    proc.send_signal(signal.SIGINT)
+    err = proc.communicate(timeout=60)[1].strip().splitlines()
+    assert proc.returncode == 130
+    assert err == ["tunnelsim: interrupted"]
+    assert not out.exists() and not list(tmp_path.glob(".drive.laz.*"))
