@@ -146,6 +146,19 @@ class _Table:
         return _Table(v, self.file, f"{self.table}.{key}" if self.table else key)
 
 
+def with_rate(spec: SensorSpec, rate_hz: float) -> SensorSpec:
+    """The spec with another rotation (spinning) or profile (profiler) rate; the firing
+    rate stays, so points per turn or per profile change as on the device."""
+    from dataclasses import replace
+
+    if not (np.isfinite(rate_hz) and rate_hz > 0) or spec.kind not in ("spinning",
+                                                                      "profiler"):
+        raise SensorSpecError(f"Expected a positive rate for a spinning lidar or a "
+                              f"profiler, got {rate_hz:g} Hz for {spec.name} ({spec.kind}).")
+    key = "rotation_hz" if spec.kind == "spinning" else "profile_rate_hz"
+    return replace(spec, pattern=replace(spec.pattern, **{key: float(rate_hz)}))
+
+
 def _load(path: Path) -> SensorSpec:
     try:
         data = tomllib.loads(path.read_text())

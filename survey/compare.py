@@ -212,11 +212,10 @@ def stats_markdown(rows: dict, *, title="Distances") -> str:
 
 def plot_histogram(named: dict, path, *, xlabel="distance (mm)", bins=80):
     """Histogram PNG of {name: distances (m)} (overlaid, in mm); atomic."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .plotting import pyplot, save_png
 
-    from raytrace.fileio import atomic_writer
+    plt = pyplot()
+
 
     fig, ax = plt.subplots(figsize=(7, 4), dpi=110)
     allv = np.concatenate([np.asarray(v, dtype=float) for v in named.values()]) * 1000
@@ -231,7 +230,5 @@ def plot_histogram(named: dict, path, *, xlabel="distance (mm)", bins=80):
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    with atomic_writer(path) as fh:
-        fig.savefig(fh, format="png")
-    plt.close(fig)
+    save_png(fig, path)
     return path

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from raytrace.fileio import atomic_writer
-
 
 def plan_csv(plan, planner) -> str:
     """One row per station: chainage, position, area share it serves alone, overlap with
@@ -62,9 +60,9 @@ def plot_coverage(plans, planner, path):
     """Unrolled coverage maps, one panel per plan: white = no cell (floor), red = gap,
     yellow = seen but below the thresholds, greens = served by 1, 2, 3+ stations;
     station chainages marked. Atomic PNG."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .plotting import pyplot, save_png
+
+    plt = pyplot()
     from matplotlib.colors import ListedColormap
 
     c = planner.cells
@@ -88,7 +86,5 @@ def plot_coverage(plans, planner, path):
     axes[-1, 0].set_xlabel("chainage (m)")
     cb = fig.colorbar(im, ax=axes[:, 0].tolist(), ticks=[0, 1, 2, 3, 4], shrink=0.9)
     cb.ax.set_yticklabels(["gap", "below thr.", "1 station", "2", "3+"], fontsize=8)
-    with atomic_writer(path) as fh:
-        fig.savefig(fh, format="png")
-    plt.close(fig)
+    save_png(fig, path)
     return path

@@ -312,12 +312,11 @@ def plot_support(rec: ReconstructedTunnel, path, *, title=None):
     """Unrolled support map of a reconstruction (chainage x angle from the crown):
     colour = points per cell (log), grey = cells filled by interpolation (support 0),
     as the seed's support-coloured mesh (Figure 2). Atomic PNG."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .plotting import pyplot, save_png
+
+    plt = pyplot()
     from matplotlib.colors import LogNorm
 
-    from raytrace.fileio import atomic_writer
 
     n_s, n_a = len(rec.chainages), len(rec.angles)
     sup = rec.support[:n_s * n_a].reshape(n_s, n_a).astype(float)
@@ -337,7 +336,5 @@ def plot_support(rec: ReconstructedTunnel, path, *, title=None):
     ax.set_ylabel("angle from crown (deg)")
     ax.set_yticks([-180, -90, 0, 90, 180])
     fig.colorbar(im, ax=ax, label="points per cell")
-    with atomic_writer(path) as fh:
-        fig.savefig(fh, format="png")
-    plt.close(fig)
+    save_png(fig, path)
     return path

@@ -88,12 +88,10 @@ def drift_report(corr, loo, *, traj=None, plot_path=None,
 
 
 def _plot_correction(dist, mag, path):
-    import matplotlib
+    from .plotting import pyplot, save_png
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
-    from raytrace.fileio import atomic_writer
 
     fig, ax = plt.subplots(figsize=(7, 3))
     ax.plot(dist, mag * 1000)
@@ -101,6 +99,4 @@ def _plot_correction(dist, mag, path):
     ax.set_ylabel("correction (mm)")
     ax.grid(True, alpha=0.3)
     fig.tight_layout()
-    with atomic_writer(path) as fh:
-        fig.savefig(fh, format="png", dpi=120)
-    plt.close(fig)
+    save_png(fig, path, dpi=120)

@@ -26,7 +26,7 @@ Metrics per configuration:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -63,10 +63,10 @@ class StudyRow:
 
 
 def _with_rate(spec, rate_hz):
-    if spec.kind == "spinning":
-        return replace(spec, pattern=replace(spec.pattern, rotation_hz=float(rate_hz)))
-    if spec.kind == "profiler":
-        return replace(spec, pattern=replace(spec.pattern, profile_rate_hz=float(rate_hz)))
+    from sensors.spec import with_rate
+
+    if spec.kind in ("spinning", "profiler"):
+        return with_rate(spec, rate_hz)
     raise StudyError(f"Expected a moving sensor (spinning or profiler), got {spec.name} "
                      f"({spec.kind}); plan TLS stations with 'tunnelsim plan'.")
 

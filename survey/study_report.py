@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from raytrace.fileio import atomic_writer
 
 _COLS = [("speed_mps", "speed (m/s)", "{:.2f}"), ("rate_hz", "rate (Hz)", "{:.0f}"),
          ("mount", "mount", "{}"), ("density_lining", "lining (pts/m^2)", "{:,.0f}"),
@@ -45,9 +44,9 @@ def plot_study(study, rows, path, *, rings_mount=None, rings_rate=None):
     """Two panels: the floor footprint (chainage x lateral offset) of three sweeps at
     each speed, colour by speed (seed Figure 7), and lining/floor density against speed
     per rate, with the 1/v law through the slowest moving point. Atomic PNG."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .plotting import pyplot, save_png
+
+    plt = pyplot()
 
     kept = study.kept
     keys = [k for k in kept if (rings_mount is None or k[2] == rings_mount)
@@ -105,7 +104,5 @@ def plot_study(study, rows, path, *, rings_mount=None, rings_rate=None):
                  fontsize=9)
     a2.legend(fontsize=7)
     fig.tight_layout()
-    with atomic_writer(path) as fh:
-        fig.savefig(fh, format="png")
-    plt.close(fig)
+    save_png(fig, path)
     return path

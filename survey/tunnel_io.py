@@ -203,26 +203,37 @@ def read_tunnel(path):
                       ply["chainage"], ply["profile_t"], al, prof, meta, disp)
 
 
+def read_axis(json_path):
+    """(Alignment, profile-centre height) from a generated tunnel's JSON."""
+    from .alignment import Alignment
+    from .profiles import Profile
+
+    js = Path(json_path)
+    if not js.is_file():
+        raise TunnelFileError(f"Expected a tunnel JSON, got '{js}' which does not exist.")
+    meta = json.loads(js.read_text())
+    if "alignment" not in meta or "profile" not in meta:
+        raise TunnelFileError(f"Expected 'alignment' and 'profile' in '{js}' (a JSON "
+                              "written by 'tunnelsim tunnel'), got neither.")
+    return (Alignment.from_dict(meta["alignment"]),
+            float(Profile.from_dict(meta["profile"]).centroid[1]))
+
+
 def tunnel_frame(mesh_path, scene=None):
     """(Scene, reflectivity, Alignment, profile-centre height) of a mesh: the axis from
     the generated tunnel's JSON beside it, else estimated from the mesh vertices."""
-    import json
-
     from sensors.meshes import load_mesh
-
-    from .alignment import Alignment
-    from .profiles import Profile
 
     sc, refl = load_mesh(mesh_path) if scene is None else (scene, None)
     js = sidecar(mesh_path)
     if js.is_file():
         meta = json.loads(js.read_text())
         if "alignment" in meta and "profile" in meta:
-            return (sc, refl, Alignment.from_dict(meta["alignment"]),
-                    float(Profile.from_dict(meta["profile"]).centroid[1]))
+            return (sc, refl, *read_axis(js))
+    import trimesh
+
     from .reconstruct import estimate_axis
 
-    import trimesh
     v = np.asarray(trimesh.load(str(mesh_path), force="mesh", process=False).vertices)
     al, hc = estimate_axis(v)
     return sc, refl, al, hc

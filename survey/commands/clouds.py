@@ -57,18 +57,9 @@ def _tunnel_axis(path):
     """(Alignment, profile-centre height) from a tunnel JSON, or (None, None)."""
     if not path:
         return None, None
-    import json
-    from pathlib import Path
+    from ..tunnel_io import read_axis
 
-    from ..alignment import Alignment
-    from ..profiles import Profile
-
-    js = Path(path)
-    if not js.is_file():
-        raise TunnelsimCLIError(f"Expected a tunnel JSON, got '{js}' which does not exist.")
-    meta = json.loads(js.read_text())
-    return (Alignment.from_dict(meta["alignment"]),
-            float(Profile.from_dict(meta["profile"]).centroid[1]))
+    return read_axis(path)
 
 
 def cmd_mesh(args) -> int:

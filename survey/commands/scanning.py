@@ -90,21 +90,16 @@ def cmd_scan(args) -> int:
 
 
 def _station_on_axis(args, scene):
-    import json
     from pathlib import Path
 
-    from ..alignment import Alignment
     from ..planning import axis_stations
-    from ..profiles import Profile
-    from ..tunnel_io import sidecar
+    from ..tunnel_io import read_axis, sidecar
 
     js = Path(args.tunnel_json) if args.tunnel_json else sidecar(args.mesh)
     if not js.is_file():
         raise TunnelsimCLIError(f"Expected a tunnel JSON for --chainage ('{js}'), got none; "
                                 "pass --tunnel-json or --at X,Y,Z.")
-    meta = json.loads(js.read_text())
-    al = Alignment.from_dict(meta["alignment"])
-    hc = float(Profile.from_dict(meta["profile"]).centroid[1])
+    al, hc = read_axis(js)
     c0, c1 = al.chainage_range
     if not c0 <= args.chainage <= c1:
         raise TunnelsimCLIError(f"Expected --chainage within [{c0:g}, {c1:g}] m, got "
@@ -118,14 +113,9 @@ def cmd_drive(args) -> int:
 
     spec = load_sensor(args.sensor)
     if args.rate is not None:
-        from dataclasses import replace
+        from sensors.spec import with_rate
 
-        if not (np.isfinite(args.rate) and args.rate > 0) or spec.kind == "tls":
-            raise TunnelsimCLIError(f"Expected --rate as a positive rate for a spinning lidar "
-                                    f"or profiler, got {args.rate:g} Hz for {spec.name} "
-                                    f"({spec.kind}).")
-        key = "rotation_hz" if spec.kind == "spinning" else "profile_rate_hz"
-        spec = replace(spec, pattern=replace(spec.pattern, **{key: float(args.rate)}))
+        spec = with_rate(spec, args.rate)
     scene, refl = load_mesh(args.mesh)
     if args.trajectory:
         traj = Trajectory.read(args.trajectory)

@@ -131,3 +131,13 @@ def test_cli_plan_outputs(tmp_path, tunnel, capsys):
     assert main(["plan", "--mesh", str(tmp_path / "t.ply"), "--sensor", "velodyne_vlp16",
                  "-o", str(tmp_path / "p2")]) == 2
     assert "TLS sensor" in capsys.readouterr().err
+
+
+def test_read_axis_bad_input(tmp_path):
+    from survey.tunnel_io import TunnelFileError, read_axis
+
+    with pytest.raises(TunnelFileError, match="does not exist"):
+        read_axis(tmp_path / "none.json")
+    (tmp_path / "x.json").write_text('{"format": "other"}')
+    with pytest.raises(TunnelFileError, match="'alignment' and 'profile'"):
+        read_axis(tmp_path / "x.json")

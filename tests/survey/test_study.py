@@ -89,3 +89,19 @@ def test_cli_study_outputs(tmp_path, tunnel, capsys):
     assert main(["study", "--mesh", str(tmp_path / "t.ply"), "--speeds", "1,x",
                  "-o", str(tmp_path / "s2")]) == 2
     assert "--speeds" in capsys.readouterr().err
+
+
+def test_with_rate_changes_the_turn_not_the_firing():
+    from sensors.errors import SensorSpecError
+    from sensors.spec import with_rate
+
+    s = load_sensor("velodyne_vlp16")
+    f = with_rate(s, 20.0)
+    assert f.pattern.rotation_hz == 20.0
+    assert f.pattern.column_period_s == s.pattern.column_period_s
+    p = with_rate(load_sensor("zf_profiler_9012"), 50.0)
+    assert p.pattern.profile_rate_hz == 50.0
+    with pytest.raises(SensorSpecError, match="positive rate"):
+        with_rate(s, 0.0)
+    with pytest.raises(SensorSpecError, match="spinning lidar or a profiler"):
+        with_rate(load_sensor("zf_imager_5016"), 10.0)
