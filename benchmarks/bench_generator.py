@@ -28,7 +28,7 @@ from pathlib import Path
 
 
 def _one(edge: float) -> dict:
-    from survey.presets import preset
+    from survey.world.presets import preset
 
     preset("bfo", edge_length_m=0.5)  # imports and first-call costs out of the timing
     t0 = time.perf_counter()

@@ -36,7 +36,7 @@ import numpy as np
 
 
 def _world(edge):
-    from survey.presets import preset
+    from survey.world.presets import preset
 
     tun, _ = preset("bfo", edge_length_m=edge)
     at = tun.alignment.to_world(60.0, 0.0, 1.5)

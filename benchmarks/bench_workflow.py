@@ -24,10 +24,10 @@ def main():
     a = ap.parse_args()
     from raytrace import Scene
     from sensors import load_sensor, simulate_station
-    from survey.compare import cloud_to_cloud
-    from survey.planning import Planner
-    from survey.presets import preset
-    from survey.study import Study
+    from survey.analysis.compare import cloud_to_cloud
+    from survey.analysis.planning import Planner
+    from survey.world.presets import preset
+    from survey.analysis.study import Study
 
     tun, _ = preset("bfo", edge_length_m=0.1)
     scene = Scene(tun.vertices, tun.faces)

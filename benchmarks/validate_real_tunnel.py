@@ -55,7 +55,8 @@ def main():
 
     from raytrace import Scene
     from sensors import Settings, Trajectory, load_sensor, simulate_drive
-    from survey.reconstruct import estimate_axis, reconstruct_tunnel
+    from survey.clouds.axis import estimate_axis
+    from survey.clouds.reconstruct import reconstruct_tunnel
 
     t0 = time.perf_counter()
     las = laspy.read(a.path)

@@ -1,13 +1,123 @@
-"""survey: the surveyor's workflow: alignments, generated tunnels, control points and
-Helmert adjustment, MLS drift correction, and the ``tunnelsim`` command."""
+"""survey: the surveyor's workflow on top of ``sensors`` and ``raytrace``.
 
-from .alignment import Alignment, arc, clothoid, curve, straight
-from .drift import fit_drift, leave_one_out
-from .helmert import HelmertResult, fit_helmert
-from .profiles import Profile, arched_rectangle, circle, horseshoe
-from .tunnel import TunnelMesh, make_tunnel
-from .tunnel_io import read_tunnel
+Sub-packages, lowest layer first (imports only point down)::
 
-__all__ = ["Alignment", "straight", "arc", "clothoid", "curve", "Profile", "circle",
-           "horseshoe", "arched_rectangle", "make_tunnel", "TunnelMesh", "read_tunnel",
-           "fit_helmert", "HelmertResult", "fit_drift", "leave_one_out"]
+    world     alignments, profiles, features, deformation, the tunnel mesh and its files
+    adjust    Helmert, control points, drift correction, simulated SLAM drift
+    clouds    cloud I/O, filters, segmentation, axis and unrolling, reconstruction
+    analysis  C2C/C2M comparison, station planning, MLS studies
+    report    Markdown/CSV reports and figures;  export: Gazebo
+    cli       the ``tunnelsim`` command (a leaf: nothing imports it)
+
+Every public name is also available here (``from survey import fit_helmert``); they are
+imported on first use, so ``import survey`` and ``tunnelsim --help`` stay fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+__version__ = "0.2.0"
+
+SUBPACKAGES = ("world", "adjust", "clouds", "analysis", "report", "export", "errors")
+
+_EXPORTS = {
+    "survey.world.alignment": ("Alignment", "Element", "arc", "clothoid", "curve",
+                               "straight"),
+    "survey.world.profiles": ("Profile", "arched_rectangle", "circle", "horseshoe"),
+    "survey.world.features": ("Bolts", "Cable", "Drainage", "Niche", "Prisms", "WetFloor"),
+    "survey.world.deformation": ("Bulge", "Convergence", "Ovalisation"),
+    "survey.world.mesh": ("LABELS", "REFLECTIVITY", "TunnelMesh", "read_axis", "read_ply",
+                          "read_tunnel", "write_ply", "write_tunnel"),
+    "survey.world.generator": ("edge_length_for", "make_tunnel"),
+    "survey.world.presets": ("PRESETS", "preset"),
+    "survey.adjust.helmert": ("HelmertResult", "fit_helmert", "from_parameters"),
+    "survey.adjust.controlpoints": ("ControlPoints", "match", "read_control_points"),
+    "survey.adjust.drift": ("DriftCorrection", "fit_drift", "leave_one_out"),
+    "survey.adjust.slam": ("slam_trajectory", "to_slam_frame"),
+    "survey.clouds.cloudio": ("annotate_las", "cloud_bounds", "iter_points", "map_cloud",
+                              "write_points_las"),
+    "survey.clouds.preprocess": ("VoxelGrid", "radius_outliers", "statistical_outliers",
+                                 "voxel_down_sample"),
+    "survey.clouds.axis": ("estimate_axis", "tunnel_frame", "unroll"),
+    "survey.clouds.segment": ("CLASS_NAMES", "segment_tunnel"),
+    "survey.clouds.reconstruct": ("ReconstructedTunnel", "poisson_tunnel",
+                                  "reconstruct_tunnel"),
+    "survey.clouds.detail": ("attachment_tubes",),
+    "survey.analysis.compare": ("Distances", "ReferenceCloud", "ReferenceMesh",
+                                "cloud_to_cloud", "cloud_to_mesh", "distance_stats"),
+    "survey.analysis.planning": ("Plan", "Planner", "Thresholds", "axis_stations",
+                                 "lining_cells"),
+    "survey.analysis.study": ("Study", "StudyRow"),
+    "survey.report.adjustment": ("drift_report", "helmert_report"),
+    "survey.report.compare": ("plot_histogram", "stats_csv", "stats_markdown"),
+    "survey.report.planning": ("plan_csv", "plan_markdown", "plot_coverage"),
+    "survey.report.study": ("plot_study", "study_csv", "study_markdown"),
+    "survey.report.reconstruct": ("plot_support",),
+    "survey.report.demo": ("demo_summary", "summary_markdown"),
+    "survey.export.gazebo": ("export_gazebo", "lidar_sdf"),
+    "survey.errors": ("TunnelsimError", "AlignmentError", "CloudFileError", "CompareError",
+                      "ControlPointError", "DeformationError", "DriftError", "FeatureError",
+                      "GazeboExportError", "HelmertError", "PipelineError", "PlanningError",
+                      "PreprocessError", "ProfileError", "ReconstructionError",
+                      "StudyError", "TunnelError", "TunnelFileError", "TunnelsimCLIError"),
+}
+
+_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
+
+__all__ = ["__version__", *SUBPACKAGES, *_WHERE]
+
+if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
+    from survey.world.alignment import Alignment, Element, arc, clothoid, curve, straight
+    from survey.world.profiles import Profile, arched_rectangle, circle, horseshoe
+    from survey.world.features import Bolts, Cable, Drainage, Niche, Prisms, WetFloor
+    from survey.world.deformation import Bulge, Convergence, Ovalisation
+    from survey.world.mesh import (LABELS, REFLECTIVITY, TunnelMesh, read_axis, read_ply,
+        read_tunnel, write_ply, write_tunnel)
+    from survey.world.generator import edge_length_for, make_tunnel
+    from survey.world.presets import PRESETS, preset
+    from survey.adjust.helmert import HelmertResult, fit_helmert, from_parameters
+    from survey.adjust.controlpoints import ControlPoints, match, read_control_points
+    from survey.adjust.drift import DriftCorrection, fit_drift, leave_one_out
+    from survey.adjust.slam import slam_trajectory, to_slam_frame
+    from survey.clouds.cloudio import (annotate_las, cloud_bounds, iter_points, map_cloud,
+        write_points_las)
+    from survey.clouds.preprocess import (VoxelGrid, radius_outliers, statistical_outliers,
+        voxel_down_sample)
+    from survey.clouds.axis import estimate_axis, tunnel_frame, unroll
+    from survey.clouds.segment import CLASS_NAMES, segment_tunnel
+    from survey.clouds.reconstruct import (ReconstructedTunnel, poisson_tunnel,
+        reconstruct_tunnel)
+    from survey.clouds.detail import attachment_tubes
+    from survey.analysis.compare import (Distances, ReferenceCloud, ReferenceMesh,
+        cloud_to_cloud, cloud_to_mesh, distance_stats)
+    from survey.analysis.planning import (Plan, Planner, Thresholds, axis_stations,
+        lining_cells)
+    from survey.analysis.study import Study, StudyRow
+    from survey.report.adjustment import drift_report, helmert_report
+    from survey.report.compare import plot_histogram, stats_csv, stats_markdown
+    from survey.report.planning import plan_csv, plan_markdown, plot_coverage
+    from survey.report.study import plot_study, study_csv, study_markdown
+    from survey.report.reconstruct import plot_support
+    from survey.report.demo import demo_summary, summary_markdown
+    from survey.export.gazebo import export_gazebo, lidar_sdf
+    from survey.errors import (TunnelsimError, AlignmentError, CloudFileError, CompareError,
+        ControlPointError, DeformationError, DriftError, FeatureError, GazeboExportError,
+        HelmertError, PipelineError, PlanningError, PreprocessError, ProfileError,
+        ReconstructionError, StudyError, TunnelError, TunnelFileError, TunnelsimCLIError)
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        value = getattr(importlib.import_module(_WHERE[name]), name)
+    elif name in SUBPACKAGES:
+        value = importlib.import_module(f"{__name__}.{name}")
+    else:
+        raise AttributeError(f"module 'survey' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.special import fresnel
 
-from survey.alignment import (Alignment, AlignmentError, arc, clothoid, curve, straight)
+from survey.world.alignment import Alignment, arc, clothoid, curve, straight
+from survey.errors import AlignmentError
 
 
 @pytest.fixture(scope="module")
@@ -169,7 +170,7 @@ def test_alignment_dict_round_trip(curved):
 def test_short_clothoids_use_8_nodes_without_losing_precision(monkeypatch):
     """Chains of short clothoids (as Alignment.fit makes) take the 8-node rule; it
     agrees with the 24-node rule to 1e-12 m."""
-    import survey.alignment as A
+    import survey.world.alignment as A
     rng = np.random.default_rng(0)
     k = np.concatenate([[0.0], np.cumsum(rng.normal(0, 0.002, 150))])
     al = Alignment([A.Element(2.0, k[i], k[i + 1]) for i in range(150)])

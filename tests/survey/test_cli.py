@@ -11,7 +11,7 @@ import numba
 import numpy as np
 import pytest
 
-from survey.cli import main
+from survey.cli.main import main
 
 
 def test_version(capsys):
@@ -69,7 +69,7 @@ def test_tunnel_writes_mesh_metadata_and_epoch(tmp_path, capsys):
     assert "wrote" in text and str(out) in text
     import json
 
-    from survey.tunnel_io import read_ply, read_tunnel
+    from survey.world.mesh import read_ply, read_tunnel
     a, b = read_tunnel(out), read_tunnel(ep)
     assert json.loads(out.with_suffix(".json").read_text())["face_counts"]["cable"] > 0
     mid = np.isclose(a.vertex_chainage, 50.0)  # lining and attached features alike
@@ -115,7 +115,7 @@ def test_sensors_lists_every_model(capsys):
 def test_scan_writes_a_station_with_the_mesh_reflectivity(tbm, tmp_path, capsys):
     import laspy
 
-    from survey.tunnel_io import read_tunnel
+    from survey.world.mesh import read_tunnel
     out = tmp_path / "st.laz"
     assert main(["scan", "--mesh", str(tbm), "--at", "50,0,1.5", "--resolution", "preview",
                  "--ideal", "--fields", "full", "-o", str(out)]) == 0
@@ -169,8 +169,8 @@ def test_scan_and_drive_bad_input(argv, match, tbm, capsys, tmp_path, monkeypatc
 
 
 def _cp_files(tmp_path, n=8, seed=0):
-    from survey.controlpoints import ControlPoints
-    from survey.helmert import from_parameters
+    from survey.adjust.controlpoints import ControlPoints
+    from survey.adjust.helmert import from_parameters
     rng = np.random.default_rng(seed)
     src = rng.uniform(-100, 100, (n, 3))
     h = from_parameters([451000.0, 5352000.0, 600.0], [10.0, -5.0, 300.0], 5.0)
@@ -202,7 +202,7 @@ def test_adjust_and_transform(tmp_path, capsys):
     las.write(tmp_path / "c.las")
     assert main(["transform", str(tmp_path / "c.las"), "--helmert", str(tmp_path / "h.json"),
                  "-o", str(tmp_path / "c2.laz")]) == 0
-    from survey.helmert import HelmertResult
+    from survey.adjust.helmert import HelmertResult
     want = HelmertResult.from_dict(res).apply(np.stack([las.x, las.y, las.z], 1))
     back = laspy.read(tmp_path / "c2.laz")
     np.testing.assert_allclose(np.stack([back.x, back.y, back.z], 1), want, atol=1e-4)
@@ -234,7 +234,7 @@ def test_correct_end_to_end(tmp_path, capsys):
     from scipy.spatial.transform import Rotation
 
     from sensors import Trajectory
-    from survey.controlpoints import ControlPoints
+    from survey.adjust.controlpoints import ControlPoints
     t = np.linspace(0, 100, 201)
     true_pos = np.stack([t, 0 * t, 0 * t + 1.0], 1) + [451000.0, 5352000.0, 600.0]
     drift = np.stack([0 * t, 0.002 * t, 0.0005 * t], 1)          # 20 cm lateral at 100 s
@@ -282,8 +282,8 @@ def test_correct_end_to_end(tmp_path, capsys):
 def test_preprocess_streams_a_cloud(tmp_path, capsys):
     import laspy
 
-    from survey.cloudio import write_points_las
-    from survey.preprocess import statistical_outliers, voxel_down_sample
+    from survey.clouds.cloudio import write_points_las
+    from survey.clouds.preprocess import statistical_outliers, voxel_down_sample
     rng = np.random.default_rng(5)
     p = rng.normal(0, 2, (30_000, 3)) + [451_000.0, 5_352_000.0, 600.0]
     p[:20] += rng.normal(0, 40, (20, 3))
@@ -295,7 +295,7 @@ def test_preprocess_streams_a_cloud(tmp_path, capsys):
     assert "after outlier removal" in capsys.readouterr().out
     out = laspy.read(tmp_path / "out.laz")
     lo = np.asarray(q.header.mins)                        # the grid anchor the CLI uses
-    from survey.preprocess import VoxelGrid
+    from survey.clouds.preprocess import VoxelGrid
     g = VoxelGrid(0.5, lo)
     g.add(stored)
     want, counts = g.result()
@@ -320,9 +320,9 @@ def test_preprocess_bad_input(tmp_path, capsys):
 def test_mesh_reconstructs_a_generated_tunnel(tbm, tmp_path, capsys):
     """Points sampled on the tbm tunnel's lining (with 1 mm noise): the mesh command
     rebuilds it, with support per vertex, using the tunnel's own alignment."""
-    from survey.cloudio import write_points_las
-    from survey.tunnel import LABEL
-    from survey.tunnel_io import read_ply, read_tunnel
+    from survey.clouds.cloudio import write_points_las
+    from survey.world.mesh import LABEL
+    from survey.world.mesh import read_ply, read_tunnel
     tun = read_tunnel(tbm)
     rng = np.random.default_rng(0)
     lin = tun.faces[np.isin(tun.labels, [LABEL["lining"], LABEL["floor"]])]
@@ -343,9 +343,9 @@ def test_mesh_reconstructs_a_generated_tunnel(tbm, tmp_path, capsys):
 def test_preprocess_segment_writes_classes(tbm, tmp_path, capsys):
     import laspy
 
-    from survey.cloudio import write_points_las
-    from survey.tunnel import LABEL
-    from survey.tunnel_io import read_tunnel
+    from survey.clouds.cloudio import write_points_las
+    from survey.world.mesh import LABEL
+    from survey.world.mesh import read_tunnel
     tun = read_tunnel(tbm)
     rng = np.random.default_rng(1)
     # Dense enough for the 0.25 m x 2 deg cells: 20 m of the tunnel (~500 points/m^2).
@@ -372,9 +372,9 @@ def test_preprocess_segment_writes_classes(tbm, tmp_path, capsys):
 def test_mesh_budget_crop_and_coarse_las(tbm, tmp_path, capsys):
     import laspy
 
-    from survey.cloudio import write_points_las
-    from survey.tunnel import LABEL
-    from survey.tunnel_io import read_ply, read_tunnel
+    from survey.clouds.cloudio import write_points_las
+    from survey.world.mesh import LABEL
+    from survey.world.mesh import read_ply, read_tunnel
     tun = read_tunnel(tbm)
     rng = np.random.default_rng(2)
     lin = tun.faces[np.isin(tun.labels, [LABEL["lining"], LABEL["floor"]])]
@@ -404,8 +404,8 @@ def test_mesh_budget_crop_and_coarse_las(tbm, tmp_path, capsys):
 def test_mesh_detail_layer_keeps_the_cable(tbm, tmp_path, capsys):
     import trimesh
 
-    from survey.cloudio import write_points_las
-    from survey.tunnel_io import read_ply, read_tunnel
+    from survey.clouds.cloudio import write_points_las
+    from survey.world.mesh import read_ply, read_tunnel
     tun = read_tunnel(tbm)
     rng = np.random.default_rng(3)
     window = np.flatnonzero((tun.vertex_chainage[tun.faces[:, 0]] > 30.0) &

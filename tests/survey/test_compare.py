@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from survey.cli import main
-from survey.compare import (CompareError, ReferenceCloud, cloud_to_cloud, cloud_to_mesh,
-                            distance_stats, plot_histogram, stats_csv, stats_markdown)
+from survey.cli.main import main
+from survey.errors import CompareError
+from survey.analysis.compare import (ReferenceCloud, cloud_to_cloud, cloud_to_mesh, distance_stats)
+from survey.report.compare import plot_histogram, stats_csv, stats_markdown
 from tests.naive import naive_nearest, naive_point_mesh
 
 UTM = np.array([512_345.0, 5_412_345.0, 312.0])
@@ -133,8 +134,8 @@ def test_bad_inputs():
 def test_cli_compare_cloud_to_mesh(tmp_path, capsys):
     import laspy
 
-    from survey.cloudio import write_points_las
-    from survey.tunnel_io import write_ply
+    from survey.clouds.cloudio import write_points_las
+    from survey.world.mesh import write_ply
 
     v, f = _sphere_and_plate()
     # float64 PLY (trimesh writes float32, which cannot hold UTM-sized coordinates).
@@ -166,7 +167,7 @@ def test_cli_compare_cloud_to_mesh(tmp_path, capsys):
 def test_cli_compare_cloud_to_cloud_split(tmp_path):
     import laspy
 
-    from survey.cloudio import write_points_las
+    from survey.clouds.cloudio import write_points_las
 
     rng = np.random.default_rng(5)
     ref = rng.uniform(0, 5, size=(3000, 3)) + UTM
@@ -187,7 +188,7 @@ def test_cli_compare_cloud_to_cloud_split(tmp_path):
 def test_cli_compare_keeps_the_input_fields(tmp_path):
     import laspy
 
-    from survey.cloudio import write_points_las
+    from survey.clouds.cloudio import write_points_las
 
     rng = np.random.default_rng(6)
     ref = rng.uniform(0, 5, size=(2000, 3)) + UTM

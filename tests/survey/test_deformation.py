@@ -6,13 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from survey import features as F
-from survey.alignment import Alignment, curve, straight
-from survey.deformation import (Bulge, Convergence, DeformationError, Ovalisation,
-                                from_dict, to_dict)
-from survey.profiles import horseshoe
-from survey.tunnel import LABEL, TunnelError, make_tunnel
-from survey.tunnel_io import read_ply
+from survey.world import features as F
+from survey.world.alignment import Alignment, curve, straight
+from survey.world.deformation import Bulge, Convergence, Ovalisation, from_dict, to_dict
+from survey.errors import DeformationError
+from survey.world.profiles import horseshoe
+from survey.world.mesh import LABEL
+from survey.errors import TunnelError
+from survey.world.generator import make_tunnel
+from survey.world.mesh import read_ply
 
 
 @pytest.fixture(scope="module")

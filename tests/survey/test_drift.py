@@ -10,9 +10,10 @@ import pytest
 from raytrace import Scene
 from sensors import Settings, Trajectory, load_sensor, simulate_drive
 from sensors.spec import SPEC_DIR
-from survey.drift import DriftError, fit_drift, leave_one_out
-from survey.presets import preset
-from survey.slam import slam_trajectory, to_slam_frame
+from survey.errors import DriftError
+from survey.adjust.drift import fit_drift, leave_one_out
+from survey.world.presets import preset
+from survey.adjust.slam import slam_trajectory, to_slam_frame
 
 SPEED = 2.0
 

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from sensors import load_sensor
-from survey.alignment import Alignment, straight
-from survey.cli import main
-from survey.gazebo import (GazeboExportError, decimate, export_gazebo, lidar_sdf,
-                           unit_warnings)
-from survey.profiles import horseshoe
-from survey.tunnel import make_tunnel
+from survey.world.alignment import Alignment, straight
+from survey.cli.main import main
+from survey.errors import GazeboExportError
+from survey.export.gazebo import decimate, export_gazebo, lidar_sdf, unit_warnings
+from survey.world.profiles import horseshoe
+from survey.world.generator import make_tunnel
 
 CHECKER = Path(__file__).parent / "sdf" / "sdf_check.cpp"
 
@@ -162,7 +162,7 @@ def test_existing_folder_refused_and_force_replaces(tunnel_ply, tmp_path, capsys
 def test_cm_mesh_warns_on_cli(tmp_path, capsys):
     t = make_tunnel(Alignment([straight(40.0)]), horseshoe(5.0), edge_length_m=0.3,
                     roughness_rms_m=0.0)
-    from survey.tunnel_io import write_ply
+    from survey.world.mesh import write_ply
 
     write_ply(tmp_path / "cm.ply", t.vertices * 100.0, t.faces)     # no JSON: axis fit
     rc = main(["gazebo", "--mesh", str(tmp_path / "cm.ply"), "-o", str(tmp_path / "w"),
@@ -178,7 +178,7 @@ def test_cm_mesh_warns_on_cli(tmp_path, capsys):
 
 
 def test_crash_leaves_no_partial_world(tunnel_ply, tmp_path, monkeypatch):
-    import survey.gazebo as gz
+    import survey.export.gazebo as gz
 
     def boom(*a, **k):
         raise RuntimeError("disk full")
@@ -192,7 +192,7 @@ def test_crash_leaves_no_partial_world(tunnel_ply, tmp_path, monkeypatch):
 def test_obj_round_trip(tmp_path):
     import trimesh
 
-    from survey.gazebo import write_obj
+    from survey.export.gazebo import write_obj
 
     t = make_tunnel(Alignment([straight(5.0)]), horseshoe(5.0), edge_length_m=0.3,
                     roughness_rms_m=0.0)
@@ -203,7 +203,7 @@ def test_obj_round_trip(tmp_path):
 
 
 def test_decimate_bounds_the_error():
-    from survey.compare import cloud_to_mesh
+    from survey.analysis.compare import cloud_to_mesh
 
     t = make_tunnel(Alignment([straight(10.0)]), horseshoe(5.0), edge_length_m=0.1,
                     roughness_rms_m=0.0)

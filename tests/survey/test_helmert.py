@@ -7,10 +7,10 @@ import pytest
 from pyproj import Transformer
 from scipy.spatial.transform import Rotation
 
-from survey.controlpoints import (ControlPointError, ControlPoints, match,
-                                  read_control_points)
-from survey.helmert import (ARCSEC, HelmertError, fit_helmert, from_parameters,
-                            rotation_matrix)
+from survey.errors import ControlPointError
+from survey.adjust.controlpoints import ControlPoints, match, read_control_points
+from survey.adjust.helmert import fit_helmert, from_parameters, rotation_matrix
+from survey.errors import HelmertError
 
 UTM = np.array([451_000.0, 5_352_000.0, 600.0])
 PARAMS = dict(t=(12.3, -4.5, 0.7), r=(3.2, -1.7, 12.5), s=15.3)

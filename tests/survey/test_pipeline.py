@@ -10,8 +10,8 @@ import tomllib
 import numpy as np
 import pytest
 
-from survey.cli import PRINTING, SEEDED, build_parser, main
-from survey.pipeline import demo_text, load_pipeline, step_argv
+from survey.cli.main import PRINTING, SEEDED, build_parser, main
+from survey.cli.pipeline import demo_text, load_pipeline, step_argv
 
 
 def _commands():

@@ -10,11 +10,12 @@ import pytest
 
 from raytrace import Scene
 from sensors import load_sensor
-from survey.alignment import Alignment, straight
-from survey.cli import main
-from survey.planning import Planner, PlanningError, Thresholds, station_quality
-from survey.profiles import horseshoe
-from survey.tunnel import make_tunnel
+from survey.world.alignment import Alignment, straight
+from survey.cli.main import main
+from survey.analysis.planning import Planner, Thresholds, station_quality
+from survey.errors import PlanningError
+from survey.world.profiles import horseshoe
+from survey.world.generator import make_tunnel
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +35,7 @@ def planner(tunnel):
 def test_cells_cover_the_lining(planner, tunnel):
     # The cells' area is the lining's (floor excluded): compare with the mesh's lining
     # triangles (label 0) - same surface, sampled differently.
-    from survey.tunnel import LABEL
+    from survey.world.mesh import LABEL
 
     v, f = tunnel.vertices, tunnel.faces[tunnel.labels == LABEL["lining"]]
     a = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]),
@@ -134,7 +135,8 @@ def test_cli_plan_outputs(tmp_path, tunnel, capsys):
 
 
 def test_read_axis_bad_input(tmp_path):
-    from survey.tunnel_io import TunnelFileError, read_axis
+    from survey.errors import TunnelFileError
+    from survey.world.mesh import read_axis
 
     with pytest.raises(TunnelFileError, match="does not exist"):
         read_axis(tmp_path / "none.json")

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from survey.preprocess import (PreprocessError, VoxelGrid, radius_outliers,
-                               statistical_outliers, voxel_down_sample)
+from survey.errors import PreprocessError
+from survey.clouds.preprocess import (VoxelGrid, radius_outliers, statistical_outliers, voxel_down_sample)
 
 
 def _cloud(n=20_000, seed=0):

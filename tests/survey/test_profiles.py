@@ -9,7 +9,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from scipy.integrate import quad
 
-from survey.profiles import (Profile, ProfileError, arched_rectangle, circle, horseshoe)
+from survey.world.profiles import Profile, arched_rectangle, circle, horseshoe
+from survey.errors import ProfileError
 
 
 def test_circle_is_analytic():

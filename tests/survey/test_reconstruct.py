@@ -9,11 +9,12 @@ import trimesh
 from raytrace import Scene
 from sensors import Trajectory, load_sensor, simulate_drive
 from sensors.spec import SPEC_DIR
-from survey.alignment import Alignment, curve, straight
-from survey.preprocess import voxel_down_sample
-from survey.profiles import horseshoe
-from survey.reconstruct import ReconstructionError, reconstruct_tunnel
-from survey.tunnel import make_tunnel
+from survey.world.alignment import Alignment, curve, straight
+from survey.clouds.preprocess import voxel_down_sample
+from survey.world.profiles import horseshoe
+from survey.errors import ReconstructionError
+from survey.clouds.reconstruct import reconstruct_tunnel
+from survey.world.generator import make_tunnel
 
 
 @pytest.fixture(scope="module")
@@ -89,7 +90,7 @@ def test_poisson_alternative_is_trimmed_and_close(scanned):
     """Open3D's Poisson (optional): closures at the portals removed, the lining within
     a few millimetres of the truth."""
     pytest.importorskip("open3d", reason="Poisson reconstruction needs the optional Open3D")
-    from survey.reconstruct import poisson_tunnel
+    from survey.clouds.reconstruct import poisson_tunnel
     al, scene, cloud = scanned
     v, f = poisson_tunnel(cloud, alignment=al, centre_height_m=1.3, depth=9)
     s, o, h = al.to_local(v)

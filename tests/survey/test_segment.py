@@ -9,11 +9,12 @@ import pytest
 from raytrace import Scene
 from sensors import Settings, Trajectory, load_sensor, simulate_drive
 from sensors.spec import SPEC_DIR
-from survey import features as F
-from survey.alignment import Alignment, curve, straight
-from survey.profiles import horseshoe
-from survey.segment import ATTACHMENT, FLOOR, LINING, NOISE, OBJECT, segment_tunnel
-from survey.tunnel import LABEL, make_tunnel
+from survey.world import features as F
+from survey.world.alignment import Alignment, curve, straight
+from survey.world.profiles import horseshoe
+from survey.clouds.segment import ATTACHMENT, FLOOR, LINING, NOISE, OBJECT, segment_tunnel
+from survey.world.mesh import LABEL
+from survey.world.generator import make_tunnel
 
 
 @pytest.fixture(scope="module")
@@ -71,8 +72,8 @@ def test_detail_layer_recovers_the_cables(scan):
     (the seed study's meshes lost its four cables)."""
     import trimesh
 
-    from survey.detail import attachment_tubes
-    from survey.profiles import horseshoe
+    from survey.clouds.detail import attachment_tubes
+    from survey.world.profiles import horseshoe
     al, xyz, truth = scan
     cls = segment_tunnel(xyz, alignment=al, centre_height_m=1.3)
     v, f = attachment_tubes(xyz[cls == ATTACHMENT], al)
@@ -98,9 +99,10 @@ def test_detail_layer_recovers_the_cables(scan):
 
 
 def test_bad_segment_and_detail_input(tmp_path):
-    from survey.detail import attachment_tubes
-    from survey.reconstruct import ReconstructionError
-    from survey.tunnel_io import TunnelFileError, read_tunnel
+    from survey.clouds.detail import attachment_tubes
+    from survey.errors import ReconstructionError
+    from survey.errors import TunnelFileError
+    from survey.world.mesh import read_tunnel
     al = Alignment([straight(10.0)])
     with pytest.raises(ReconstructionError, match="non-empty finite cloud"):
         segment_tunnel(np.empty((0, 3)), alignment=al)

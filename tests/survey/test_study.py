@@ -8,11 +8,12 @@ import pytest
 
 from raytrace import Scene
 from sensors import Settings, load_sensor
-from survey.alignment import Alignment, straight
-from survey.cli import main
-from survey.profiles import horseshoe
-from survey.study import Study, StudyError
-from survey.tunnel import make_tunnel
+from survey.world.alignment import Alignment, straight
+from survey.cli.main import main
+from survey.world.profiles import horseshoe
+from survey.analysis.study import Study
+from survey.errors import StudyError
+from survey.world.generator import make_tunnel
 
 
 @pytest.fixture(scope="module")

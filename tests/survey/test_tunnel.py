@@ -9,12 +9,15 @@ import numpy as np
 import pytest
 import trimesh
 
-from survey import features as F
-from survey.alignment import Alignment, AlignmentError, curve, straight
-from survey.profiles import ProfileError, Profile, arched_rectangle, circle, horseshoe
-from survey.tunnel import (LABEL, LABELS, ROUGHNESS_CLIP, TunnelError, edge_length_for,
-                           make_tunnel)
-from survey.tunnel_io import read_ply, read_tunnel
+from survey.world import features as F
+from survey.world.alignment import Alignment, curve, straight
+from survey.errors import AlignmentError
+from survey.errors import ProfileError
+from survey.world.profiles import Profile, arched_rectangle, circle, horseshoe
+from survey.world.mesh import LABEL, LABELS
+from survey.world.generator import ROUGHNESS_CLIP, edge_length_for, make_tunnel
+from survey.errors import TunnelError
+from survey.world.mesh import read_ply, read_tunnel
 
 ROUGH = 0.002
 
@@ -256,7 +259,7 @@ def test_radius_tighter_than_the_tunnel_is_rejected():
     ({"features": [F.Niche("left", 10.0, 12.0, 0.3, 1.5),
                    F.Niche("left", 11.0, 13.0, 1.0, 2.0)]}, "non-overlapping"),
     ({"features": [F.Niche("left", 10.0, 12.0, 0.3, 9.0)]}, "height within"),
-    ({"features": ["cable"]}, "survey.features"),
+    ({"features": ["cable"]}, "survey.world.features"),
     ({"features": [F.Drainage(0.0, 0.3, 0.2)], "closed_ends": True}, "closed ends"),
 ])
 def test_bad_generator_input(kwargs, match):

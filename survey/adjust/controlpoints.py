@@ -1,0 +1,104 @@
+"""Control-point files: CSV with a header naming at least ``id, x, y, z`` and optionally
+``sigma`` (one standard deviation for all three coordinates, m) or ``sx, sy, sz`` and
+``time`` (s, when the point was observed in a moving system). Matching two files by id
+gives the common points of a Helmert adjustment."""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from raytrace.fileio import atomic_writer
+from survey.errors import ControlPointError
+
+
+@dataclass
+class ControlPoints:
+    """ids (n,) str; xyz (n, 3) float64; sigma (n, 3) float64 or None; time (n,) or None."""
+
+    ids: list
+    xyz: np.ndarray
+    sigma: np.ndarray | None = None
+    time: np.ndarray | None = None
+
+    def __len__(self):
+        return len(self.ids)
+
+    def write(self, path):
+        path = Path(path)
+        with atomic_writer(path, "w") as fh:
+            cols = ["id", "x", "y", "z"] + (["sx", "sy", "sz"] if self.sigma is not None
+                                            else []) + (["time"] if self.time is not None
+                                                        else [])
+            fh.write(",".join(cols) + "\n")
+            for i, name in enumerate(self.ids):
+                row = [name] + [f"{v:.6f}" for v in self.xyz[i]]
+                if self.sigma is not None:
+                    row += [f"{v:.6g}" for v in self.sigma[i]]
+                if self.time is not None:
+                    row.append(f"{self.time[i]:.9f}")
+                fh.write(",".join(row) + "\n")
+        return path
+
+
+def read_control_points(path) -> ControlPoints:
+    path = Path(path)
+    if not path.is_file():
+        raise ControlPointError(f"Expected a control-point CSV, got '{path}' which does not "
+                                "exist.")
+    with open(path, newline="") as fh:
+        rows = list(csv.reader(line for line in fh if line.strip() and
+                               not line.lstrip().startswith("#")))
+    if not rows:
+        raise ControlPointError(f"Expected a header 'id,x,y,z[,sigma|sx,sy,sz][,time]' in "
+                                f"'{path}', got an empty file.")
+    head = [h.strip().lower() for h in rows[0]]
+    for need in ("id", "x", "y", "z"):
+        if need not in head:
+            raise ControlPointError(f"Expected a column '{need}' in '{path}', got columns "
+                                    f"{head}.")
+    col = {h: i for i, h in enumerate(head)}
+    ids, xyz, sig, tim = [], [], [], []
+    for k, r in enumerate(rows[1:], start=2):
+        try:
+            ids.append(r[col["id"]].strip())
+            xyz.append([float(r[col[c]]) for c in "xyz"])
+            if "sigma" in col:
+                sig.append([float(r[col["sigma"]])] * 3)
+            elif "sx" in col:
+                sig.append([float(r[col[c]]) for c in ("sx", "sy", "sz")])
+            if "time" in col:
+                tim.append(float(r[col["time"]]))
+        except (IndexError, ValueError) as exc:
+            raise ControlPointError(f"Expected numbers in every column of line {k} of "
+                                    f"'{path}', got {r!r}.") from exc
+    seen = set()
+    for i in ids:
+        if i in seen:
+            raise ControlPointError(f"Expected unique point ids in '{path}', got {i!r} "
+                                    "twice.")
+        seen.add(i)
+    xyz = np.array(xyz, dtype=np.float64).reshape(-1, 3)
+    sigma = np.array(sig, dtype=np.float64) if sig else None
+    if sigma is not None and (sigma <= 0).any():
+        raise ControlPointError(f"Expected positive sigmas in '{path}'.")
+    return ControlPoints(ids, xyz, sigma, np.array(tim) if tim else None)
+
+
+def match(a: ControlPoints, b: ControlPoints, *, require_all: bool = False):
+    """Indices (ia, ib) of the points present in both, in a's order. With
+    ``require_all`` every point of ``a`` must have a partner."""
+    pos = {k: i for i, k in enumerate(b.ids)}
+    missing = [k for k in a.ids if k not in pos]
+    if require_all and missing:
+        raise ControlPointError(f"Expected a partner for every source point, got none for "
+                                f"{missing[:10]}.")
+    ia = [i for i, k in enumerate(a.ids) if k in pos]
+    ib = [pos[a.ids[i]] for i in ia]
+    if len(ia) < 3:
+        raise ControlPointError(f"Expected at least 3 points common to both files (matched "
+                                f"by id), got {len(ia)}.")
+    return np.array(ia), np.array(ib)

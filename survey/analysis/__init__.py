@@ -1,0 +1,9 @@
+"""Analysis: cloud-to-cloud and cloud-to-mesh distances, station planning, MLS studies."""
+
+from .compare import Distances, ReferenceCloud, ReferenceMesh, cloud_to_cloud, cloud_to_mesh, distance_stats
+from .planning import Plan, Planner, Thresholds, axis_stations, lining_cells
+from .study import Study, StudyRow
+
+__all__ = ["Distances", "ReferenceCloud", "ReferenceMesh", "cloud_to_cloud",
+           "cloud_to_mesh", "distance_stats", "Plan", "Planner", "Thresholds",
+           "axis_stations", "lining_cells", "Study", "StudyRow"]

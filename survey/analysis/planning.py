@@ -1,0 +1,356 @@
+"""TLS station planning: which stations cover the lining well enough (seed Figure 6).
+
+The lining is sampled as surface cells on an unrolled (chainage x angle) grid: a ray
+from the tunnel axis at each cell centre finds the visible surface, its normal and the
+cell's area. A station "sees" a cell when the segment station -> cell is free, the cell
+lies within range and outside the scanner's blind cone. Its quality there follows from
+geometry alone, so one ray per cell and station is enough at any resolution preset:
+
+- range r, incidence alpha (between the beam and the surface normal),
+- point spacing r * step / cos(alpha): the angular step of the chosen preset projected
+  on the inclined surface (Soudarissanane et al. 2011, "Scanning geometry: influencing
+  factor on the quality of terrestrial laser scanning points", ISPRS J. 66(4)).
+
+A cell *meets the thresholds* from a station when range, incidence and spacing are all
+within the user's limits; the plan's coverage is the area share of cells that at least
+one station serves so. The floor (cells below the axis whose surface faces up) is not
+lining and is left out.
+
+Minimum station sets: exact set cover as a mixed-integer programme (``scipy.optimize.milp``,
+HiGHS) on cells merged by identical candidate signature, with the greedy set (Chvátal
+1979) as the fallback and as a bound; the optimality gap is reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from survey.errors import PlanningError
+
+#: Tripod height above the floor (m) for stations on the axis.
+TRIPOD_HEIGHT_M = 1.5
+#: A cell whose surface normal points up by more than this (cosine) below the axis is
+#: floor, not lining.
+FLOOR_NORMAL_Z = 0.8
+#: Station-to-cell rays stop this far short of the cell (m) so that the cell's own
+#: surface does not occlude it.
+OCCLUSION_EPS_M = 2e-3
+
+
+@dataclass
+class Thresholds:
+    """Quality limits for a cell served by a station (SI, radians)."""
+
+    spacing_m: float = 0.005
+    incidence_rad: float = np.deg2rad(70.0)
+    range_m: float = 30.0
+
+    def __post_init__(self):
+        for k in ("spacing_m", "incidence_rad", "range_m"):
+            v = getattr(self, k)
+            if not (np.isfinite(v) and v > 0):
+                raise PlanningError(f"Expected a positive threshold `{k}`, got {v}.")
+
+
+@dataclass
+class Cells:
+    """Lining cells on an unrolled grid of ``shape`` (rings, around).
+
+    chainage, angle : (k,) float64, cell centre (angle from the crown, positive left, rad)
+    points, normals : (k, 3) float64, surface point and unit normal facing the axis
+    area : (k,) float64, m^2
+    ring, col : (k,) int64, grid indices
+    """
+
+    chainage: np.ndarray
+    angle: np.ndarray
+    points: np.ndarray
+    normals: np.ndarray
+    area: np.ndarray
+    ring: np.ndarray
+    col: np.ndarray
+    shape: tuple
+    s_edges: np.ndarray
+    a_edges: np.ndarray
+    is_floor: np.ndarray | None = None
+
+    @property
+    def total_area(self) -> float:
+        return float(self.area.sum())
+
+
+def lining_cells(scene, alignment, centre_height_m, *, s_range=None, cell_m=0.25,
+                 cell_rad=np.deg2rad(2.0), keep_floor=False) -> Cells:
+    """Sample the visible surface around the axis in cells of ``cell_m`` x ``cell_rad``
+    (floor cells dropped unless ``keep_floor``; ``Cells.is_floor`` marks them)."""
+    c0, c1 = alignment.chainage_range if s_range is None else s_range
+    if not (cell_m > 0 and cell_rad > 0 and c1 > c0):
+        raise PlanningError(f"Expected positive cell sizes and a chainage range with end > "
+                            f"start, got {cell_m} m, {cell_rad} rad, [{c0}, {c1}].")
+    n_s = max(1, int(np.floor((c1 - c0) / cell_m)))
+    n_a = max(4, int(round(2 * np.pi / cell_rad)))
+    s_edges = c0 + np.arange(n_s + 1) * cell_m
+    a_edges = -np.pi + np.arange(n_a + 1) * (2 * np.pi / n_a)
+    s = 0.5 * (s_edges[1:] + s_edges[:-1])
+    a = 0.5 * (a_edges[1:] + a_edges[:-1])
+    S, A = np.meshgrid(s, a, indexing="ij")
+    origin = alignment.to_world(S, 0.0, centre_height_m).reshape(-1, 3)
+    tip = alignment.to_world(S, np.sin(A), centre_height_m + np.cos(A)).reshape(-1, 3)
+    d = tip - origin
+    hits = scene.cast(origin, d)
+    ok = hits.hit
+    n = hits.normals
+    # Orient the normals towards the axis (the side the scanner looks from).
+    n = np.where((np.einsum("ni,ni->n", n, d) > 0)[:, None], -n, n)
+    floor = (A.ravel() > np.pi / 2) | (A.ravel() < -np.pi / 2)
+    floor &= n[:, 2] > FLOOR_NORMAL_Z
+    keep = ok & ~floor if not keep_floor else ok
+    rho = hits.t
+    area = cell_m * np.where(ok, rho, 0) * (2 * np.pi / n_a)
+    ring, col = np.divmod(np.arange(n_s * n_a), n_a)
+    return Cells(S.ravel()[keep], A.ravel()[keep], hits.points[keep], n[keep],
+                 area[keep], ring[keep], col[keep], (n_s, n_a), s_edges, a_edges,
+                 floor[keep])
+
+
+@dataclass
+class StationQuality:
+    """Per-cell view of one station: visible (bool), range, incidence, spacing (k,)."""
+
+    visible: np.ndarray
+    range_m: np.ndarray
+    incidence_rad: np.ndarray
+    spacing_m: np.ndarray
+
+    def meets(self, th: Thresholds) -> np.ndarray:
+        return self.visible & (self.range_m <= th.range_m) & \
+            (self.incidence_rad <= th.incidence_rad) & (self.spacing_m <= th.spacing_m)
+
+
+def station_quality(scene, cells: Cells, station, step_rad, *, range_max_m,
+                    vertical_fov_rad=2 * np.pi) -> StationQuality:
+    """Quality of every cell seen from ``station`` (3,) by a level scanner with angular
+    step ``step_rad`` (see module doc); cells beyond ``range_max_m`` are not cast."""
+    st = np.asarray(station, dtype=np.float64)
+    d = cells.points - st
+    r = np.linalg.norm(d, axis=1)
+    k = len(r)
+    vis = np.zeros(k, dtype=bool)
+    blind_el = -(np.pi / 2 - (2 * np.pi - vertical_fov_rad) / 2)
+    el = np.arcsin(np.clip(d[:, 2] / np.maximum(r, 1e-12), -1, 1))
+    cand = (r <= range_max_m) & (r > OCCLUSION_EPS_M) & (el >= blind_el)
+    idx = np.flatnonzero(cand)
+    if len(idx):
+        vis[idx] = ~scene.occluded(st, d[idx], t_max=r[idx] - OCCLUSION_EPS_M)
+    cosi = np.clip(-np.einsum("ni,ni->n", d, cells.normals) / np.maximum(r, 1e-12), 0, 1)
+    inc = np.arccos(cosi)
+    spacing = r * step_rad / np.maximum(cosi, 1e-9)
+    return StationQuality(vis, r, inc, spacing)
+
+
+def axis_stations(scene, alignment, centre_height_m, chainages, *,
+                  height_m=TRIPOD_HEIGHT_M) -> np.ndarray:
+    """Stations (k, 3) on the axis at ``height_m`` above the floor found straight below
+    the axis at each chainage."""
+    s = np.asarray(chainages, dtype=np.float64).reshape(-1)
+    top = alignment.to_world(s, 0.0, centre_height_m)
+    hits = scene.cast(top, np.broadcast_to([0.0, 0.0, -1.0], top.shape))
+    if not hits.hit.all():
+        bad = s[~hits.hit]
+        raise PlanningError(f"Expected a floor below the axis at every station, got none "
+                            f"at chainage {bad[:5].tolist()} m; is the axis inside the "
+                            "tunnel?")
+    out = hits.points.copy()
+    out[:, 2] += height_m
+    return out
+
+
+@dataclass
+class Plan:
+    """Stations and what they achieve.
+
+    stations : (k, 3); chainages (k,)
+    served : (k_cells,) int, stations meeting the thresholds per cell
+    seen : (k_cells,) int, stations seeing the cell within the range threshold
+    coverage : area share of cells served by at least one station
+    per_station : (k,) area share each station serves alone
+    overlap : (k - 1,) share of station i's seen area also seen by station i + 1
+    gaps : list of dicts (chainage_from, chainage_to, angle_from_deg, angle_to_deg, area_m2)
+    """
+
+    name: str
+    stations: np.ndarray
+    chainages: np.ndarray
+    served: np.ndarray
+    seen: np.ndarray
+    coverage: float
+    per_station: np.ndarray
+    overlap: np.ndarray
+    gaps: list = field(default_factory=list)
+    note: str = ""
+
+
+class Planner:
+    """Coverage of candidate stations on one tunnel, computed once and reused."""
+
+    def __init__(self, scene, alignment, centre_height_m, sensor, *, resolution=None,
+                 thresholds: Thresholds | None = None, cell_m=0.25,
+                 cell_rad=np.deg2rad(2.0), s_range=None, height_m=TRIPOD_HEIGHT_M):
+        if sensor.kind != "tls":
+            raise PlanningError(f"Expected a TLS sensor for station planning, got "
+                                f"{sensor.name} ({sensor.kind}).")
+        res = resolution or sensor.pattern.default_resolution
+        steps = sensor.pattern.resolutions_rad
+        if res not in steps:
+            raise PlanningError(f"Expected a resolution of {sensor.name} "
+                                f"({', '.join(steps)}), got {res!r}.")
+        self.scene, self.alignment, self.hc = scene, alignment, float(centre_height_m)
+        self.sensor, self.resolution, self.step_rad = sensor, res, float(steps[res])
+        self.th = thresholds or Thresholds()
+        self.height_m = height_m
+        self.cells = lining_cells(scene, alignment, self.hc, s_range=s_range,
+                                  cell_m=cell_m, cell_rad=cell_rad)
+        if len(self.cells.area) == 0:
+            raise PlanningError("Expected lining cells around the axis, got none; does "
+                                "the axis run inside the mesh?")
+        self._cache = {}
+
+    def quality(self, station) -> StationQuality:
+        key = tuple(np.round(station, 6))
+        if key not in self._cache:
+            rmax = min(self.sensor.physics.range_max_m, self.th.range_m)
+            self._cache[key] = station_quality(
+                self.scene, self.cells, station, self.step_rad, range_max_m=rmax,
+                vertical_fov_rad=self.sensor.pattern.vertical_fov_rad)
+        return self._cache[key]
+
+    def stations_at(self, chainages):
+        return axis_stations(self.scene, self.alignment, self.hc, chainages,
+                             height_m=self.height_m)
+
+    def spaced(self, spacing_m, *, start_m=None) -> np.ndarray:
+        """Chainages every ``spacing_m`` (first at half a spacing from the start)."""
+        c0, c1 = self.cells.s_edges[0], self.cells.s_edges[-1]
+        if not spacing_m > 0:
+            raise PlanningError(f"Expected a positive station spacing, got {spacing_m} m.")
+        first = c0 + spacing_m / 2 if start_m is None else start_m
+        return np.arange(first, c1, spacing_m)
+
+    def evaluate(self, chainages, name="plan", note="") -> Plan:
+        s = np.sort(np.asarray(chainages, dtype=np.float64).reshape(-1))
+        st = self.stations_at(s) if len(s) else np.zeros((0, 3))
+        a = self.cells.area
+        served = np.zeros(len(a), dtype=np.int64)
+        seen = np.zeros(len(a), dtype=np.int64)
+        per, vis = [], []
+        for p in st:
+            q = self.quality(p)
+            m = q.meets(self.th)
+            v = q.visible & (q.range_m <= self.th.range_m)
+            served += m
+            seen += v
+            per.append(a[m].sum() / a.sum())
+            vis.append(v)
+        overlap = np.array([a[vis[i] & vis[i + 1]].sum() / max(a[vis[i]].sum(), 1e-12)
+                            for i in range(len(vis) - 1)])
+        cov = float(a[served > 0].sum() / a.sum())
+        return Plan(name, st, s, served, seen, cov, np.array(per), overlap,
+                    self.gaps(served > 0), note)
+
+    def gaps(self, covered) -> list:
+        """Connected uncovered regions of the unrolled grid, largest first."""
+        from scipy import ndimage
+
+        c = self.cells
+        grid = np.zeros(c.shape, dtype=bool)
+        grid[c.ring[~covered], c.col[~covered]] = True
+        area = np.zeros(c.shape)
+        area[c.ring, c.col] = c.area
+        lab, n = ndimage.label(grid)
+        out = []
+        for k in range(1, n + 1):
+            r, q = np.nonzero(lab == k)
+            out.append({"chainage_from": float(c.s_edges[r.min()]),
+                        "chainage_to": float(c.s_edges[r.max() + 1]),
+                        "angle_from_deg": float(np.degrees(c.a_edges[q.min()])),
+                        "angle_to_deg": float(np.degrees(c.a_edges[q.max() + 1])),
+                        "area_m2": float(area[r, q].sum())})
+        return sorted(out, key=lambda g: -g["area_m2"])
+
+    # ------------------------------------------------------------------ optimisation
+    def optimize(self, candidates, *, target=0.99, time_limit_s=60.0) -> tuple:
+        """Smallest set of candidate chainages whose stations serve ``target`` of the
+        lining area. Returns (Plan of the optimum (or best found), Plan of the greedy set,
+        info dict with the MILP status, bound and gap)."""
+        from scipy.optimize import Bounds, LinearConstraint, milp
+        from scipy.sparse import csr_matrix
+
+        if not 0 < target <= 1:
+            raise PlanningError(f"Expected a target coverage in (0, 1], got {target}.")
+        cand = np.sort(np.asarray(candidates, dtype=np.float64).reshape(-1))
+        if len(cand) == 0:
+            raise PlanningError("Expected at least one candidate station, got none.")
+        st = self.stations_at(cand)
+        M = np.stack([self.quality(p).meets(self.th) for p in st], axis=1)   # cells x k
+        a = self.cells.area
+        total = a.sum()
+        reach = a[M.any(axis=1)].sum() / total
+        info = {"candidates": len(cand), "target": target, "reachable": float(reach)}
+        goal = target
+        if reach < target:
+            goal = reach
+            info["note"] = (f"the target {100 * target:.1f} % is not reachable with these "
+                            f"candidates (all of them serve {100 * reach:.2f} %); planned "
+                            "for the reachable coverage instead")
+        # Merge cells with the same candidate signature: exact, and far fewer rows.
+        sig, inv = np.unique(M, axis=0, return_inverse=True)
+        w = np.bincount(inv.ravel(), weights=a) / total
+        useful = sig.any(axis=1)
+        sig, w = sig[useful], w[useful]
+        greedy = self._greedy(sig, w, goal)
+        info["greedy"] = len(greedy)
+        k, g = len(cand), len(w)
+        # Variables: x (k, binary stations), y (g, continuous cell-group covered).
+        c = np.concatenate([np.ones(k), np.zeros(g)])
+        rows = [np.concatenate([np.zeros(k), w])]                 # sum w y >= goal
+        A1 = csr_matrix(np.hstack([-sig.astype(float), np.eye(g)]))  # y - sum x <= 0
+        cons = [LinearConstraint(np.array(rows), goal - 1e-9, np.inf),
+                LinearConstraint(A1, -np.inf, 0.0)]
+        integrality = np.concatenate([np.ones(k), np.zeros(g)])
+        res = milp(c, constraints=cons, integrality=integrality,
+                   bounds=Bounds(np.zeros(k + g), np.ones(k + g)),
+                   options={"time_limit": time_limit_s})
+        if res.x is not None:
+            chosen = np.flatnonzero(res.x[:k] > 0.5)
+            bound = float(getattr(res, "mip_dual_bound", np.nan))
+            info.update(milp_status=res.message, milp=len(chosen),
+                        lower_bound=float(np.ceil(bound - 1e-6)) if np.isfinite(bound)
+                        else float("nan"), optimal=res.status == 0)
+            if len(chosen) > len(greedy):          # time limit hit with a poor incumbent
+                chosen = np.array(greedy)
+        else:
+            chosen = np.array(greedy)
+            info.update(milp_status=res.message, milp=None, lower_bound=float("nan"),
+                        optimal=False)
+        lb = info["lower_bound"]
+        info["gap"] = (float(len(chosen) - lb) / len(chosen)) if np.isfinite(lb) and \
+            len(chosen) else float("nan")
+        best = self.evaluate(cand[chosen], "optimised",
+                             "optimal (MILP)" if info["optimal"] else "best found")
+        gr = self.evaluate(cand[np.array(greedy, dtype=int)], "greedy")
+        return best, gr, info
+
+    @staticmethod
+    def _greedy(sig, w, goal):
+        covered = np.zeros(len(w), dtype=bool)
+        chosen = []
+        while w[covered].sum() < goal - 1e-9:
+            gain = (sig & ~covered[:, None]).T.astype(float) @ w
+            j = int(np.argmax(gain))
+            if gain[j] <= 0:
+                break
+            chosen.append(j)
+            covered |= sig[:, j]
+        return sorted(chosen)

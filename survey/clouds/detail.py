@@ -1,0 +1,82 @@
+"""Detail layer: thin attachments along the wall (cables, pipes) as closed tubes.
+
+The tunnel-aware mesh keeps the lining only; a cable 3 cm from the wall is a median
+outlier there (the seed study's meshes lost all four cables). Here the points that
+``survey.segment`` classes as attachments are grouped in the unrolled lining frame
+(chainage s, offset, height): points within ``link_m`` of each other in the cross-
+section plane and overlapping along the axis form one attachment. Each one with enough
+length becomes a tube: per ``slab_m`` of chainage, a least-squares circle through its points in
+the cross-section (the scanner sees the front half of a round cable), smoothed along
+the axis by a running median, swept with ``sides`` sides and capped (a closed solid,
+faces outward).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.ndimage import median_filter
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from survey.world.generator import fan_faces, grid_faces
+
+
+def attachment_tubes(points, alignment, *, link_m: float = 0.03, slab_m: float = 0.25,
+                     min_length_m: float = 2.0, min_points: int = 50, sides: int = 8):
+    """Tubes (vertices (n, 3), faces (m, 3)) for attachment points (k, 3); empty
+    arrays when none qualifies."""
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) < min_points:
+        return np.empty((0, 3)), np.empty((0, 3), dtype=np.int64)
+    s, o, h = alignment.to_local(p)
+    # Link points close in the cross-section and within two slabs along the axis.
+    q = np.stack([s / (2.0 * slab_m) * link_m, o, h], 1)
+    pairs = cKDTree(q).query_pairs(link_m, output_type="ndarray")
+    from scipy.sparse import coo_matrix
+
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(p), len(p)))
+    _, comp = connected_components(g, directed=False)
+    verts, faces, n = [], [], 0
+    for c in np.unique(comp):
+        m = comp == c
+        if m.sum() < min_points or np.ptp(s[m]) < min_length_m:
+            continue
+        slab = np.floor((s[m] - s[m].min()) / slab_m).astype(np.int64)
+        rows = np.unique(slab)
+        if len(rows) < 3:
+            continue
+        fits = np.array([_circle(o[m][slab == r], h[m][slab == r]) for r in rows])
+        cen, rad = fits[:, :2], fits[:, 2]
+        cen = median_filter(cen, size=(5, 1), mode="nearest")
+        rad = np.maximum(median_filter(rad, size=5, mode="nearest"), 0.002)
+        sc = s[m].min() + (rows + 0.5) * slab_m
+        ang = 2 * np.pi * np.arange(sides) / sides
+        yo = cen[:, :1] + rad[:, None] * np.cos(ang)[None, :]
+        zo = cen[:, 1:] + rad[:, None] * np.sin(ang)[None, :]
+        ring = alignment.to_world(np.broadcast_to(sc[:, None], yo.shape), yo, zo)
+        ends = alignment.to_world(sc[[0, -1]], cen[[0, -1], 0], cen[[0, -1], 1])
+        v = np.concatenate([ring.reshape(-1, 3), ends])
+        nr = len(rows) * sides
+        f = np.concatenate([grid_faces(len(rows), sides, 0, outward=True),
+                            fan_faces(nr, np.arange(sides), False),
+                            fan_faces(nr + 1, (len(rows) - 1) * sides + np.arange(sides), True)])
+        verts.append(v)
+        faces.append(f + n)
+        n += len(v)
+    if not verts:
+        return np.empty((0, 3)), np.empty((0, 3), dtype=np.int64)
+    return np.concatenate(verts), np.concatenate(faces).astype(np.int64)
+
+
+def _circle(y, z, max_radius_m: float = 0.15):
+    """(cy, cz, r): algebraic least-squares circle (Kasa 1976) through the visible arc of
+    a cable's section (a median of the points would sit 2r/pi in front of the true
+    centre); the points' median and spread where the fit is ill-posed."""
+    if len(y) >= 5:
+        a = np.stack([2 * y, 2 * z, np.ones_like(y)], 1)
+        sol, *_ = np.linalg.lstsq(a, y * y + z * z, rcond=None)
+        r2 = sol[2] + sol[0] ** 2 + sol[1] ** 2
+        if r2 > 0 and np.sqrt(r2) < max_radius_m:
+            return np.array([sol[0], sol[1], np.sqrt(r2)])
+    cy, cz = np.median(y), np.median(z)
+    return np.array([cy, cz, np.quantile(np.hypot(y - cy, z - cz), 0.9) if len(y) else 0])

@@ -1,0 +1,102 @@
+"""The demo's key numbers: read back from the files its pipeline wrote, so the report,
+``summary.json`` and the tests all see the same figures."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def _csv(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def demo_summary(folder) -> dict:
+    """Key numbers of a finished demo folder (missing pieces are left out)."""
+    from sensors import Trajectory
+
+    d = Path(folder)
+    out = {}
+    if (d / "mls_raw_trajectory.txt").is_file():
+        slam = Trajectory.read(d / "mls_raw_trajectory.txt")
+        true = Trajectory.read(d / "mls_raw_true_trajectory.txt")
+        out["raw_drift_max_m"] = float(np.linalg.norm(slam.positions - true.positions,
+                                                      axis=1).max())
+        fixed = d / "mls_corrected_trajectory.txt"
+        seen = d / "mls_raw_cp_observed.csv"
+        if fixed.is_file() and seen.is_file():
+            from survey.adjust.controlpoints import read_control_points
+
+            # Between the first and the last control point the correction is constrained;
+            # beyond them it extrapolates.
+            tau = read_control_points(seen).time
+            ok = (true.times >= tau.min()) & (true.times <= tau.max())
+            fx = Trajectory.read(fixed)
+            out["corrected_drift_max_m"] = float(np.linalg.norm(
+                fx.positions[ok] - true.positions[ok], axis=1).max())
+    if (d / "mls_corrected.json").is_file():
+        c = json.loads((d / "mls_corrected.json").read_text())
+        out["corrected_check_rms_m"] = c["check_rms_m"]
+        out["corrected_check_max_m"] = c["check_max_m"]
+        out["control_points"] = c["control_points"]
+    if (d / "reconstructed.json").is_file():
+        q = json.loads((d / "reconstructed.json").read_text())
+        out["reconstruction"] = {k: q[k] for k in ("triangles", "median_m", "p95_m",
+                                                   "extrapolated_share")}
+    table = {}
+    for p in sorted(d.glob("compare*/stats.csv")):
+        for row in _csv(p):
+            table[row["scan"]] = {k: float(v) for k, v in row.items() if k != "scan"}
+    if table:
+        out["table1"] = table
+    if (d / "plan" / "plan.json").is_file():
+        pj = json.loads((d / "plan" / "plan.json").read_text())
+        out["plan"] = {p["name"]: {"stations": p["stations"], "coverage": p["coverage"]}
+                       for p in pj["plans"]}
+    if (d / "study" / "study.csv").is_file():
+        out["study"] = [{k: (v if k == "mount" else float(v)) for k, v in r.items()}
+                        for r in _csv(d / "study" / "study.csv")]
+    out["gazebo_world"] = (d / "gazebo" / "world.sdf").is_file()
+    return out
+
+
+def summary_markdown(s: dict) -> str:
+    """The report's opening table of key numbers."""
+    rows = []
+    if "raw_drift_max_m" in s:
+        rows.append(("SLAM drift of the raw MLS run (max)", f"{1000 * s['raw_drift_max_m']:.0f} mm"))
+    if "corrected_drift_max_m" in s:
+        rows.append(("trajectory error after correction, between the first and last "
+                     "control point (max)", f"{1000 * s['corrected_drift_max_m']:.1f} mm"))
+    if "corrected_check_rms_m" in s:
+        rows.append((f"after correction with {s['control_points']} control points "
+                     "(leave-one-out check RMS / max)",
+                     f"{1000 * s['corrected_check_rms_m']:.1f} / "
+                     f"{1000 * s['corrected_check_max_m']:.1f} mm"))
+    if "reconstruction" in s:
+        r = s["reconstruction"]
+        rows.append(("reconstructed lining: triangles, point-to-surface median / 95 %, "
+                     "interpolated", f"{r['triangles']:,}; {1000 * r['median_m']:.1f} / "
+                     f"{1000 * r['p95_m']:.1f} mm; {100 * r['extrapolated_share']:.1f} %"))
+    for name, t in s.get("table1", {}).items():
+        rows.append((f"Table 1 C2C {name}: mean / median / std",
+                     f"{1000 * t['mean_m']:.1f} / {1000 * t['median_m']:.1f} / "
+                     f"{1000 * t['std_m']:.1f} mm"))
+    for name, p in s.get("plan", {}).items():
+        rows.append((f"station plan '{name}'", f"{p['stations']} stations, "
+                     f"{100 * p['coverage']:.1f} % of the lining within thresholds"))
+    st = s.get("study", [])
+    for r in st:
+        if r["speed_mps"] > 0:
+            rows.append((f"Airy {r['mount']} at {r['speed_mps']:g} m/s, {r['rate_hz']:g} Hz: "
+                         "floor density, line spacing, rolling-shutter max",
+                         f"{r['density_floor']:,.0f} pts/m^2, {r['line_spacing_m']:.3f} m, "
+                         f"{1000 * r['distortion_max_m']:.0f} mm"))
+    if "gazebo_world" in s:
+        rows.append(("Gazebo world", "gazebo/world.sdf" if s["gazebo_world"] else "missing"))
+    return "\n".join(["| key number | value |", "|---|---|"] +
+                     [f"| {a} | {b} |" for a, b in rows]) + "\n"

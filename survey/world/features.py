@@ -1,0 +1,172 @@
+"""Tunnel features as data: what the generator adds to the swept lining.
+
+Recesses (``Niche``, ``Drainage``) are cut into the lining grid itself, so the mesh stays
+one manifold surface; ``WetFloor`` only relabels floor faces; cables, bolt plates and
+prisms are separate closed solids fixed to a lining point (they move with it when the
+lining deforms). Positions on the profile are given the way a surveyor states them: a
+side and a height for wall items, an offset for floor items, an angle from the crown
+(positive to the left, about the profile centroid) for items around the arch.
+
+All lengths in metres, angles in radians, chainages in the alignment's chainage.
+``None`` for a chainage range means the whole tunnel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from survey.errors import FeatureError
+
+
+def _pos(name, v, allow_zero=False):
+    v = float(v)
+    if not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        raise FeatureError(f"Expected `{name}` to be a {'non-negative' if allow_zero else 'positive'} "
+                           f"number, got {v}.")
+
+
+def _side(v):
+    if v not in ("left", "right"):
+        raise FeatureError(f"Expected side 'left' or 'right', got {v!r}.")
+
+
+def _range(a, b):
+    if a is not None and b is not None and not b > a:
+        raise FeatureError(f"Expected end_m > start_m, got [{a}, {b}].")
+
+
+@dataclass(frozen=True)
+class Cable:
+    """A cable or pipe along a wall: a closed polygonal tube of ``radius_m`` whose
+    surface stays ``gap_m`` clear of the design lining at ``height_m`` on ``side``."""
+
+    side: str
+    height_m: float
+    radius_m: float = 0.015
+    gap_m: float = 0.03
+    start_m: float | None = None
+    end_m: float | None = None
+    sides: int = 8
+
+    def __post_init__(self):
+        _side(self.side)
+        _pos("radius_m", self.radius_m)
+        _pos("gap_m", self.gap_m, allow_zero=True)
+        _range(self.start_m, self.end_m)
+        if int(self.sides) < 3:
+            raise FeatureError(f"Expected a cable with at least 3 sides, got {self.sides}.")
+
+
+@dataclass(frozen=True)
+class Niche:
+    """A rectangular recess in a wall, ``depth_m`` deep, between two chainages and
+    two heights."""
+
+    side: str
+    start_m: float
+    end_m: float
+    bottom_m: float
+    top_m: float
+    depth_m: float = 0.6
+
+    def __post_init__(self):
+        _side(self.side)
+        _range(self.start_m, self.end_m)
+        if not self.top_m > self.bottom_m:
+            raise FeatureError(f"Expected top_m > bottom_m, got {self.bottom_m}, "
+                               f"{self.top_m}.")
+        _pos("depth_m", self.depth_m)
+
+
+@dataclass(frozen=True)
+class Drainage:
+    """A drainage channel cut into the floor, centred at ``offset_m`` (left positive)."""
+
+    offset_m: float
+    width_m: float = 0.3
+    depth_m: float = 0.2
+    start_m: float | None = None
+    end_m: float | None = None
+
+    def __post_init__(self):
+        _pos("width_m", self.width_m)
+        _pos("depth_m", self.depth_m)
+        _range(self.start_m, self.end_m)
+
+
+@dataclass(frozen=True)
+class WetFloor:
+    """A stretch of wet floor (standing water film): relabels the floor faces, which
+    gives them the low reflectivity of the 'wet_floor' label."""
+
+    start_m: float
+    end_m: float
+
+    def __post_init__(self):
+        _range(self.start_m, self.end_m)
+
+
+@dataclass(frozen=True)
+class Bolts:
+    """Rock-bolt bearing plates (square, ``plate_m`` wide, ``thickness_m`` proud of the
+    lining) every ``spacing_m`` along the tunnel at each angle from the crown."""
+
+    angles_rad: tuple
+    spacing_m: float = 1.5
+    start_m: float | None = None
+    end_m: float | None = None
+    plate_m: float = 0.15
+    thickness_m: float = 0.02
+
+    def __post_init__(self):
+        object.__setattr__(self, "angles_rad", tuple(float(a) for a in self.angles_rad))
+        _pos("spacing_m", self.spacing_m)
+        _pos("plate_m", self.plate_m)
+        _pos("thickness_m", self.thickness_m)
+        _range(self.start_m, self.end_m)
+
+
+@dataclass(frozen=True)
+class Prisms:
+    """Monitoring prisms (control points): a sphere of ``radius_m`` on a stalk,
+    its centre ``standoff_m`` from the design lining, in cross-sections at
+    ``chainages_m`` and at each angle from the crown. Their centres are the control
+    points written in the tunnel's metadata."""
+
+    chainages_m: tuple
+    angles_rad: tuple
+    radius_m: float = 0.03
+    standoff_m: float = 0.1
+
+    def __post_init__(self):
+        object.__setattr__(self, "chainages_m", tuple(float(c) for c in self.chainages_m))
+        object.__setattr__(self, "angles_rad", tuple(float(a) for a in self.angles_rad))
+        _pos("radius_m", self.radius_m)
+        if not self.standoff_m > self.radius_m:
+            raise FeatureError(f"Expected `standoff_m` larger than the prism radius "
+                               f"({self.radius_m} m), got {self.standoff_m}.")
+
+
+KINDS = {"cable": Cable, "niche": Niche, "drainage": Drainage, "wet_floor": WetFloor,
+         "bolts": Bolts, "prisms": Prisms}
+
+
+def to_dict(f) -> dict:
+    name = {v: k for k, v in KINDS.items()}[type(f)]
+    d = asdict(f)
+    return {"kind": name, **{k: (list(v) if isinstance(v, tuple) else v)
+                             for k, v in d.items()}}
+
+
+def from_dict(d):
+    d = dict(d)
+    kind = d.pop("kind", None)
+    if kind not in KINDS:
+        raise FeatureError(f"Expected a feature kind in {sorted(KINDS)}, got {kind!r}.")
+    try:
+        return KINDS[kind](**d)
+    except TypeError as exc:
+        raise FeatureError(f"Expected the fields of a {kind} feature, got {sorted(d)} "
+                           f"({exc}).") from exc
