@@ -11,8 +11,9 @@ in NumPy + Numba. Knows nothing about sensors.
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from raytrace.lazy import lazy_exports
 
 __version__ = "0.2.0"
 
@@ -23,23 +24,11 @@ _EXPORTS = {
     "raytrace.errors": ("TunnelsimError", "MeshError", "RayError", "SceneFileError"),
     "raytrace.config": ("set_threads", "threads"),
 }
-_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 
-__all__ = ["__version__", *_WHERE]
 
 if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from raytrace.scene import Scene, Hits
     from raytrace.errors import TunnelsimError, MeshError, RayError, SceneFileError
     from raytrace.config import set_threads, threads
 
-
-def __getattr__(name: str):
-    if name not in _WHERE:
-        raise AttributeError(f"module 'raytrace' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_WHERE[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

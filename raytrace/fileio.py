@@ -5,6 +5,8 @@ that looks complete. Used by every writer of the project."""
 from __future__ import annotations
 
 import contextlib
+import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -33,3 +35,34 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def _finite(obj):
+    """A copy of a JSON-ready structure with NaN and ±inf as None (JSON ``null``)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if hasattr(obj, "tolist") and hasattr(obj, "dtype"):  # NumPy scalars and arrays
+        return _finite(obj.tolist())
+    return obj
+
+
+def json_text(obj, *, indent: int | None = 2) -> str:
+    """Strict JSON (RFC 8259) of ``obj``: NaN and ±inf become ``null``, so jq, JavaScript
+    and ``json.loads(..., parse_constant=...)`` read every file the project writes.
+    DECISION: ``null`` rather than a string such as "NaN": a missing number is what a
+    NaN stands for here (e.g. line spacing at 0 m/s)."""
+    return json.dumps(_finite(obj), indent=indent, allow_nan=False) + "\n"
+
+
+def write_json(path, obj, *, indent: int | None = 2) -> Path:
+    """Write ``json_text(obj)`` to ``path`` atomically; returns the path."""
+    with atomic_writer(path, "w") as fh:
+        fh.write(json_text(obj, indent=indent))
+    return Path(path)
+
+
+__all__ = ["atomic_writer", "json_text", "write_json"]

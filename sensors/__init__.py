@@ -11,8 +11,9 @@ True
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from raytrace.lazy import lazy_exports
 
 __version__ = "0.2.0"
 
@@ -27,9 +28,7 @@ _EXPORTS = {
     "sensors.trajectory": ("Mount", "Trajectory"),
     "sensors.meshes": ("load_mesh",),
 }
-_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 
-__all__ = ["__version__", *_WHERE]
 
 if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from sensors.errors import TunnelsimError, PointFileError, SensorSpecError, SimulationError, TrajectoryError
@@ -40,14 +39,4 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from sensors.trajectory import Mount, Trajectory
     from sensors.meshes import load_mesh
 
-
-def __getattr__(name: str):
-    if name not in _WHERE:
-        raise AttributeError(f"module 'sensors' has no attribute {name!r}")
-    value = getattr(importlib.import_module(_WHERE[name]), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

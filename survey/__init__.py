@@ -15,8 +15,9 @@ imported on first use, so ``import survey`` and ``tunnelsim --help`` stay fast.
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from raytrace.lazy import lazy_exports
 
 __version__ = "0.2.0"
 
@@ -64,9 +65,7 @@ _EXPORTS = {
                       "StudyError", "TunnelError", "TunnelFileError", "TunnelsimCLIError"),
 }
 
-_WHERE = {name: module for module, names in _EXPORTS.items() for name in names}
 
-__all__ = ["__version__", *SUBPACKAGES, *_WHERE]
 
 if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.world.alignment import Alignment, Element, arc, clothoid, curve, straight
@@ -107,17 +106,4 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
         HelmertError, PipelineError, PlanningError, PreprocessError, ProfileError,
         ReconstructionError, StudyError, TunnelError, TunnelFileError, TunnelsimCLIError)
 
-
-def __getattr__(name: str):
-    if name in _WHERE:
-        value = getattr(importlib.import_module(_WHERE[name]), name)
-    elif name in SUBPACKAGES:
-        value = importlib.import_module(f"{__name__}.{name}")
-    else:
-        raise AttributeError(f"module 'survey' has no attribute {name!r}")
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(__all__)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS, modules=SUBPACKAGES)
