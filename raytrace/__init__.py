@@ -7,6 +7,8 @@ in NumPy + Numba. Knows nothing about sensors.
 >>> hits = scene.cast([0.25, 0.25, 1.0], [[0, 0, -1]])
 >>> float(hits.t[0]), int(hits.triangle[0])
 (1.0, 0)
+>>> hits
+Hits(1 rays, 1 hit)
 """
 
 from __future__ import annotations
@@ -20,15 +22,18 @@ __version__ = "0.2.0"
 # Public names are imported on first use: ``import raytrace.errors`` (which every
 # command-line start does) must not compile or load Numba.
 _EXPORTS = {
-    "raytrace.scene": ("Scene", "Hits"),
-    "raytrace.errors": ("TunnelsimError", "MeshError", "RayError", "SceneFileError"),
-    "raytrace.config": ("set_threads", "threads"),
+    "raytrace.scene": ("Scene",),
+    "raytrace.hits": ("Hits",),
+    "raytrace.errors": ("TunnelsimError", "ConfigError", "MeshError", "RayError",
+                        "SceneFileError"),
+    "raytrace.config": ("max_threads", "set_threads", "threading_info", "threads"),
 }
 
 
 if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
-    from raytrace.scene import Scene, Hits
-    from raytrace.errors import TunnelsimError, MeshError, RayError, SceneFileError
-    from raytrace.config import set_threads, threads
+    from raytrace.config import max_threads, set_threads, threading_info, threads
+    from raytrace.errors import ConfigError, MeshError, RayError, SceneFileError, TunnelsimError
+    from raytrace.hits import Hits
+    from raytrace.scene import Scene
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

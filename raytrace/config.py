@@ -7,9 +7,12 @@ cache automatically, because the constants are globals of the kernel modules).
 
 from __future__ import annotations
 
+import operator
 import os
 
 import numba
+
+from .errors import ConfigError
 
 # ---------------------------------------------------------------------------------------
 # Compile policy
@@ -39,23 +42,53 @@ RAY_BLOCK = 256
 PRANGE_CHUNK = 8
 
 
+def max_threads() -> int:
+    """Most Numba worker threads this process may use (``NUMBA_NUM_THREADS``, fixed at
+    start-up: all cores unless the environment variable says otherwise)."""
+    # numba.config sets its attributes at run time, so type checkers cannot see them.
+    return int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+
+
 def set_threads(n: int | None) -> int:
-    """Set the number of Numba worker threads (``None``: all available). Returns it."""
+    """Set the number of Numba worker threads used by every parallel kernel.
+
+    Results never depend on the count (rays are handed out in fixed-size blocks).
+
+    Parameters
+    ----------
+    n : int or None
+        Threads, between 1 and ``max_threads()``; ``None`` uses all of them.
+
+    Returns
+    -------
+    int
+        The thread count now in use.
+
+    Raises
+    ------
+    ConfigError
+        ``n`` is not a whole number or lies outside [1, ``max_threads()``].
+    """
+    top = max_threads()
     if n is None:
-        n = numba.config.NUMBA_NUM_THREADS
-    n = int(n)
-    if not 1 <= n <= numba.config.NUMBA_NUM_THREADS:
-        raise ValueError(
-            f"Expected a thread count between 1 and {numba.config.NUMBA_NUM_THREADS}, "
-            f"got {n}; pass a smaller number or leave it unset to use all cores."
+        n = top
+    try:
+        count = operator.index(n)
+    except TypeError:
+        raise ConfigError(f"Expected a whole-number thread count, got {n!r}; pass an int "
+                          "or None for all cores.") from None
+    if not 1 <= count <= top:
+        raise ConfigError(
+            f"Expected a thread count between 1 and {top}, got {count}; pass a smaller "
+            "number or leave it unset to use all cores."
         )
-    numba.set_num_threads(n)
-    return n
+    numba.set_num_threads(count)
+    return count
 
 
 def threads() -> int:
     """Number of Numba worker threads currently in use."""
-    return numba.get_num_threads()
+    return int(numba.get_num_threads())
 
 
 @numba.njit(cache=CACHE, parallel=True)
@@ -66,16 +99,36 @@ def _probe(n):  # pragma: no cover - trivial; compiled once, cached
     return acc
 
 
-def threading_info() -> dict:
-    """Numba's threading layer and thread counts (runs a tiny parallel kernel first,
-    because Numba chooses the layer lazily)."""
+def threading_info() -> dict[str, str | int]:
+    """Numba's threading layer and thread counts.
+
+    Runs a tiny parallel kernel first, because Numba chooses the layer lazily.
+
+    Returns
+    -------
+    dict
+        ``threading_layer`` (str: "tbb", "omp" or "workqueue"), ``threads`` (int, in
+        use) and ``max_threads`` (int, the most that may be set).
+    """
     _probe(4)
-    return dict(threading_layer=numba.threading_layer(), threads=numba.get_num_threads(),
-                max_threads=numba.config.NUMBA_NUM_THREADS)
+    return dict(threading_layer=str(numba.threading_layer()), threads=threads(),
+                max_threads=max_threads())
 
 
-if "TUNNELSIM_THREADS" in os.environ:  # pragma: no cover - environment dependent
-    set_threads(int(os.environ["TUNNELSIM_THREADS"]))
+def _threads_from_environment() -> None:
+    """Apply ``TUNNELSIM_THREADS`` (an int) when set, naming the variable on error."""
+    value = os.environ.get("TUNNELSIM_THREADS")
+    if value is None:
+        return
+    try:
+        set_threads(int(value))
+    except (ValueError, ConfigError) as exc:
+        raise ConfigError(f"Expected the environment variable TUNNELSIM_THREADS to be a "
+                          f"thread count between 1 and {max_threads()}, got {value!r}; "
+                          "fix or unset it.") from exc
+
+
+_threads_from_environment()
 
 # ---------------------------------------------------------------------------------------
 # Intersection tolerances (Möller & Trumbore 1997)
@@ -152,3 +205,13 @@ BUILD_TASK_MIN = 4096
 #: A node whose triangles all share one centroid cannot be split by position; it becomes
 #: a leaf if it has at most this many, otherwise it is split in two by index.
 MAX_LEAF_SIZE_FORCED = 32
+
+__all__ = [
+    "set_threads", "threads", "max_threads", "threading_info",
+    "CACHE", "BUILD_FASTMATH", "ERROR_MODEL", "RAY_BLOCK", "PRANGE_CHUNK",
+    "BARY", "AREA_REL", "BOX_PAD_REL",
+    "CUBEMAP_PAD", "CUBEMAP_HOT", "CUBEMAP_CELLS_PER_TRI", "CUBEMAP_MIN_G", "CUBEMAP_MAX_G",
+    "CUBEMAP_MIN_RAYS_PER_TRI", "CUBEMAP_MAX_ENTRIES", "ORDER_MIN_RAYS", "ORDER_BITS",
+    "SAH_BINS", "SAH_ALL_AXES", "SAH_C_TRAV", "SAH_C_ISECT", "MAX_LEAF_SIZE", "BUILD_TASKS",
+    "BUILD_TASK_MIN", "MAX_LEAF_SIZE_FORCED",
+]

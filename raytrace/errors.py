@@ -25,3 +25,11 @@ class RayError(TunnelsimError, ValueError):
 
 class SceneFileError(TunnelsimError, ValueError):
     """A saved scene file is missing, truncated or of another format version."""
+
+
+class ConfigError(TunnelsimError, ValueError):
+    """An engine setting is out of range: a thread count, a BVH build constant, or the
+    ``TUNNELSIM_THREADS`` environment variable."""
+
+
+__all__ = ["TunnelsimError", "MeshError", "RayError", "SceneFileError", "ConfigError"]

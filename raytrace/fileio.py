@@ -9,13 +9,23 @@ import json
 import math
 import os
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
+from typing import IO, Any
 
 
 @contextlib.contextmanager
-def atomic_writer(path, mode: str = "wb"):
+def atomic_writer(path: str | os.PathLike[str], mode: str = "wb") -> Iterator[IO[Any]]:
     """Context manager yielding an open file whose contents appear at ``path`` on a
-    clean exit (``os.replace``, atomic on POSIX) and are deleted on any exception."""
+    clean exit (``os.replace``, atomic on POSIX) and are deleted on any exception.
+
+    Parameters
+    ----------
+    path : str or path-like
+        The final file; its folder must exist (the temporary file is made there).
+    mode : str
+        ``open`` mode: "wb" (default) or "w" for text.
+    """
     path = Path(path)
     folder = path.parent if str(path.parent) else Path(".")
     fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".part", dir=folder)
@@ -37,7 +47,7 @@ def _umask() -> int:
     return mask
 
 
-def _finite(obj):
+def _finite(obj: Any) -> Any:
     """A copy of a JSON-ready structure with NaN and ±inf as None (JSON ``null``)."""
     if isinstance(obj, float):
         return obj if math.isfinite(obj) else None
@@ -50,7 +60,7 @@ def _finite(obj):
     return obj
 
 
-def json_text(obj, *, indent: int | None = 2) -> str:
+def json_text(obj: Any, *, indent: int | None = 2) -> str:
     """Strict JSON (RFC 8259) of ``obj``: NaN and ±inf become ``null``, so jq, JavaScript
     and ``json.loads(..., parse_constant=...)`` read every file the project writes.
     DECISION: ``null`` rather than a string such as "NaN": a missing number is what a
@@ -58,7 +68,7 @@ def json_text(obj, *, indent: int | None = 2) -> str:
     return json.dumps(_finite(obj), indent=indent, allow_nan=False) + "\n"
 
 
-def write_json(path, obj, *, indent: int | None = 2) -> Path:
+def write_json(path: str | os.PathLike[str], obj: Any, *, indent: int | None = 2) -> Path:
     """Write ``json_text(obj)`` to ``path`` atomically; returns the path."""
     with atomic_writer(path, "w") as fh:
         fh.write(json_text(obj, indent=indent))

@@ -8,12 +8,28 @@ knows about alignments, features and labels).
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["horseshoe_profile", "icosphere", "sweep_profile", "tunnel_tube"]
+
+Mesh = tuple[NDArray[np.float64], NDArray[np.int64]]
 
 
-def icosphere(subdivisions: int = 3, radius: float = 1.0):
-    """Closed, consistently wound (outward) icosphere.
+def icosphere(subdivisions: int = 3, radius: float = 1.0) -> Mesh:
+    """Closed, consistently wound (outward) icosphere centred on the origin.
 
-    Returns vertices (n, 3) float64 and faces (m, 3) int64, m = 20 * 4**subdivisions.
+    Parameters
+    ----------
+    subdivisions : int
+        Times each face is split in four (0: the icosahedron).
+    radius : float
+        Radius in metres; every vertex lies on the sphere.
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
+        m = 20 * 4**subdivisions.
     """
     t = (1.0 + 5 ** 0.5) / 2.0
     v = np.array([[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0],
@@ -41,12 +57,24 @@ def icosphere(subdivisions: int = 3, radius: float = 1.0):
     return v * radius, f
 
 
-def horseshoe_profile(width_m: float = 3.0, wall_height_m: float = 1.2, n: int = 64):
+def horseshoe_profile(width_m: float = 3.0, wall_height_m: float = 1.2,
+                      n: int = 64) -> NDArray[np.float64]:
     """Closed 2-D horseshoe cross-section (y, z), counter-clockwise, floor at z = 0.
 
     A flat floor of ``width_m``, vertical walls up to ``wall_height_m`` and a
     semicircular roof of radius width/2. Points are spaced evenly by arc length.
-    Returns (n, 2) float64.
+
+    Parameters
+    ----------
+    width_m, wall_height_m : float
+        Floor width and height of the vertical walls, metres.
+    n : int
+        Number of points.
+
+    Returns
+    -------
+    (n, 2) float64
+        (y, z) in metres.
     """
     r = width_m / 2.0
     # Perimeter pieces: floor, right wall, roof arc, left wall.
@@ -66,8 +94,9 @@ def horseshoe_profile(width_m: float = 3.0, wall_height_m: float = 1.2, n: int =
     return np.stack([y, z], axis=1)
 
 
-def sweep_profile(profile_yz, length_m: float, n_along: int, *, closed_ends: bool = False,
-                  roughness_m: float = 0.0, correlation_m: float = 0.3, seed: int = 0):
+def sweep_profile(profile_yz: ArrayLike, length_m: float, n_along: int, *,
+                  closed_ends: bool = False, roughness_m: float = 0.0,
+                  correlation_m: float = 0.3, seed: int = 0) -> Mesh:
     """Sweep a closed 2-D profile along +x into a tube mesh.
 
     Parameters
@@ -133,11 +162,25 @@ def sweep_profile(profile_yz, length_m: float, n_along: int, *, closed_ends: boo
 
 
 def tunnel_tube(n_triangles: int, length_m: float = 300.0, width_m: float = 3.0,
-                roughness_m: float = 0.002, seed: int = 0):
+                roughness_m: float = 0.002, seed: int = 0) -> Mesh:
     """A straight horseshoe tunnel of about ``n_triangles`` triangles, open portals,
     with mm-scale correlated roughness: the benchmark and cross-check mesh.
 
-    Returns vertices (n, 3) float64, faces (m, 3) int64.
+    Parameters
+    ----------
+    n_triangles : int
+        Wanted triangle count (the result is within a ring of it).
+    length_m, width_m : float
+        Tunnel length along +x and floor width, metres.
+    roughness_m : float
+        Standard deviation of the correlated lining roughness (0.3 m correlation).
+    seed : int
+        Seed of the roughness.
+
+    Returns
+    -------
+    vertices : (n, 3) float64
+    faces : (m, 3) int64
     """
     perimeter = width_m + 2 * 1.2 + np.pi * width_m / 2
     cell = np.sqrt(2.0 * perimeter * length_m / n_triangles)

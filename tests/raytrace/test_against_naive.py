@@ -1,4 +1,6 @@
-"""Property tests: the BVH gives exactly the brute-force float64 Möller–Trumbore answer."""
+"""Property tests: the BVH gives exactly the brute-force float64 Möller–Trumbore answer,
+with and without [t_min, t_max] limits (scalars or one per ray), and the any-hit query
+``occluded`` answers exactly ``cast(...).hit`` for the same keyword limits."""
 
 from __future__ import annotations
 
@@ -33,8 +35,15 @@ def soups(draw):
 
 
 def _check(v, f, o, d, t_min=0.0, t_max=np.inf):
+    """Scene.cast (and Scene.occluded) against naive_cast. ``t_min``/``t_max`` are scalars
+    or one value per ray; they reach the scene as given, the brute force ray by ray."""
+    per_ray = np.ndim(t_min) > 0 or np.ndim(t_max) > 0
+    lo = np.broadcast_to(np.asarray(t_min, dtype=np.float64), (len(d),))
+    hi = np.broadcast_to(np.asarray(t_max, dtype=np.float64), (len(d),))
     ok = np.linalg.norm(d, axis=1) > 1e-6
-    o, d = o[ok], d[ok]
+    o, d, lo, hi = o[ok], d[ok], lo[ok], hi[ok]
+    if per_ray:
+        t_min, t_max = lo, hi
     if len(d) == 0:
         return
     # The scene drops zero-area triangles, judged in its local frame (vertices minus a
@@ -54,7 +63,13 @@ def _check(v, f, o, d, t_min=0.0, t_max=np.inf):
     keep[scene._ids] = True
     assert (_area(v, f)[~keep] <= max(AREA_REL, 1e-12) * scale ** 2).all()
     hits = scene.cast(o, d, t_min=t_min, t_max=t_max)
-    ref_t, ref_tri, _, _, margin = naive_cast(v, f[keep], o, d, t_min, t_max)
+    # Any-hit and closest-hit share the triangle test: exactly the same rays are hit.
+    np.testing.assert_array_equal(scene.occluded(o, d, t_min=t_min, t_max=t_max), hits.hit)
+    assert ((hits.t[hits.hit] >= lo[hits.hit]) & (hits.t[hits.hit] <= hi[hits.hit])).all()
+    ref = [naive_cast(v, f[keep], o[i:i + 1], d[i:i + 1], lo[i], hi[i])
+           for i in range(len(d))]
+    ref_t = np.array([r[0][0] for r in ref])
+    ref_tri = np.array([r[1][0] for r in ref])
     ref_tri = np.where(ref_tri >= 0, np.flatnonzero(keep)[np.maximum(ref_tri, 0)], -1)
     scale = max(1.0, np.abs(v).max(), np.abs(o).max())
     for i in range(len(d)):
@@ -63,7 +78,7 @@ def _check(v, f, o, d, t_min=0.0, t_max=np.inf):
             # Same triangle: same t, unless the ray lies in the triangle's plane, where
             # every point of the ray inside the triangle is a hit and t is ill-defined.
             if ours >= 0 and abs(hits.t[i] - ref_t[i]) > 1e-9 * max(1.0, abs(ref_t[i])):
-                assert _ambiguous(v[f[ours]], o[i], d[i], t_min, t_max, scale), \
+                assert _ambiguous(v[f[ours]], o[i], d[i], lo[i], hi[i], scale), \
                     (i, ours, hits.t[i], ref_t[i])
             continue
         if ours >= 0 and ref >= 0 and \
@@ -73,7 +88,7 @@ def _check(v, f, o, d, t_min=0.0, t_max=np.inf):
         # been well-conditioned, both engines would agree on each of them; so at least
         # one must be an ill-conditioned case decided by rounding (the BVH computes in a
         # shifted local frame): see _ambiguous.
-        assert any(_ambiguous(v[f[tri]], o[i], d[i], t_min, t_max, scale)
+        assert any(_ambiguous(v[f[tri]], o[i], d[i], lo[i], hi[i], scale)
                    for tri in (ours, ref) if tri >= 0), (i, ours, ref, hits.t[i], ref_t[i])
 
 
@@ -108,6 +123,51 @@ def test_random_soups_match_brute_force(case):
 @given(soups(), st.floats(0, 5), st.floats(0, 20))
 def test_t_interval_matches_brute_force(case, t_min, span):
     _check(*case, t_min=t_min, t_max=t_min + span)
+
+
+@st.composite
+def per_ray_limits(draw, n):
+    """(t_min, t_max) arrays of n rays: 0 <= t_min <= t_max, t_max sometimes inf, and
+    sometimes t_min == t_max (a closed interval of one point)."""
+    t_min = draw(arrays(np.float64, n, elements=st.floats(0, 5, width=64)))
+    span = draw(arrays(np.float64, n, elements=st.one_of(
+        st.floats(0, 20, width=64), st.just(0.0), st.just(np.inf))))
+    return t_min, t_min + span
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.data())
+def test_per_ray_intervals_match_brute_force(data):
+    v, f, o, d = data.draw(soups())
+    t_min, t_max = data.draw(per_ray_limits(len(d)))
+    _check(v, f, o, d, t_min=t_min, t_max=t_max)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(soups(), st.floats(0, 5), st.floats(0, 20), st.booleans())
+def test_occluded_is_cast_hit_within_limits(case, t_min, span, infinite):
+    """From one shared (3,) origin (the station case; ``auto`` may take the cube map
+    for cast while occluded always walks the BVH): occluded == cast(...).hit, and a hit
+    lies within the limits, for the same keyword limits."""
+    v, f, o, d = case
+    d = d[np.linalg.norm(d, axis=1) > 1e-6]
+    if len(d) == 0:
+        return
+    t_max = np.inf if infinite else t_min + span
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        try:
+            scene = Scene(v, f)
+        except MeshError:
+            return  # every triangle degenerate: covered by _check
+    for method in ("bvh", "cubemap"):
+        hits = scene.cast(o[0], d, t_min=t_min, t_max=t_max, method=method)
+        occ = scene.occluded(o[0], d, t_min=t_min, t_max=t_max)
+        np.testing.assert_array_equal(occ, hits.hit)
+        assert ((hits.t[hits.hit] >= t_min) & (hits.t[hits.hit] <= t_max)).all()
+        # (3,) and (1, 3) origins are the same rays.
+        np.testing.assert_array_equal(
+            scene.occluded(o[:1], d, t_min=t_min, t_max=t_max), occ)
 
 
 def test_larger_soup_many_rays():

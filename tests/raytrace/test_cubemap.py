@@ -43,8 +43,8 @@ def test_intervals_match_bvh(tunnel):
     t_min = rng.uniform(0, 2, len(d))
     t_max = t_min + rng.uniform(0, 3, len(d))
     o = [40.0, 0.0, 1.2]
-    _assert_same(scene.cast(o, d, t_min, t_max, method="cubemap"),
-                 scene.cast(o, d, t_min, t_max, method="bvh"))
+    _assert_same(scene.cast(o, d, t_min=t_min, t_max=t_max, method="cubemap"),
+                 scene.cast(o, d, t_min=t_min, t_max=t_max, method="bvh"))
 
 
 def test_origin_on_vertex_and_outside(tunnel):

@@ -59,10 +59,10 @@ def test_thread_count_does_not_change_results(small_tunnel):
     try:
         numba.set_num_threads(1)
         a = scene.cast(o, d)
-        occ_a = scene.occluded(o, d, 2.0)
+        occ_a = scene.occluded(o, d, t_max=2.0)
         numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
         b = scene.cast(o, d)
-        occ_b = scene.occluded(o, d, 2.0)
+        occ_b = scene.occluded(o, d, t_max=2.0)
     finally:
         numba.set_num_threads(before)
     for name in ("t", "triangle", "u", "v"):
@@ -104,7 +104,7 @@ def test_occluded_matches_cast(small_tunnel):
     o, d = _rays_in(rng, 30_000, 60.0)
     t_max = rng.uniform(0, 4, 30_000)
     h = scene.cast(o, d)
-    occ = scene.occluded(o, d, t_max)
+    occ = scene.occluded(o, d, t_max=t_max)
     np.testing.assert_array_equal(occ, h.t <= t_max)
 
 
@@ -248,11 +248,11 @@ def test_large_scattered_batches_are_ordered_without_changing_results(small_tunn
     order = scene._ray_order(o - scene.origin_offset)
     assert sorted(order.tolist()) == list(range(n)) and (order != np.arange(n)).any()
     a = scene.cast(o, d, t_max=t_max)
-    occ_a = scene.occluded(o, d, t_max)
+    occ_a = scene.occluded(o, d, t_max=t_max)
     monkeypatch.setattr(config, "ORDER_MIN_RAYS", 10**9)
     assert len(scene._ray_order(o)) == 0
     b = scene.cast(o, d, t_max=t_max)
-    occ_b = scene.occluded(o, d, t_max)
+    occ_b = scene.occluded(o, d, t_max=t_max)
     for name in ("t", "triangle", "u", "v"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     np.testing.assert_array_equal(occ_a, occ_b)

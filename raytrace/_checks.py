@@ -1,0 +1,188 @@
+"""Validation at the public boundary of ``Scene``: meshes, rays and their [t_min, t_max]
+limits are coerced with ``np.asarray`` and checked here, once, before any kernel runs.
+
+Every failure is a ``MeshError`` or ``RayError`` (both ``ValueError``) whose message
+says what was expected, what was got and what to do.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import MeshError, RayError
+
+__all__ = ["as_xyz", "first_rows", "prepare_rays", "shape_text", "validate_mesh"]
+
+
+def shape_text(a: Any) -> str:
+    """The shape of ``a`` as written in messages: "(5, 2)"."""
+    return str(tuple(np.shape(a)))
+
+
+def first_rows(idx: ArrayLike, k: int = 10) -> str:
+    """The first ``k`` indices of ``idx`` for a message: "1, 4, 7, ... (12 in all)"."""
+    flat = np.asarray(idx).ravel()
+    s = ", ".join(str(int(i)) for i in flat[:k])
+    return s + (f", ... ({flat.size} in all)" if flat.size > k else "")
+
+
+def as_xyz(a: ArrayLike, name: str, error: type[ValueError]) -> NDArray[np.float64]:
+    """``a`` as float64 coordinates: any numeric array, or a structured array with fields
+    ``x``, ``y``, ``z`` (a point cloud record, a PLY vertex element), which becomes
+    (n, 3). No copy when ``a`` is already float64. Shapes are checked by the caller."""
+    names = getattr(getattr(a, "dtype", None), "names", None)
+    if names:
+        if not {"x", "y", "z"} <= set(names):
+            raise error(f"Expected `{name}` as numbers or a structured array with fields "
+                        f"x, y, z, got fields {', '.join(names)}; pass an (n, 3) array.")
+        rec = np.asarray(a)
+        return np.stack([rec["x"], rec["y"], rec["z"]], axis=-1).astype(np.float64)
+    try:
+        return np.asarray(a, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise error(f"Expected numeric `{name}`, got {type(a).__name__} that NumPy cannot "
+                    f"convert to float64 ({exc}); pass an array of numbers.") from None
+
+
+def validate_mesh(vertices: ArrayLike, faces: ArrayLike
+                  ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """``vertices`` (n, 3) float64 and ``faces`` (m, 3) int64, checked: non-empty,
+    finite, integral indices within range. No copy when they already have those dtypes.
+
+    Raises
+    ------
+    MeshError
+    """
+    v = as_xyz(vertices, "vertices", MeshError)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise MeshError(f"Expected `vertices` to have shape (n, 3), got {shape_text(v)}; "
+                        "pass one row of x, y, z per vertex.")
+    if v.shape[0] == 0:
+        raise MeshError("Expected at least 3 `vertices`, got an empty array; the mesh is "
+                        "empty.")
+    bad = np.flatnonzero(~np.isfinite(v).all(axis=1))
+    if bad.size:
+        raise MeshError(f"Expected finite `vertices`, got NaN/inf at vertex index(es) "
+                        f"{first_rows(bad)}; remove or repair them.")
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise MeshError(f"Expected `faces` to have shape (m, 3), got {shape_text(f)}; only "
+                        "triangles are supported (triangulate polygons first).")
+    if f.shape[0] == 0:
+        raise MeshError("Expected at least one face, got an empty `faces` array; the mesh "
+                        "is empty.")
+    if not np.issubdtype(f.dtype, np.integer):
+        if np.issubdtype(f.dtype, np.floating) and np.isfinite(f).all() and \
+                (f == np.round(f)).all():
+            f = f.astype(np.int64)
+        else:
+            raise MeshError(f"Expected integer `faces`, got dtype {f.dtype}; pass vertex "
+                            "indices as integers.")
+    f = f.astype(np.int64, copy=False)
+    bad = np.flatnonzero(((f < 0) | (f >= v.shape[0])).any(axis=1))
+    if bad.size:
+        raise MeshError(f"Expected face indices in [0, {v.shape[0] - 1}], got out-of-range "
+                        f"indices in face(s) {first_rows(bad)}; the faces refer to missing "
+                        "vertices.")
+    return v, f
+
+
+def _at(bad: NDArray[np.intp], size: int) -> str:
+    """" at ray(s) 3, 7" for per-ray values; "" for one value shared by all rays."""
+    return f" at ray(s) {first_rows(bad)}" if size > 1 else ""
+
+
+def _rows(a: NDArray[np.float64], name: str) -> NDArray[np.float64]:
+    """(3,) -> (1, 3); (k, 3) kept; anything else refused."""
+    if a.shape == (3,):
+        return a[None, :]
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise RayError(f"Expected `{name}` to have shape (n, 3), got {shape_text(a)}; "
+                       "pass one row per ray, or one (3,) row shared by all.")
+    return a
+
+
+def _limit(value: ArrayLike, name: str, n: int) -> NDArray[np.float64]:
+    """A ray limit as (1,) or (n,) float64 (the kernels' layout: one value for all rays
+    or one per ray)."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise RayError(f"Expected `{name}` to be a number or an array of numbers, got "
+                       f"{type(value).__name__}; pass a float or shape ({n},).") from None
+    if a.ndim > 1 or (a.ndim == 1 and a.shape[0] not in (1, n)):
+        raise RayError(f"Expected `{name}` to be a scalar or shape ({n},) (one per ray), "
+                       f"got {shape_text(a)}; pass one value per ray or a single one.")
+    a = a.reshape(-1)
+    bad = np.flatnonzero(np.isnan(a))
+    if bad.size:
+        raise RayError(f"Expected `{name}` without NaN, got NaN{_at(bad, a.size)}; use "
+                       "inf for no limit.")
+    return np.ascontiguousarray(a)
+
+
+def prepare_rays(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
+                 t_max: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                            NDArray[np.float64], NDArray[np.float64]]:
+    """Checked rays in the kernels' layout.
+
+    Parameters
+    ----------
+    origins, directions : (n, 3) or (3,) array_like of float
+        A single row is shared by all rays.
+    t_min, t_max : float or (n,) array_like of float
+        0 <= t_min <= t_max; t_min finite, t_max finite or ``inf``.
+
+    Returns
+    -------
+    origins : (1, 3) or (n, 3) float64, C-contiguous
+    directions : (n, 3) float64, unit length, C-contiguous
+    t_min, t_max : (1,) or (n,) float64, both the same length
+
+    Raises
+    ------
+    RayError
+    """
+    d = _rows(as_xyz(directions, "directions", RayError), "directions")
+    o = _rows(as_xyz(origins, "origins", RayError), "origins")
+    if o.shape[0] == 1:
+        n = d.shape[0]
+    elif d.shape[0] in (1, o.shape[0]):
+        n = o.shape[0]
+    else:
+        raise RayError(f"Expected `origins` to have shape ({d.shape[0]}, 3) or (3,), got "
+                       f"{shape_text(o)}; pass one origin per ray or a single one.")
+    bad = np.flatnonzero(~np.isfinite(o).all(axis=1))
+    if bad.size:
+        raise RayError(f"Expected finite `origins`, got NaN/inf at row(s) {first_rows(bad)}"
+                       "; drop those rays.")
+    bad = np.flatnonzero(~np.isfinite(d).all(axis=1))
+    if bad.size:
+        raise RayError(f"Expected finite `directions`, got NaN/inf at row(s) "
+                       f"{first_rows(bad)}; drop those rays.")
+    length = np.sqrt(np.einsum("ij,ij->i", d, d))
+    bad = np.flatnonzero(length == 0.0)
+    if bad.size:
+        raise RayError(f"Expected non-zero `directions`, got zero length at row(s) "
+                       f"{first_rows(bad)}; drop those rays.")
+    d = d / length[:, None]
+    if d.shape[0] != n:  # one direction shared by several origins
+        d = np.broadcast_to(d, (n, 3))
+    tmin = _limit(t_min, "t_min", n)
+    tmax = _limit(t_max, "t_max", n)
+    bad = np.flatnonzero(~np.isfinite(tmin) | (tmin < 0))
+    if bad.size:
+        raise RayError(f"Expected a finite `t_min` >= 0, got {tmin[bad[0]]}"
+                       f"{_at(bad, tmin.size)}; rays start at their origin (t_min=0.0).")
+    if tmin.shape[0] != tmax.shape[0]:
+        tmin = np.broadcast_to(tmin, (n,)).copy()
+        tmax = np.broadcast_to(tmax, (n,)).copy()
+    bad = np.flatnonzero(tmin > tmax)
+    if bad.size:
+        raise RayError(f"Expected `t_min` <= `t_max` for every ray, got t_min "
+                       f"{tmin[bad[0]]} > t_max {tmax[bad[0]]}{_at(bad, tmin.size)}; pass "
+                       "the limits by keyword: cast(o, d, t_min=..., t_max=...).")
+    return np.ascontiguousarray(o), np.ascontiguousarray(d), tmin, tmax
