@@ -1,10 +1,16 @@
 """Errors of the sensors package (all are ``TunnelsimError`` and ``ValueError``)."""
 
+from __future__ import annotations
+
 from raytrace.errors import TunnelsimError
+
+__all__ = ["PointFileError", "SensorSpecError", "SimulationError", "TrajectoryError",
+           "TunnelsimError"]
 
 
 class SensorSpecError(TunnelsimError, ValueError):
-    """A sensor specification (TOML) is missing, malformed or inconsistent."""
+    """A sensor specification (TOML) is missing, malformed, inconsistent or holds a key
+    the loader does not know."""
 
 
 class TrajectoryError(TunnelsimError, ValueError):

@@ -3,16 +3,39 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from raytrace import Scene
 from raytrace.errors import SceneFileError
 
+__all__ = ["load_mesh"]
 
-def load_mesh(path):
-    """(Scene, reflectivity (m,) float64 or None) from a mesh file."""
+
+def load_mesh(path: str | os.PathLike[str]) -> tuple[Scene, NDArray[np.float64] | None]:
+    """A mesh file as a ``raytrace.Scene`` and its per-face reflectivity.
+
+    Parameters
+    ----------
+    path : str or path
+        A PLY file (its face property ``reflectivity`` is read, if present) or any
+        format ``Scene.from_file`` reads.
+
+    Returns
+    -------
+    scene : raytrace.Scene
+    reflectivity : (n_faces,) float64 or None
+        One value in [0, 1] per input face, or None if the file has none.
+
+    Raises
+    ------
+    raytrace.SceneFileError
+        For a missing or unreadable file.
+    """
     path = Path(path)
     if not path.is_file():
         raise SceneFileError(f"Expected a mesh file, got '{path}' which does not exist.")
@@ -21,7 +44,7 @@ def load_mesh(path):
     import trimesh
 
     try:
-        mesh = trimesh.load(str(path), force="mesh", process=False)
+        mesh: Any = trimesh.load(str(path), force="mesh", process=False)
     except Exception as exc:  # trimesh raises many types for unreadable files
         raise SceneFileError(f"Expected a PLY mesh trimesh can read, got '{path}' which "
                              f"failed with: {exc}") from exc

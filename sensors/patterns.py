@@ -26,68 +26,107 @@ streams in bounded memory.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Final, TypeVar
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
+from ._checks import as_number, as_whole
 from .errors import SimulationError
-from .spec import SensorSpec
+from .spec import ProfilerPattern, SensorSpec, SpinningPattern, TLSPattern
+
+__all__ = ["CHUNK_PULSES", "ProfileScan", "Pulses", "Scan", "SpinningScan", "TLSScan",
+           "chunk_size", "scan_for"]
+
+_P = TypeVar("_P", TLSPattern, SpinningPattern, ProfilerPattern)
 
 #: Default number of pulses per chunk (about 100 MB of simulation state per chunk).
-CHUNK_PULSES = 1 << 20
+CHUNK_PULSES: Final = 1 << 20
 
 
 @dataclass
 class Pulses:
     """One chunk of pulses.
 
-    time : (n,) float64 seconds from the start of the scan
-    direction : (n, 3) float64 unit vectors in the sensor frame
+    Attributes
+    ----------
+    time : (n,) float64
+        Seconds from the start of the scan.
+    direction : (n, 3) float64
+        Unit vectors in the sensor frame (x forward, y left, z up).
     channel, column, frame : (n,) int32
     """
 
-    time: np.ndarray
-    direction: np.ndarray
-    channel: np.ndarray
-    column: np.ndarray
-    frame: np.ndarray
+    time: NDArray[np.float64]
+    direction: NDArray[np.float64]
+    channel: NDArray[np.int32]
+    column: NDArray[np.int32]
+    frame: NDArray[np.int32]
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.time)
 
+    def __repr__(self) -> str:
+        if not len(self):
+            return "Pulses(0 pulses)"
+        return (f"Pulses({len(self):,} pulses, {self.time[0]:.6g}-{self.time[-1]:.6g} s)")
 
-def _check_chunk(chunk_pulses):
-    c = int(chunk_pulses)
-    if c < 1:
-        raise SimulationError(f"Expected `chunk_pulses` >= 1, got {chunk_pulses}.")
-    return c
+
+def chunk_size(chunk_pulses: object) -> int:
+    """``chunk_pulses`` as an int >= 1, or a ``SimulationError``."""
+    return as_whole(chunk_pulses, "chunk_pulses", SimulationError, lo=1)
+
+
+def _pattern(spec: SensorSpec, kind: type[_P], what: str) -> _P:
+    """The spec's pattern if it is of ``kind``, else the error naming the sensor."""
+    if not isinstance(spec, SensorSpec):
+        raise SimulationError(f"Expected a SensorSpec, got {type(spec).__name__}; load one "
+                              "with load_sensor(name).")
+    if not isinstance(spec.pattern, kind):
+        raise SimulationError(f"Expected {what}, got {spec.name} ({spec.kind}).")
+    return spec.pattern
+
+
+def _positive_duration(duration_s: object) -> float:
+    return as_number(duration_s, "duration_s", SimulationError, unit="s", lo=0, lo_open=True)
 
 
 class TLSScan:
-    """A full TLS station at one angular step (see module doc)."""
+    """A full TLS station at one angular step (see module doc).
 
-    def __init__(self, spec: SensorSpec, resolution: str | None = None,
-                 step_rad: float | None = None, window_rad=None):
-        if spec.kind != "tls":
-            raise SimulationError(f"Expected a TLS sensor for a station scan, got "
-                                  f"{spec.name} ({spec.kind}).")
-        p = spec.pattern
+    Parameters
+    ----------
+    spec : SensorSpec
+        A TLS sensor.
+    resolution : str, optional
+        A preset of the sensor; its default if neither this nor ``step_rad`` is given.
+    step_rad : float, optional, keyword-only
+        Angular step (rad) instead of a preset, 1e-6 rad to 10 degrees.
+    window_rad : (4,) array_like of float, optional, keyword-only
+        (az_min, az_max, el_min, el_max), radians, sensor frame.
+    """
+
+    def __init__(self, spec: SensorSpec, resolution: str | None = None, *,
+                 step_rad: float | None = None, window_rad: ArrayLike | None = None) -> None:
+        p = _pattern(spec, TLSPattern, "a TLS sensor for a station scan")
         if step_rad is None:
             resolution = resolution or p.default_resolution
             if resolution not in p.resolutions_rad:
                 raise SimulationError(f"Expected a resolution of {spec.name} in "
                                       f"{sorted(p.resolutions_rad)}, got {resolution!r}.")
             step_rad = p.resolutions_rad[resolution]
-        step_rad = float(step_rad)
-        if not (np.isfinite(step_rad) and 1e-6 <= step_rad <= np.deg2rad(10)):
+        step_rad = as_number(step_rad, "step_rad", SimulationError, unit="rad")
+        if not 1e-6 <= step_rad <= np.deg2rad(10):
             raise SimulationError(f"Expected an angular step between 1e-6 rad and 10 deg, "
-                                  f"got {step_rad} rad.")
+                                  f"got {step_rad} rad; note that the step is in radians.")
         self.spec, self.resolution = spec, resolution
         # The mirror revolution is divided evenly (pixels per 360 deg, as vendors name
         # their resolutions): the effective step is 2 pi / n_slots.
-        self.n_slots = int(round(2 * np.pi / step_rad))
+        self.n_slots = round(2 * np.pi / step_rad)
         self.step_rad = step_rad = 2 * np.pi / self.n_slots
-        self.n_lines = int(round(p.head_sweep_rad / step_rad))
+        self.n_lines = round(p.head_sweep_rad / step_rad)
         beta = (np.arange(self.n_slots) + 0.5) * step_rad
         alpha = np.where(beta <= np.pi, beta, beta - 2 * np.pi)   # signed, from zenith
         half = p.vertical_fov_rad / 2
@@ -101,10 +140,13 @@ class TLSScan:
         # Scan window (azimuth min/max, elevation min/max in the sensor frame), as the
         # instrument's "scan section": only lines that can reach it are generated, and
         # pulses outside it are dropped (their time slots stay).
-        self.window = None
+        self.window: NDArray[np.float64] | None = None
         self._lines = np.arange(self.n_lines)
         if window_rad is not None:
-            w = np.asarray(window_rad, dtype=np.float64)
+            try:
+                w = np.asarray(window_rad, dtype=np.float64)
+            except (TypeError, ValueError):
+                w = np.empty(0)
             if w.shape != (4,) or not np.isfinite(w).all() or w[1] <= w[0] or w[3] <= w[2]:
                 raise SimulationError(f"Expected a window (az_min, az_max, el_min, el_max) "
                                       f"in radians with min < max, got {window_rad!r}.")
@@ -115,33 +157,44 @@ class TLSScan:
                 a = np.mod(phi + side - w[0], 2 * np.pi)
                 keep |= a <= (w[1] - w[0]) + 2 * step_rad
             self._lines = self._lines[keep]
-        self._n_pulses = None
+        self._n_pulses: int | None = None
+
+    def __repr__(self) -> str:
+        what = self.resolution or f"step {np.rad2deg(self.step_rad):.4g} deg"
+        pulses = "windowed" if self.window is not None else f"{self.n_pulses:,} pulses"
+        return (f"TLSScan({self.spec.name} {what}, {self.n_lines:,} lines x "
+                f"{self.points_per_line:,} points, {pulses}, {self.duration_s:.6g} s)")
 
     @property
     def points_per_line(self) -> int:
+        """Pulses per vertical line (the mirror slots outside the blind cone)."""
         return len(self._slot)
 
     @property
     def n_pulses(self) -> int:
+        """Pulses of the station (with a window: counted once, by a pass over it)."""
         if self.window is None:
             return self.points_per_line * self.n_lines
         if self._n_pulses is None:
             self._n_pulses = sum(len(c) for c in self.chunks())
         return self._n_pulses
 
-    def _in_window(self, d):
+    def _in_window(self, d: NDArray[np.float64]) -> NDArray[np.bool_]:
         w = self.window
+        assert w is not None
         az = np.mod(np.arctan2(d[:, 1], d[:, 0]) - w[0], 2 * np.pi)
         el = np.arcsin(np.clip(d[:, 2], -1.0, 1.0))
         return (az <= w[1] - w[0]) & (el >= w[2]) & (el <= w[3])
 
     @property
     def duration_s(self) -> float:
+        """Time of the whole station (s), blind slots included."""
         return self.n_lines * self.n_slots / self.rate_hz
 
-    def chunks(self, chunk_pulses: int = CHUNK_PULSES):
+    def chunks(self, chunk_pulses: int = CHUNK_PULSES) -> Iterator[Pulses]:
+        """The pulses in time order, about ``chunk_pulses`` at a time (whole lines)."""
         per = self.points_per_line
-        lines_per = max(1, _check_chunk(chunk_pulses) // per)
+        lines_per = max(1, chunk_size(chunk_pulses) // per)
         slot = self._slot.astype(np.float64)
         sa, ca = np.sin(self._alpha), np.cos(self._alpha)
         for j0 in range(0, len(self._lines), lines_per):
@@ -165,16 +218,11 @@ class TLSScan:
 class SpinningScan:
     """A spinning multi-beam lidar running for ``duration_s`` (see module doc)."""
 
-    def __init__(self, spec: SensorSpec, duration_s: float, rotation_hz: float | None = None):
-        if spec.kind != "spinning":
-            raise SimulationError(f"Expected a spinning lidar, got {spec.name} "
-                                  f"({spec.kind}).")
-        p = spec.pattern
-        self.spec = spec
-        self.rotation_hz = float(rotation_hz or p.rotation_hz)
-        if not (np.isfinite(duration_s) and duration_s > 0):
-            raise SimulationError(f"Expected a positive scan duration, got {duration_s} s.")
-        self.duration_s = float(duration_s)
+    def __init__(self, spec: SensorSpec, duration_s: float) -> None:
+        p = _pattern(spec, SpinningPattern, "a spinning lidar")
+        self.spec, self.pattern = spec, p
+        self.rotation_hz = p.rotation_hz
+        self.duration_s = _positive_duration(duration_s)
         self.T = p.column_period_s
         # Whole columns within the duration (last pulse at k T + max offset <= duration),
         # so that every pulse has a pose on a trajectory of that length.
@@ -182,14 +230,21 @@ class SpinningScan:
         self.n_columns = max(0, int(np.floor((self.duration_s - last) / self.T + 1e-9)) + 1)
         self.columns_per_rev = 1.0 / (self.rotation_hz * self.T)
 
+    def __repr__(self) -> str:
+        return (f"SpinningScan({self.spec.name}, {self.n_columns:,} columns x "
+                f"{self.spec.channels} channels, {self.duration_s:.6g} s at "
+                f"{self.rotation_hz:g} Hz)")
+
     @property
     def n_pulses(self) -> int:
+        """Pulses of the scan: whole columns x channels."""
         return self.n_columns * self.spec.channels
 
-    def chunks(self, chunk_pulses: int = CHUNK_PULSES):
-        p = self.spec.pattern
+    def chunks(self, chunk_pulses: int = CHUNK_PULSES) -> Iterator[Pulses]:
+        """The pulses in time order, about ``chunk_pulses`` at a time (whole columns)."""
+        p = self.pattern
         nch = self.spec.channels
-        cols_per = max(1, _check_chunk(chunk_pulses) // nch)
+        cols_per = max(1, chunk_size(chunk_pulses) // nch)
         sgn = -1.0 if p.clockwise else 1.0
         ce, se = np.cos(p.elevations_rad), np.sin(p.elevations_rad)
         for k0 in range(0, self.n_columns, cols_per):
@@ -212,15 +267,10 @@ class SpinningScan:
 class ProfileScan:
     """A 2-D profile scanner running for ``duration_s`` (see module doc)."""
 
-    def __init__(self, spec: SensorSpec, duration_s: float):
-        if spec.kind != "profiler":
-            raise SimulationError(f"Expected a profile scanner, got {spec.name} "
-                                  f"({spec.kind}).")
-        if not (np.isfinite(duration_s) and duration_s > 0):
-            raise SimulationError(f"Expected a positive scan duration, got {duration_s} s.")
-        p = spec.pattern
-        self.spec = spec
-        self.duration_s = float(duration_s)
+    def __init__(self, spec: SensorSpec, duration_s: float) -> None:
+        p = _pattern(spec, ProfilerPattern, "a profile scanner")
+        self.spec, self.pattern = spec, p
+        self.duration_s = _positive_duration(duration_s)
         # Whole profiles within the duration.
         self.n_profiles = int(np.floor(self.duration_s * p.profile_rate_hz + 1e-9))
         n = p.points_per_profile
@@ -230,18 +280,25 @@ class ProfileScan:
         self._idx = np.nonzero(~blind)[0]
         self._gamma = gamma[~blind]
 
+    def __repr__(self) -> str:
+        return (f"ProfileScan({self.spec.name}, {self.n_profiles:,} profiles x "
+                f"{self.points_per_profile:,} points, {self.duration_s:.6g} s)")
+
     @property
     def points_per_profile(self) -> int:
+        """Pulses per profile (the slots outside the blind sector)."""
         return len(self._idx)
 
     @property
     def n_pulses(self) -> int:
+        """Pulses of the scan: whole profiles x points per profile."""
         return self.n_profiles * self.points_per_profile
 
-    def chunks(self, chunk_pulses: int = CHUNK_PULSES):
-        p = self.spec.pattern
+    def chunks(self, chunk_pulses: int = CHUNK_PULSES) -> Iterator[Pulses]:
+        """The pulses in time order, about ``chunk_pulses`` at a time (whole profiles)."""
+        p = self.pattern
         per = self.points_per_profile
-        prof_per = max(1, _check_chunk(chunk_pulses) // per)
+        prof_per = max(1, chunk_size(chunk_pulses) // per)
         n = p.points_per_profile
         sg, cg = np.sin(self._gamma), np.cos(self._gamma)
         for p0 in range(0, self.n_profiles, prof_per):
@@ -256,11 +313,20 @@ class ProfileScan:
                          np.repeat(q.astype(np.int32), per))
 
 
-def scan_for(spec: SensorSpec, *, duration_s: float | None = None, resolution=None,
-             step_rad=None, window_rad=None):
-    """The pattern of a sensor: a station (TLS) or a timed run (the others)."""
+#: Any of the three patterns: ``n_pulses``, ``duration_s``, ``chunks(chunk_pulses)``.
+Scan = TLSScan | SpinningScan | ProfileScan
+
+
+def scan_for(spec: SensorSpec, *, duration_s: float | None = None,
+             resolution: str | None = None, step_rad: float | None = None,
+             window_rad: ArrayLike | None = None) -> Scan:
+    """The pattern of a sensor: a station (TLS; ``duration_s`` is ignored, the pattern
+    sets it) or a run of ``duration_s`` seconds (the others)."""
+    if not isinstance(spec, SensorSpec):
+        raise SimulationError(f"Expected a SensorSpec, got {type(spec).__name__}; load one "
+                              "with load_sensor(name).")
     if spec.kind == "tls":
-        return TLSScan(spec, resolution, step_rad, window_rad)
+        return TLSScan(spec, resolution, step_rad=step_rad, window_rad=window_rad)
     if duration_s is None:
         raise SimulationError(f"Expected a duration for {spec.name} ({spec.kind}), got none.")
     if spec.kind == "spinning":

@@ -3,7 +3,9 @@
 All vectorised over a chunk, all switchable (``Settings``), all seeded: each random
 stream (jitter, particles, detection, noise) comes in fixed blocks of pulses from
 ``numpy.random.default_rng([seed, stream, block])``, so the output depends on the seed
-only: not on the chunk size, not on the thread count.
+only: not on the chunk size, not on the thread count. Streams, in this order: 0 angular
+jitter (normal, 2 per pulse), 1 particle distance (standard exponential), 2 particle
+detection (uniform), 3 surface detection (uniform), 4 range noise (standard normal).
 
 Model (per pulse, R range, rho reflectivity, theta incidence angle):
 
@@ -29,20 +31,36 @@ Model (per pulse, R range, rho reflectivity, theta incidence angle):
   than the minimum range are invisible), from a target of
   ``particle_reflectivity`` at normal incidence; it wins if it is detected before
   the surface.
+
+The four formulas (power, detection probability, range sigma, intensity) are written
+once, as scalar Numba functions in ``sensors._kernels.pulses``; the functions here and
+the simulation kernels both call them. The constants P_min, P_ref and P_sat are
+properties of ``sensors.spec.Physics``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from typing import Final
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
+from ._checks import as_number
 from .errors import SimulationError
+from .spec import Physics
+
+__all__ = ["FLAG_MIXED", "FLAG_PARTICLE", "FLAG_SURFACE", "MIXED_SPREAD_M", "SUBRAY_COUNTS",
+           "Settings", "detection_probability", "intensity", "intensity_constants",
+           "noise_constants", "perpendicular_basis", "power", "range_sigma",
+           "subray_offsets"]
 
 #: Return flags in the output.
-FLAG_SURFACE, FLAG_PARTICLE, FLAG_MIXED = 1, 2, 3
+FLAG_SURFACE: Final = 1
+FLAG_PARTICLE: Final = 2
+FLAG_MIXED: Final = 3
 #: Sub-returns whose ranges spread more than this are flagged mixed (m).
-MIXED_SPREAD_M = 0.01
+MIXED_SPREAD_M: Final = 0.01
 
 # Sub-ray offsets in units of the divergence half-angle: centre, 6 at 1/2, 12 at 1.
 _A6 = 2 * np.pi * np.arange(6) / 6
@@ -51,19 +69,39 @@ _SUB = {1: np.zeros((1, 2)),
         7: np.concatenate([[[0.0, 0.0]], 0.5 * np.stack([np.cos(_A6), np.sin(_A6)], 1)]),
         19: np.concatenate([[[0.0, 0.0]], 0.5 * np.stack([np.cos(_A6), np.sin(_A6)], 1),
                             np.stack([np.cos(_A12), np.sin(_A12)], 1)])}
+#: Sub-rays per pulse that ``Settings.beam_subrays`` accepts.
+SUBRAY_COUNTS: Final = tuple(sorted(_SUB))
+_MIXED_MODES = ("strongest", "average")
+_FRACTION = "a fraction, not a percentage"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Settings:
-    """User switches of the return physics (all SI).
+    """User switches of the return physics (SI units), keyword-only.
 
+    Parameters
+    ----------
     range_noise, angle_jitter, detection : bool
-    beam_subrays : 1 (off), 7 or 19 sub-rays per pulse
-    mixed : "strongest" or "average" combination of sub-returns
-    attenuation_per_m : Beer-Lambert extinction coefficient alpha (1/m), 0 for clear air
-    particle_rate_per_m : rate of particle scattering events along the beam (1/m)
-    particle_reflectivity : apparent reflectivity of a particle return
-    reflectivity : reflectivity used where the mesh has none
+        Range noise, angular jitter of the beam, and probabilistic detection; all off
+        in ``Settings.ideal()``.
+    beam_subrays : {1, 7, 19}
+        Sub-rays per pulse for beam divergence (1: off).
+    mixed : {"average", "strongest"}
+        How sub-returns combine: energy-weighted mean range or the strongest one.
+    attenuation_per_m : float >= 0
+        Beer-Lambert extinction coefficient alpha (1/m); 0 for clear air.
+    particle_rate_per_m : float >= 0
+        Rate of particle scattering events along the beam (1/m); 0 for none.
+    particle_reflectivity : float in (0, 1]
+        Apparent reflectivity of a particle return.
+    reflectivity : float in [0, 1]
+        Reflectivity used where the mesh has none (and no ``reflectivity`` is given to
+        the simulation).
+
+    Raises
+    ------
+    SimulationError
+        For a value of the wrong type or outside its range.
     """
 
     range_noise: bool = True
@@ -76,73 +114,102 @@ class Settings:
     particle_reflectivity: float = 0.1
     reflectivity: float = 0.5
 
-    def __post_init__(self):
-        if self.beam_subrays not in _SUB:
-            raise SimulationError(f"Expected `beam_subrays` in {sorted(_SUB)}, got "
-                                  f"{self.beam_subrays}.")
-        if self.mixed not in ("strongest", "average"):
+    def __post_init__(self) -> None:
+        for name in ("range_noise", "angle_jitter", "detection"):
+            v = getattr(self, name)
+            if not isinstance(v, (bool, np.bool_)):
+                raise SimulationError(f"Expected `{name}` to be True or False, got {v!r}.")
+        b = self.beam_subrays
+        if not isinstance(b, (int, np.integer)) or isinstance(b, bool) or b not in _SUB:
+            raise SimulationError(f"Expected `beam_subrays` in {list(SUBRAY_COUNTS)}, got "
+                                  f"{b!r}; use 1 to switch beam divergence off.")
+        if self.mixed not in _MIXED_MODES:
             raise SimulationError(f"Expected `mixed` to be 'strongest' or 'average', got "
                                   f"{self.mixed!r}.")
         for name in ("attenuation_per_m", "particle_rate_per_m"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise SimulationError(f"Expected `{name}` >= 0, got {v}.")
-        for name in ("particle_reflectivity", "reflectivity"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and 0 < v <= 1):
-                raise SimulationError(f"Expected `{name}` in (0, 1], got {v}.")
+            as_number(getattr(self, name), name, SimulationError, unit="1/m", lo=0)
+        as_number(self.particle_reflectivity, "particle_reflectivity", SimulationError,
+                  unit=_FRACTION, lo=0, hi=1, lo_open=True)
+        as_number(self.reflectivity, "reflectivity", SimulationError, unit=_FRACTION, lo=0,
+                  hi=1)
 
     @classmethod
-    def ideal(cls) -> "Settings":
+    def ideal(cls) -> Settings:
         """No noise, no jitter, every return within range detected: exact geometry."""
         return cls(range_noise=False, angle_jitter=False, detection=False)
 
+    def __repr__(self) -> str:
+        # Only what differs from the defaults: one short line, and eval() gives it back.
+        changed = [f"{f.name}={getattr(self, f.name)!r}" for f in fields(self)
+                   if getattr(self, f.name) != f.default]
+        return f"Settings({', '.join(changed)})"
 
-def subray_offsets(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Offsets (m, 2) in units of the half-angle and their normalised weights (m,)."""
+
+def subray_offsets(n: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Sub-ray offsets (n, 2) in units of the divergence half-angle, and their
+    normalised Gaussian weights exp(-2 r^2) (n,); ``n`` in ``SUBRAY_COUNTS``."""
+    if n not in _SUB:
+        raise SimulationError(f"Expected a sub-ray count in {list(SUBRAY_COUNTS)}, got {n!r}.")
     off = _SUB[n]
     w = np.exp(-2.0 * np.sum(off * off, axis=1))
     return off, w / w.sum()
 
 
-def perpendicular_basis(d):
-    """Unit vectors u, v (n, 3) with (u, v, d) orthonormal."""
+def perpendicular_basis(d: NDArray[np.float64]
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Unit vectors u, v (n, 3) with (u, v, d) orthonormal, for unit d (n, 3)."""
     a = np.where(np.abs(d[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
     u = np.cross(d, a)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     return u, np.cross(d, u)
 
 
-def tilt(d, angles_xy):
-    """Directions d (n, 3) tilted by small angles (n, 2) (radians) about two
-    perpendicular axes; unit results."""
-    u, v = perpendicular_basis(d)
-    out = d + np.tan(angles_xy[:, :1]) * u + np.tan(angles_xy[:, 1:2]) * v
-    return out / np.linalg.norm(out, axis=1, keepdims=True)
+def power(rho: ArrayLike, cos_inc: ArrayLike, r: ArrayLike, alpha: ArrayLike
+          ) -> NDArray[np.float64]:
+    """Relative received power rho cos(theta) / R^2 exp(-2 alpha R) (see the module
+    doc); the arguments broadcast (R = 0 gives inf)."""
+    from ._kernels.pulses import received_power_ufunc
 
-
-def power(rho, cos_inc, r, alpha):
-    """Relative received power (see module doc)."""
     with np.errstate(divide="ignore", invalid="ignore"):
-        return rho * cos_inc / (r * r) * np.exp(-2.0 * alpha * r)
+        return received_power_ufunc(rho, cos_inc, r, alpha)
 
 
-def detection_probability(p, phys):
-    p_min = phys.detection_reflectivity / phys.detection_range_m ** 2
+def detection_probability(p: ArrayLike, phys: Physics) -> NDArray[np.float64]:
+    """Probability that a return of power ``p`` is detected by a device of physics
+    ``phys``: 1 / (1 + (P / P_min)^(-1 / softness))."""
+    from ._kernels.pulses import detection_probability_ufunc
+
     with np.errstate(divide="ignore", over="ignore"):
-        return 1.0 / (1.0 + (np.maximum(p, 1e-300) / p_min) ** (-1.0 / phys.detection_softness))
+        return detection_probability_ufunc(p, phys.threshold_power,
+                                           1.0 / phys.detection_softness)
 
 
-def range_sigma(p, phys):
-    p_ref = phys.reference_reflectivity / phys.reference_range_m ** 2
+def range_sigma(p: ArrayLike, phys: Physics) -> NDArray[np.float64]:
+    """Range noise (1 sigma, m) of a return of power ``p``:
+    sqrt(floor^2 + sigma_ref^2 P_ref / P)."""
+    from ._kernels.pulses import range_sigma_ufunc
+
+    floor2, ref2 = noise_constants(phys)
     with np.errstate(divide="ignore"):
-        return np.sqrt(phys.range_sigma_floor_m ** 2 +
-                       phys.range_sigma_m ** 2 * p_ref / np.maximum(p, 1e-300))
+        return range_sigma_ufunc(p, floor2, ref2)
 
 
-def intensity(p, phys):
-    p_min = phys.detection_reflectivity / phys.detection_range_m ** 2
-    p_sat = 1.0 / max(phys.range_min_m, 0.1) ** 2
+def intensity(p: ArrayLike, phys: Physics) -> NDArray[np.float32]:
+    """Intensity in [0, 1] (float32) of a return of power ``p``:
+    log10(P / P_min) / log10(P_sat / P_min), clipped."""
+    from ._kernels.pulses import intensity_ufunc
+
+    p_min, log_span = intensity_constants(phys)
     with np.errstate(divide="ignore"):
-        x = np.log10(np.maximum(p, 1e-300) / p_min) / np.log10(p_sat / p_min)
-    return np.clip(x, 0.0, 1.0).astype(np.float32)
+        return intensity_ufunc(p, p_min, log_span).astype(np.float32)
+
+
+def noise_constants(phys: Physics) -> tuple[float, float]:
+    """(floor^2, sigma_ref^2 P_ref): the arguments of the range-sigma formula."""
+    return phys.range_sigma_floor_m ** 2, phys.range_sigma_m ** 2 * phys.reference_power
+
+
+def intensity_constants(phys: Physics) -> tuple[float, float]:
+    """(P_min, log10(P_sat / P_min)): the arguments of the intensity formula."""
+    p_min = phys.threshold_power
+    return p_min, float(np.log10(phys.saturation_power / p_min))

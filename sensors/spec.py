@@ -7,32 +7,92 @@ degrees, microseconds, milliradians and arcseconds, the units of datasheets; the
 dataclasses hold SI units and radians.
 
 Every file is validated on load: a missing or malformed field names the file, the
-table and the field. ``list_sensors()`` scans ``sensors/specs/``; ``load_sensor`` takes
-a registered name or the path of a user's own TOML file.
+table and the field, and a key the loader does not know (``rotaton_hz = 20``) is an
+error naming the key and the valid ones, as pbrt's ``ParameterDictionary::ReportUnused``
+and HELIOS++'s XSD check do: a misspelt key must not become a silent default.
+``list_sensors()`` scans ``sensors/specs/``; ``load_sensor`` takes a registered name or
+the path of a user's own TOML file.
+
+>>> spec = load_sensor("velodyne_vlp16")
+>>> spec
+SensorSpec(velodyne_vlp16: Velodyne VLP-16, spinning, 16 channels at 10 Hz, 0.5-100 m)
 """
 
 from __future__ import annotations
 
+import difflib
+import os
 import tomllib
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any, Final
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .errors import SensorSpecError
 
-SPEC_DIR = Path(__file__).resolve().parent / "specs"
-KINDS = ("tls", "spinning", "profiler")
+__all__ = ["KINDS", "SPEC_DIR", "TABLE_KEYS", "Pattern", "Physics", "ProfilerPattern", "SensorSpec",
+           "SpinningPattern", "TLSPattern", "list_sensors", "load_sensor", "with_rate"]
+
+SPEC_DIR: Final = Path(__file__).resolve().parent / "specs"
+#: Device kinds; each has a pattern table of the same name in its TOML file.
+KINDS: Final = ("tls", "spinning", "profiler")
+
+#: Keys each table of a sensor file may hold; anything else is refused on load.
+#: ``tls.resolutions_deg`` is free-form (preset name -> step) and not listed.
+TABLE_KEYS: Final[Mapping[str, tuple[str, ...]]] = {
+    "": ("device", "range", "detection", "noise", "beam", *KINDS),
+    "device": ("name", "vendor", "model", "kind", "wavelength_nm", "sources"),
+    "range": ("min_m", "max_m"),
+    "detection": ("range_m", "reflectivity", "softness"),
+    "noise": ("range_sigma_m", "reference_range_m", "reference_reflectivity",
+              "range_sigma_floor_m", "angle_sigma_arcsec"),
+    "beam": ("divergence_half_mrad", "exit_diameter_mm"),
+    "tls": ("vertical_fov_deg", "head_sweep_deg", "measurement_rate_hz",
+            "default_resolution", "resolutions_deg"),
+    "spinning": ("rotation_hz", "column_period_us", "elevations_deg",
+                 "elevation_uniform_deg", "channels", "azimuth_offset_deg",
+                 "firing_offsets_us", "firing_group_size", "firing_group_step_us",
+                 "clockwise"),
+    "profiler": ("profile_rate_hz", "points_per_profile", "blind_sector_deg"),
+}
+
+#: Power of a white target at normal incidence at this range, at the least: the
+#: saturation power of the intensity scale for devices with a shorter minimum range.
+SATURATION_RANGE_FLOOR_M: Final = 0.1
 
 
 @dataclass(frozen=True)
 class Physics:
-    """Return-physics constants of a device (SI units).
+    """Return-physics constants of a device (SI units; formulas in ``sensors.physics``).
 
     Detection threshold: P_min = detection_reflectivity / detection_range_m^2 for
     P = rho cos(theta) / R^2; noise sigma = sqrt(range_sigma_floor_m^2 +
     range_sigma_m^2 P_ref / P) with P_ref = reference_reflectivity /
     reference_range_m^2 (shot-noise-limited ranging: sigma ~ 1/sqrt(SNR)).
+
+    Attributes
+    ----------
+    range_min_m, range_max_m : float
+        Nearest and farthest range the device reports (m).
+    detection_range_m, detection_reflectivity : float
+        A target of this reflectivity at normal incidence at this range is detected
+        half the time.
+    detection_softness : float
+        Width of the detection edge, in units of ln(power).
+    range_sigma_m, reference_range_m, reference_reflectivity : float
+        Range noise (1 sigma, m) on a target of the reference reflectivity at the
+        reference range.
+    range_sigma_floor_m : float
+        Range noise that no signal strength removes (m).
+    angle_sigma_rad : float
+        Angular accuracy per axis (rad).
+    beam_divergence_rad : float
+        Half angle of the beam (1/e^2 radius of the far field, rad).
+    exit_diameter_m : float
+        Beam diameter at the exit window (m).
     """
 
     range_min_m: float
@@ -45,139 +105,332 @@ class Physics:
     reference_reflectivity: float
     range_sigma_floor_m: float
     angle_sigma_rad: float
-    beam_divergence_rad: float       # half angle (1/e^2 radius of the far field)
+    beam_divergence_rad: float
     exit_diameter_m: float
+
+    @property
+    def threshold_power(self) -> float:
+        """P_min = detection_reflectivity / detection_range_m^2 (relative units)."""
+        return self.detection_reflectivity / self.detection_range_m ** 2
+
+    @property
+    def reference_power(self) -> float:
+        """P_ref = reference_reflectivity / reference_range_m^2 (relative units)."""
+        return self.reference_reflectivity / self.reference_range_m ** 2
+
+    @property
+    def saturation_power(self) -> float:
+        """P_sat: a white target at normal incidence at the minimum range (at least
+        ``SATURATION_RANGE_FLOOR_M``), the top of the intensity scale."""
+        return 1.0 / max(self.range_min_m, SATURATION_RANGE_FLOOR_M) ** 2
+
+    def __repr__(self) -> str:
+        return (f"Physics(range {self.range_min_m:g}-{self.range_max_m:g} m, "
+                f"rho {self.detection_reflectivity:g} detected at "
+                f"{self.detection_range_m:g} m, sigma {self.range_sigma_m * 1e3:g} mm at "
+                f"{self.reference_range_m:g} m)")
 
 
 @dataclass(frozen=True)
 class TLSPattern:
+    """A terrestrial scanner's mirror and head (see ``sensors.patterns.TLSScan``).
+
+    Attributes
+    ----------
+    vertical_fov_rad : float
+        Field of the mirror sweep, centred on the zenith (rad).
+    head_sweep_rad : float
+        Turn of the head over a full station (rad).
+    measurement_rate_hz : float
+        Pulses per second.
+    resolutions_rad : dict of str to float
+        Angular step (rad) per named resolution preset.
+    default_resolution : str
+        The preset used when none is named.
+    """
+
     vertical_fov_rad: float
     head_sweep_rad: float
     measurement_rate_hz: float
-    resolutions_rad: dict
+    resolutions_rad: dict[str, float]
     default_resolution: str
+
+    def __repr__(self) -> str:
+        return (f"TLSPattern({np.rad2deg(self.vertical_fov_rad):g} x "
+                f"{np.rad2deg(self.head_sweep_rad):g} deg, "
+                f"{self.measurement_rate_hz / 1e6:g} MHz, presets "
+                f"{', '.join(self.resolutions_rad)}; default {self.default_resolution!r})")
 
 
 @dataclass(frozen=True)
 class SpinningPattern:
+    """A spinning multi-beam lidar (see ``sensors.patterns.SpinningScan``).
+
+    Attributes
+    ----------
+    rotation_hz : float
+        Turns per second.
+    column_period_s : float
+        Time between the starts of two firing columns (s).
+    elevations_rad : (channels,) float64
+        Beam elevation above the sensor's x-y plane, in firing order (rad).
+    azimuth_offsets_rad : (channels,) float64
+        Beam azimuth relative to the head's (rad).
+    firing_offsets_s : (channels,) float64
+        Firing time of each beam after its column's start (s).
+    clockwise : bool
+        The head turns clockwise seen from +z (negatively about z).
+    """
+
     rotation_hz: float
     column_period_s: float
-    elevations_rad: np.ndarray          # (channels,) in firing order
-    azimuth_offsets_rad: np.ndarray     # (channels,)
-    firing_offsets_s: np.ndarray        # (channels,) time after the column start
+    elevations_rad: NDArray[np.float64]
+    azimuth_offsets_rad: NDArray[np.float64]
+    firing_offsets_s: NDArray[np.float64]
     clockwise: bool
+
+    def __eq__(self, other: object) -> bool:
+        # The generated __eq__ would compare arrays with ==, whose truth is ambiguous.
+        if not isinstance(other, SpinningPattern):
+            return NotImplemented
+        return (self.rotation_hz, self.column_period_s, self.clockwise) == \
+            (other.rotation_hz, other.column_period_s, other.clockwise) and all(
+                np.array_equal(a, b) for a, b in
+                ((self.elevations_rad, other.elevations_rad),
+                 (self.azimuth_offsets_rad, other.azimuth_offsets_rad),
+                 (self.firing_offsets_s, other.firing_offsets_s)))
+
+    __hash__ = None  # type: ignore[assignment]  # mutable arrays inside
+
+    def __repr__(self) -> str:
+        return (f"SpinningPattern({len(self.elevations_rad)} channels, "
+                f"{self.rotation_hz:g} Hz, column {self.column_period_s * 1e6:g} us, "
+                f"{'clockwise' if self.clockwise else 'counter-clockwise'})")
 
 
 @dataclass(frozen=True)
 class ProfilerPattern:
+    """A 2-D profile scanner (see ``sensors.patterns.ProfileScan``).
+
+    Attributes
+    ----------
+    profile_rate_hz : float
+        Profiles per second.
+    points_per_profile : int
+        Pulse slots per 360 degree profile (blind ones included).
+    blind_sector_rad : (float, float)
+        Start and end angle of the blind sector in the profile plane, from the sensor's
+        +z towards +y (rad).
+    """
+
     profile_rate_hz: float
     points_per_profile: int
-    blind_sector_rad: tuple             # (start, end) angles in the profile plane
+    blind_sector_rad: tuple[float, float]
+
+    def __repr__(self) -> str:
+        b0, b1 = np.rad2deg(self.blind_sector_rad)
+        return (f"ProfilerPattern({self.profile_rate_hz:g} Hz, {self.points_per_profile} "
+                f"points per profile, blind {b0:g}-{b1:g} deg)")
+
+
+Pattern = TLSPattern | SpinningPattern | ProfilerPattern
+_PATTERN_OF_KIND: Final[Mapping[str, type]] = {
+    "tls": TLSPattern, "spinning": SpinningPattern, "profiler": ProfilerPattern}
 
 
 @dataclass(frozen=True)
 class SensorSpec:
+    """One device, as read from its TOML file (``load_sensor``).
+
+    Attributes
+    ----------
+    name, vendor, model : str
+    kind : {"tls", "spinning", "profiler"}
+    wavelength_nm : float
+    sources : tuple of str
+        Where each value comes from (datasheets, drivers, papers).
+    physics : Physics
+    pattern : TLSPattern, SpinningPattern or ProfilerPattern
+        The one that matches ``kind``.
+    path : str
+        The file it was read from.
+    """
+
     name: str
     vendor: str
     model: str
     kind: str
     wavelength_nm: float
-    sources: tuple
+    sources: tuple[str, ...]
     physics: Physics
-    pattern: object
+    pattern: Pattern
     path: str
+
+    def __post_init__(self) -> None:
+        want = _PATTERN_OF_KIND.get(self.kind)
+        if want is None or not isinstance(self.pattern, want):
+            raise SensorSpecError(f"Expected a pattern matching kind {self.kind!r} (one "
+                                  f"of {KINDS}), got {type(self.pattern).__name__}.")
 
     @property
     def channels(self) -> int:
-        if self.kind == "spinning":
+        """Beams fired per column: the elevations of a spinning lidar, else 1."""
+        if isinstance(self.pattern, SpinningPattern):
             return len(self.pattern.elevations_rad)
         return 1
 
+    def __repr__(self) -> str:
+        p = self.pattern
+        if isinstance(p, SpinningPattern):
+            what = f"{self.channels} channels at {p.rotation_hz:g} Hz"
+        elif isinstance(p, ProfilerPattern):
+            what = f"{p.profile_rate_hz:g} profiles/s"
+        else:
+            what = f"{p.measurement_rate_hz / 1e6:g} MHz"
+        return (f"SensorSpec({self.name}: {self.vendor} {self.model}, {self.kind}, {what}, "
+                f"{self.physics.range_min_m:g}-{self.physics.range_max_m:g} m)")
+
 
 class _Table:
-    """Typed access to one TOML table with errors naming file, table and field."""
+    """Typed access to one TOML table, with errors naming the file, table and field,
+    and a check that the table holds no key its loader does not know."""
 
-    def __init__(self, data, file, table):
+    def __init__(self, data: dict[str, Any], file: str, table: str) -> None:
         self.data, self.file, self.table = data, file, table
+        valid = TABLE_KEYS.get(table)
+        if valid is not None:
+            _refuse_unknown(data, valid, file, table)
 
-    def _err(self, key, what, got):
-        return SensorSpecError(f"Expected `{self.table}.{key}` in {self.file} to be {what}, "
+    def where(self, key: str) -> str:
+        return f"{self.table}.{key}" if self.table else key
+
+    def err(self, key: str, what: str, got: object) -> SensorSpecError:
+        return SensorSpecError(f"Expected `{self.where(key)}` in {self.file} to be {what}, "
                                f"got {got!r}; fix the sensor file.")
 
-    def has(self, key):
-        return key in self.data
-
-    def raw(self, key):
+    def raw(self, key: str) -> Any:
         if key not in self.data:
-            raise SensorSpecError(f"Expected a field `{self.table}.{key}` in {self.file}, "
+            raise SensorSpecError(f"Expected a field `{self.where(key)}` in {self.file}, "
                                   "got none; add it to the sensor file.")
         return self.data[key]
 
-    def num(self, key, lo=None, hi=None, positive=False, default=None):
-        if default is not None and key not in self.data:
-            return float(default)
+    def num(self, key: str, lo: float | None = None, hi: float | None = None,
+            positive: bool = False) -> float:
         v = self.raw(key)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-            raise self._err(key, "a finite number", v)
+            raise self.err(key, "a finite number", v)
         if positive and v <= 0:
-            raise self._err(key, "positive", v)
+            raise self.err(key, "positive", v)
         if lo is not None and v < lo or hi is not None and v > hi:
-            raise self._err(key, f"within [{lo}, {hi}]", v)
+            raise self.err(key, f"within [{lo}, {hi}]", v)
         return float(v)
 
-    def text(self, key):
+    def whole(self, key: str, lo: int) -> int:
         v = self.raw(key)
-        if not isinstance(v, str) or not v:
-            raise self._err(key, "a non-empty string", v)
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+            raise self.err(key, f"a whole number >= {lo}", v)
         return v
 
-    def nums(self, key, n=None):
+    def text(self, key: str) -> str:
+        v = self.raw(key)
+        if not isinstance(v, str) or not v:
+            raise self.err(key, "a non-empty string", v)
+        return v
+
+    def texts(self, key: str) -> tuple[str, ...]:
+        v = self.raw(key)
+        if not isinstance(v, list) or not v or not all(isinstance(s, str) and s for s in v):
+            raise self.err(key, "a non-empty list of strings", v)
+        return tuple(v)
+
+    def nums(self, key: str, n: int | None = None) -> NDArray[np.float64]:
         v = self.raw(key)
         ok = isinstance(v, list) and all(isinstance(x, (int, float)) and
-                                         not isinstance(x, bool) for x in v)
+                                         not isinstance(x, bool) and np.isfinite(x)
+                                         for x in v)
         if not ok or (n is not None and len(v) != n) or not v:
-            raise self._err(key, f"a list of {n or 'some'} numbers", v)
+            raise self.err(key, f"a list of {n or 'some'} finite numbers", v)
         return np.asarray(v, dtype=np.float64)
 
-    def sub(self, key):
+    def flag(self, key: str) -> bool:
+        v = self.raw(key)
+        if not isinstance(v, bool):
+            raise self.err(key, "true or false", v)
+        return v
+
+    def sub(self, key: str) -> _Table:
         v = self.raw(key)
         if not isinstance(v, dict):
-            raise self._err(key, "a table", v)
-        return _Table(v, self.file, f"{self.table}.{key}" if self.table else key)
+            raise self.err(key, "a table", v)
+        return _Table(v, self.file, self.where(key))
+
+    def either(self, one: str, other: Sequence[str]) -> bool:
+        """True if the table uses ``one``, False if it uses every key of ``other``;
+        an error if it mixes them (the unused ones would be silently ignored)."""
+        mixed = [k for k in other if k in self.data]
+        if one in self.data and mixed:
+            raise SensorSpecError(f"Expected either `{self.where(one)}` or "
+                                  f"{' + '.join(f'`{self.where(k)}`' for k in other)} in "
+                                  f"{self.file}, got both; remove one.")
+        return one in self.data
+
+
+def _refuse_unknown(data: Mapping[str, Any], valid: Sequence[str], file: str,
+                    table: str) -> None:
+    """pbrt's ReportUnused: every key must be one the loader reads. The message names
+    each unknown key with the likeliest intended one (in this table, or in another
+    one for a key put under the wrong header) and lists the table's valid keys."""
+    unknown = [k for k in data if k not in valid]
+    if not unknown:
+        return
+    named = [f"`{k}`{_guess(k, valid, table)}" for k in unknown]
+    where = f"table [{table}]" if table else "the top level"
+    raise SensorSpecError(
+        f"Expected only known keys in {where} of {file}, got unknown "
+        f"key{'s' if len(unknown) > 1 else ''} {', '.join(named)}; valid keys there: "
+        f"{', '.join(valid)}.")
+
+
+def _guess(key: str, valid: Sequence[str], table: str) -> str:
+    near = difflib.get_close_matches(key, valid, n=1)
+    if near:
+        return f" (did you mean `{near[0]}`?)"
+    for other, keys in TABLE_KEYS.items():
+        near = difflib.get_close_matches(key, keys, n=1, cutoff=0.8)
+        if other != table and near:
+            return f" (did you mean `{near[0]}` in [{other}]?)"
+    return ""
 
 
 def with_rate(spec: SensorSpec, rate_hz: float) -> SensorSpec:
     """The spec with another rotation (spinning) or profile (profiler) rate; the firing
-    rate stays, so points per turn or per profile change as on the device."""
-    from dataclasses import replace
+    rate stays, so points per turn or per profile change as on the device.
 
-    if not (np.isfinite(rate_hz) and rate_hz > 0) or spec.kind not in ("spinning",
-                                                                      "profiler"):
+    Raises
+    ------
+    SensorSpecError
+        For a TLS spec or a rate that is not a positive number.
+    """
+    ok = isinstance(rate_hz, (int, float, np.floating, np.integer)) and \
+        not isinstance(rate_hz, bool) and bool(np.isfinite(rate_hz)) and rate_hz > 0
+    p = spec.pattern
+    if not ok or isinstance(p, TLSPattern):
         raise SensorSpecError(f"Expected a positive rate for a spinning lidar or a "
-                              f"profiler, got {rate_hz:g} Hz for {spec.name} ({spec.kind}).")
-    key = "rotation_hz" if spec.kind == "spinning" else "profile_rate_hz"
-    return replace(spec, pattern=replace(spec.pattern, **{key: float(rate_hz)}))
+                              f"profiler, got {rate_hz!r} Hz for {spec.name} ({spec.kind}).")
+    if isinstance(p, SpinningPattern):
+        return replace(spec, pattern=replace(p, rotation_hz=float(rate_hz)))
+    return replace(spec, pattern=replace(p, profile_rate_hz=float(rate_hz)))
 
 
-def _load(path: Path) -> SensorSpec:
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise SensorSpecError(f"Expected valid TOML in {path}, got a syntax error: {exc}."
-                              ) from exc
-    root = _Table(data, path.name, "")
-    dev = root.sub("device")
-    kind = dev.text("kind")
-    if kind not in KINDS:
-        raise SensorSpecError(f"Expected `device.kind` in {path.name} to be one of {KINDS}, "
-                              f"got {kind!r}.")
+# ---------------------------------------------------------------------- loading
+def _physics(root: _Table) -> Physics:
     rng, det, noi, beam = (root.sub(k) for k in ("range", "detection", "noise", "beam"))
     rmin = rng.num("min_m", lo=0.0)
     rmax = rng.num("max_m", positive=True)
     if rmax <= rmin:
-        raise SensorSpecError(f"Expected `range.max_m` > `range.min_m` in {path.name}, got "
-                              f"{rmax} <= {rmin}.")
-    phys = Physics(
+        raise SensorSpecError(f"Expected `range.max_m` > `range.min_m` in {root.file}, got "
+                              f"{rmax} <= {rmin}; fix the sensor file.")
+    return Physics(
         range_min_m=rmin, range_max_m=rmax,
         detection_range_m=det.num("range_m", positive=True),
         detection_reflectivity=det.num("reflectivity", lo=1e-6, hi=1.0),
@@ -186,65 +439,92 @@ def _load(path: Path) -> SensorSpec:
         reference_range_m=noi.num("reference_range_m", positive=True),
         reference_reflectivity=noi.num("reference_reflectivity", lo=1e-6, hi=1.0),
         range_sigma_floor_m=noi.num("range_sigma_floor_m", lo=0.0),
-        angle_sigma_rad=np.deg2rad(noi.num("angle_sigma_arcsec", lo=0.0) / 3600.0),
+        angle_sigma_rad=float(np.deg2rad(noi.num("angle_sigma_arcsec", lo=0.0) / 3600.0)),
         beam_divergence_rad=beam.num("divergence_half_mrad", lo=0.0) * 1e-3,
         exit_diameter_m=beam.num("exit_diameter_mm", lo=0.0) * 1e-3,
     )
-    if kind == "tls":
-        p = root.sub("tls")
-        res = p.sub("resolutions_deg")
-        resolutions = {k: np.deg2rad(res.num(k, positive=True)) for k in res.data}
-        default = p.text("default_resolution")
-        if default not in resolutions:
-            raise SensorSpecError(f"Expected `tls.default_resolution` in {path.name} to be "
-                                  f"one of {sorted(resolutions)}, got {default!r}.")
-        pattern = TLSPattern(np.deg2rad(p.num("vertical_fov_deg", lo=1.0, hi=360.0)),
-                             np.deg2rad(p.num("head_sweep_deg", lo=1.0, hi=360.0)),
-                             p.num("measurement_rate_hz", positive=True), resolutions,
-                             default)
-    elif kind == "spinning":
-        p = root.sub("spinning")
-        if p.has("elevations_deg"):
-            el = p.nums("elevations_deg")
-        else:
-            lo, hi = p.nums("elevation_uniform_deg", 2)
-            n = int(p.num("channels", lo=1))
-            el = np.linspace(lo, hi, n)
-        n = len(el)
-        az = p.raw("azimuth_offset_deg")
-        az = p.nums("azimuth_offset_deg", n) if isinstance(az, list) else \
-            np.full(n, p.num("azimuth_offset_deg"))
-        if p.has("firing_offsets_us"):
-            off = p.nums("firing_offsets_us", n) * 1e-6
-        else:
-            size = int(p.num("firing_group_size", lo=1))
-            off = (np.arange(n) // size) * p.num("firing_group_step_us", lo=0.0) * 1e-6
-        col = p.num("column_period_us", positive=True) * 1e-6
-        if off.max() >= col:
-            raise SensorSpecError(f"Expected firing offsets within one column period "
-                                  f"({col * 1e6:g} us) in {path.name}, got up to "
-                                  f"{off.max() * 1e6:g} us.")
-        cw = p.raw("clockwise")
-        if not isinstance(cw, bool):
-            raise p._err("clockwise", "true or false", cw)
-        pattern = SpinningPattern(p.num("rotation_hz", positive=True), col,
-                                  np.deg2rad(el), np.deg2rad(az), off, cw)
+
+
+def _tls(p: _Table) -> TLSPattern:
+    res = p.sub("resolutions_deg")
+    resolutions = {k: float(np.deg2rad(res.num(k, positive=True))) for k in res.data}
+    if not resolutions:
+        raise p.err("resolutions_deg", "a table of at least one preset", res.data)
+    default = p.text("default_resolution")
+    if default not in resolutions:
+        raise SensorSpecError(f"Expected `tls.default_resolution` in {p.file} to be one "
+                              f"of {sorted(resolutions)}, got {default!r}.")
+    return TLSPattern(float(np.deg2rad(p.num("vertical_fov_deg", lo=1.0, hi=360.0))),
+                      float(np.deg2rad(p.num("head_sweep_deg", lo=1.0, hi=360.0))),
+                      p.num("measurement_rate_hz", positive=True), resolutions, default)
+
+
+def _spinning(p: _Table) -> SpinningPattern:
+    if p.either("elevations_deg", ("elevation_uniform_deg", "channels")):
+        el = p.nums("elevations_deg")
     else:
-        p = root.sub("profiler")
-        blind = p.nums("blind_sector_deg", 2)
-        pattern = ProfilerPattern(p.num("profile_rate_hz", positive=True),
-                                  int(p.num("points_per_profile", lo=8)),
-                                  tuple(np.deg2rad(blind)))
-    sources = dev.raw("sources")
-    if not isinstance(sources, list) or not sources:
-        raise dev._err("sources", "a non-empty list of strings", sources)
+        lo, hi = p.nums("elevation_uniform_deg", 2)
+        el = np.linspace(lo, hi, p.whole("channels", 1))
+    n = len(el)
+    az_raw = p.raw("azimuth_offset_deg")
+    az = p.nums("azimuth_offset_deg", n) if isinstance(az_raw, list) else \
+        np.full(n, p.num("azimuth_offset_deg"))
+    if p.either("firing_offsets_us", ("firing_group_size", "firing_group_step_us")):
+        off = p.nums("firing_offsets_us", n) * 1e-6
+    else:
+        size = p.whole("firing_group_size", 1)
+        off = ((np.arange(n) // size) * p.num("firing_group_step_us", lo=0.0) * 1e-6
+               ).astype(np.float64)
+    col = p.num("column_period_us", positive=True) * 1e-6
+    if off.min() < 0 or off.max() >= col:
+        raise SensorSpecError(f"Expected firing offsets within one column period "
+                              f"[0, {col * 1e6:g}) us in {p.file}, got "
+                              f"{off.min() * 1e6:g} to {off.max() * 1e6:g} us.")
+    return SpinningPattern(p.num("rotation_hz", positive=True), col, np.deg2rad(el),
+                           np.deg2rad(az), off, p.flag("clockwise"))
+
+
+def _profiler(p: _Table) -> ProfilerPattern:
+    b0, b1 = (float(b) for b in np.deg2rad(p.nums("blind_sector_deg", 2)))
+    return ProfilerPattern(p.num("profile_rate_hz", positive=True),
+                           p.whole("points_per_profile", 8), (b0, b1))
+
+
+def _load(path: Path) -> SensorSpec:
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SensorSpecError(f"Expected valid TOML in {path}, got a syntax error: {exc}; "
+                              "fix the sensor file.") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SensorSpecError(f"Expected a readable UTF-8 text file at '{path}', got "
+                              f"{type(exc).__name__}: {exc}.") from exc
+    root = _Table(data, path.name, "")
+    dev = root.sub("device")
+    kind = dev.text("kind")
+    if kind not in KINDS:
+        raise SensorSpecError(f"Expected `device.kind` in {path.name} to be one of {KINDS}, "
+                              f"got {kind!r}.")
+    others = [k for k in KINDS if k != kind and k in data]
+    if others:
+        raise SensorSpecError(f"Expected only the [{kind}] pattern table in {path.name} "
+                              f"(device.kind = {kind!r}), got [{others[0]}] as well; remove "
+                              "it or change device.kind.")
+    phys = _physics(root)
+    pattern: Pattern
+    if kind == "tls":
+        pattern = _tls(root.sub("tls"))
+    elif kind == "spinning":
+        pattern = _spinning(root.sub("spinning"))
+    else:
+        pattern = _profiler(root.sub("profiler"))
     return SensorSpec(dev.text("name"), dev.text("vendor"), dev.text("model"), kind,
-                      dev.num("wavelength_nm", positive=True), tuple(sources), phys,
+                      dev.num("wavelength_nm", positive=True), dev.texts("sources"), phys,
                       pattern, str(path))
 
 
-def _registry() -> dict:
-    out = {}
+def _registry() -> dict[str, str]:
+    out: dict[str, str] = {}
     for f in sorted(SPEC_DIR.glob("*.toml")):
         spec = _load(f)
         if spec.name in out:
@@ -255,13 +535,26 @@ def _registry() -> dict:
 
 
 def list_sensors() -> list[str]:
-    """Names of the shipped sensor models."""
+    """Names of the shipped sensor models, sorted."""
     return sorted(_registry())
 
 
-def load_sensor(name_or_path) -> SensorSpec:
-    """A shipped sensor by name (``list_sensors()``) or a TOML file by path."""
-    p = Path(str(name_or_path))
+def load_sensor(name_or_path: str | os.PathLike[str]) -> SensorSpec:
+    """A shipped sensor by name (``list_sensors()``) or a TOML file by path.
+
+    Raises
+    ------
+    SensorSpecError
+        For an unknown name, a missing file, or a file that is not a valid sensor
+        description (bad TOML, a missing, malformed or unknown key).
+    """
+    if not isinstance(name_or_path, (str, os.PathLike)):
+        raise SensorSpecError(f"Expected a sensor name or a path to a .toml file, got "
+                              f"{type(name_or_path).__name__}; see list_sensors().")
+    if not str(name_or_path).strip():
+        raise SensorSpecError(f"Expected a sensor name in {list_sensors()} or a .toml path, "
+                              "got an empty string.")
+    p = Path(name_or_path)
     if p.suffix == ".toml" or p.exists():
         if not p.is_file():
             raise SensorSpecError(f"Expected a sensor TOML file, got '{p}' which does not "
@@ -270,5 +563,5 @@ def load_sensor(name_or_path) -> SensorSpec:
     reg = _registry()
     if name_or_path not in reg:
         raise SensorSpecError(f"Expected a sensor name in {sorted(reg)} or a .toml path, "
-                              f"got {name_or_path!r}.")
-    return _load(Path(reg[name_or_path]))
+                              f"got {str(name_or_path)!r}.")
+    return _load(Path(reg[str(name_or_path)]))

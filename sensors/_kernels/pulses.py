@@ -1,15 +1,69 @@
 """Per-pulse kernels of the simulation loop: beam directions in the world, surface
 returns, detection and noise, and the output record. Flat arrays in, flat arrays out;
 ``prange`` over pulses; random numbers are drawn by the caller (NumPy Generator) so the
-result never depends on the thread count. Formulas: see ``sensors.physics``.
+result never depends on the thread count.
+
+The return physics (``sensors.physics`` documents the model) is written once, here, as
+four scalar functions: received power, detection probability, range sigma and
+intensity. Each is compiled twice from the same source: ``@njit`` for the kernels below,
+and as a NumPy ufunc (``numba.vectorize``, suffix ``_ufunc``) for the NumPy paths
+(``sensors.physics``, the beam-divergence and particle code of ``sensors.simulate``),
+in the manner of tinybvh's one ``IntersectTri`` shared by every layout.
+
+DECISION: the formulas live in this file, beside the kernels that call them, not in a
+module of their own: Numba's cache checks only a kernel's own source file, so a
+formula edited in another file would leave the cached kernels running the old one.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, vectorize
 
 from raytrace.config import CACHE, ERROR_MODEL
+
+#: Powers are floored here before a division or a logarithm (a miss has power 0).
+POWER_FLOOR = 1e-300
+
+_F8x4 = ["float64(float64, float64, float64, float64)"]
+_F8x3 = ["float64(float64, float64, float64)"]
+
+
+def _received_power(rho, cos_inc, r, alpha):
+    """P = rho cos(theta) / R^2 exp(-2 alpha R): lidar equation for an extended
+    Lambertian target with two-way Beer-Lambert extinction (Jelalian 1992)."""
+    return rho * cos_inc / (r * r) * np.exp(-2.0 * alpha * r)
+
+
+def _detection_probability(p, p_min, inv_softness):
+    """1 / (1 + (P / P_min)^(-1/softness)): a logistic in ln P, 1/2 at P = P_min."""
+    return 1.0 / (1.0 + (max(p, POWER_FLOOR) / p_min) ** (-inv_softness))
+
+
+def _range_sigma(p, floor2, ref2):
+    """sqrt(floor^2 + sigma_ref^2 P_ref / P), ref2 = sigma_ref^2 P_ref: shot-noise-limited
+    ranging, sigma ~ 1 / sqrt(SNR), above a floor."""
+    return np.sqrt(floor2 + ref2 / max(p, POWER_FLOOR))
+
+
+def _intensity(p, p_min, log_span):
+    """log10(P / P_min) / log10(P_sat / P_min) (log_span = the denominator), clipped to
+    [0, 1]: the logarithmic compression of a receiver's dynamic range."""
+    v = np.log10(max(p, POWER_FLOOR) / p_min) / log_span
+    return min(1.0, max(0.0, v))
+
+
+received_power = njit(cache=CACHE, error_model=ERROR_MODEL)(_received_power)
+detection_probability = njit(cache=CACHE, error_model=ERROR_MODEL)(_detection_probability)
+range_sigma = njit(cache=CACHE, error_model=ERROR_MODEL)(_range_sigma)
+intensity = njit(cache=CACHE, error_model=ERROR_MODEL)(_intensity)
+
+# Ufuncs: broadcasting, IEEE division (1/0 = inf, with NumPy's warning, which callers
+# silence with np.errstate where a zero is expected).
+received_power_ufunc = vectorize(_F8x4, cache=CACHE)(_received_power)
+detection_probability_ufunc = vectorize(_F8x3, cache=CACHE)(_detection_probability)
+range_sigma_ufunc = vectorize(_F8x3, cache=CACHE)(_range_sigma)
+intensity_ufunc = vectorize(_F8x3, cache=CACHE)(_intensity)
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)
@@ -51,8 +105,8 @@ def world_directions(d, jit, rot, out):
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)
 def surface_returns(t, tri, nrm, dw, rho_faces, rho_default, range_min, alpha,
                     r_out, p_out, cos_out, flag_out):
-    """Single-ray pulses: range, relative power rho cos / R^2 exp(-2 alpha R), cosine
-    of incidence and flag (1 surface, 0 none) from the cast."""
+    """Single-ray pulses: range, received power, cosine of incidence and flag
+    (1 surface, 0 none) from the cast."""
     use_faces = rho_faces.shape[0] > 0
     for i in prange(t.shape[0]):
         if tri[i] < 0 or t[i] < range_min:
@@ -66,23 +120,22 @@ def surface_returns(t, tri, nrm, dw, rho_faces, rho_default, range_min, alpha,
         r = t[i]
         r_out[i] = r
         cos_out[i] = c
-        p_out[i] = rho * c / (r * r) * np.exp(-2.0 * alpha * r)
+        p_out[i] = received_power(rho, c, r, alpha)
         flag_out[i] = 1
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)
 def detect_and_noise(r, p, flag, u, z, detect, p_min, inv_soft, noise, floor2, ref2,
                      returned):
-    """returned[i]: a return that is detected (u < logistic(ln P/P_min)); r[i] gets
-    Gaussian noise z sigma(P), sigma^2 = floor^2 + ref2 / P (ref2 = sigma_ref^2 P_ref)."""
+    """returned[i]: a return that is detected (u < detection_probability(P)); r[i] gets
+    Gaussian noise z range_sigma(P)."""
     for i in prange(r.shape[0]):
         ok = flag[i] > 0
-        pi = max(p[i], 1e-300)
         if ok and detect:
-            ok = u[i] < 1.0 / (1.0 + (pi / p_min) ** (-inv_soft))
+            ok = u[i] < detection_probability(p[i], p_min, inv_soft)
         returned[i] = ok
         if ok and noise:
-            r[i] += z[i] * np.sqrt(floor2 + ref2 / pi)
+            r[i] += z[i] * range_sigma(p[i], floor2, ref2)
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)
@@ -90,8 +143,7 @@ def fill_points(idx, r, p, flag, tri, cos, d, t, channel, column, frame, pos, ro
                 p_min, log_span, ox, oy, oz, sx, sy, sz, rng, az, el, tt, ch, co, fr,
                 inten, inc, otri, oflag):
     """Output records of the returned pulses idx: sensor-frame point r d, world point
-    pos + R (r d), angles, time, indices, intensity log10(P/P_min)/log_span in [0, 1],
-    incidence angle."""
+    pos + R (r d), angles (rad), time, indices, intensity, incidence angle (rad)."""
     per = pos.shape[0] > 1
     for j in prange(idx.shape[0]):
         i = idx[j]
@@ -113,8 +165,7 @@ def fill_points(idx, r, p, flag, tri, cos, d, t, channel, column, frame, pos, ro
         ch[j] = channel[i]
         co[j] = column[i]
         fr[j] = frame[i]
-        v = np.log10(max(p[i], 1e-300) / p_min) / log_span
-        inten[j] = min(1.0, max(0.0, v))
+        inten[j] = intensity(p[i], p_min, log_span)
         inc[j] = np.arccos(min(1.0, max(0.0, cos[i])))
         otri[j] = tri[i]
         oflag[j] = flag[i]

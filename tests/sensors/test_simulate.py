@@ -11,8 +11,15 @@ from scipy.spatial.transform import Rotation
 import raytrace
 from raytrace import Scene
 from raytrace.shapes import sweep_profile
-from sensors import (Mount, Settings, SimulationError, Trajectory, TrajectoryError,
-                     simulate_drive, simulate_station)
+from sensors import (
+    Mount,
+    Settings,
+    SimulationError,
+    Trajectory,
+    TrajectoryError,
+    simulate_drive,
+    simulate_station,
+)
 
 R, K = 2.0, 512
 
@@ -263,7 +270,7 @@ def test_fast_pose_path_equals_scipy_slerp():
     t = np.cumsum(rng.uniform(0.05, 0.2, 12))
     tr = Trajectory(t, rng.normal(0, 10, (12, 3)) + [451000.0, 5352000.0, 300.0],
                     Rotation.random(12, random_state=1))
-    mount = Mount.from_degrees((0.1, -0.2, 0.5), 10.0, -5.0, 90.0)
+    mount = Mount.from_degrees((0.1, -0.2, 0.5), roll_deg=10.0, pitch_deg=-5.0, yaw_deg=90.0)
     q = np.linspace(t[0], t[-1], 1001)
     pos_a, rot_a = tr.sensor_poses(q, mount)
     pos_b, mat_b = tr.sensor_matrices(q, mount)
