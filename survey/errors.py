@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from raytrace.errors import TunnelsimError
 
+
 class ControlPointError(TunnelsimError, ValueError):
     """A control-point file is malformed, or two files do not match."""
 
@@ -81,4 +82,8 @@ class ProfileError(TunnelsimError, ValueError):
     """A cross-section profile is unusable (self-intersecting, degenerate, bad size)."""
 
 
-__all__ = ["TunnelsimError", "AlignmentError", "CloudFileError", "CompareError", "ControlPointError", "DeformationError", "DriftError", "FeatureError", "GazeboExportError", "HelmertError", "PipelineError", "PlanningError", "PreprocessError", "ProfileError", "ReconstructionError", "StudyError", "TunnelError", "TunnelFileError", "TunnelsimCLIError"]
+__all__ = ["TunnelsimError", "AlignmentError", "CloudFileError", "CompareError",
+           "ControlPointError", "DeformationError", "DriftError", "FeatureError",
+           "GazeboExportError", "HelmertError", "PipelineError", "PlanningError",
+           "PreprocessError", "ProfileError", "ReconstructionError", "StudyError",
+           "TunnelError", "TunnelFileError", "TunnelsimCLIError"]

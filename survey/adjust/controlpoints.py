@@ -10,24 +10,35 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from raytrace.fileio import atomic_writer
 from survey.errors import ControlPointError
 
+__all__ = ["ControlPoints", "match", "read_control_points"]
 
-@dataclass
+
+@dataclass(repr=False)
 class ControlPoints:
-    """ids (n,) str; xyz (n, 3) float64; sigma (n, 3) float64 or None; time (n,) or None."""
+    """Named points: ids (n,) str; xyz (n, 3) float64, m; sigma (n, 3) float64 (m) or
+    None; time (n,) float64 (s) or None."""
 
-    ids: list
-    xyz: np.ndarray
-    sigma: np.ndarray | None = None
-    time: np.ndarray | None = None
+    ids: list[str]
+    xyz: NDArray[np.float64]
+    sigma: NDArray[np.float64] | None = None
+    time: NDArray[np.float64] | None = None
 
-    def __len__(self):
+    def __len__(self) -> int:
         return len(self.ids)
 
-    def write(self, path):
+    def __repr__(self) -> str:
+        extra = "".join([", sigma" if self.sigma is not None else "",
+                         ", time" if self.time is not None else ""])
+        first = ", ".join(self.ids[:3]) + (", ..." if len(self.ids) > 3 else "")
+        return f"ControlPoints({len(self.ids)} points [{first}]{extra})"
+
+    def write(self, path: str | Path) -> Path:
+        """Write the CSV (atomically) that ``read_control_points`` reads back."""
         path = Path(path)
         with atomic_writer(path, "w") as fh:
             cols = ["id", "x", "y", "z"] + (["sx", "sy", "sz"] if self.sigma is not None
@@ -44,7 +55,8 @@ class ControlPoints:
         return path
 
 
-def read_control_points(path) -> ControlPoints:
+def read_control_points(path: str | Path) -> ControlPoints:
+    """Read a control-point CSV (see the module doc)."""
     path = Path(path)
     if not path.is_file():
         raise ControlPointError(f"Expected a control-point CSV, got '{path}' which does not "
@@ -61,11 +73,14 @@ def read_control_points(path) -> ControlPoints:
             raise ControlPointError(f"Expected a column '{need}' in '{path}', got columns "
                                     f"{head}.")
     col = {h: i for i, h in enumerate(head)}
-    ids, xyz, sig, tim = [], [], [], []
+    ids: list[str] = []
+    rows_xyz: list[list[float]] = []
+    sig: list[list[float]] = []
+    tim: list[float] = []
     for k, r in enumerate(rows[1:], start=2):
         try:
             ids.append(r[col["id"]].strip())
-            xyz.append([float(r[col[c]]) for c in "xyz"])
+            rows_xyz.append([float(r[col[c]]) for c in "xyz"])
             if "sigma" in col:
                 sig.append([float(r[col["sigma"]])] * 3)
             elif "sx" in col:
@@ -81,16 +96,17 @@ def read_control_points(path) -> ControlPoints:
             raise ControlPointError(f"Expected unique point ids in '{path}', got {i!r} "
                                     "twice.")
         seen.add(i)
-    xyz = np.array(xyz, dtype=np.float64).reshape(-1, 3)
+    xyz = np.array(rows_xyz, dtype=np.float64).reshape(-1, 3)
     sigma = np.array(sig, dtype=np.float64) if sig else None
     if sigma is not None and (sigma <= 0).any():
         raise ControlPointError(f"Expected positive sigmas in '{path}'.")
     return ControlPoints(ids, xyz, sigma, np.array(tim) if tim else None)
 
 
-def match(a: ControlPoints, b: ControlPoints, *, require_all: bool = False):
-    """Indices (ia, ib) of the points present in both, in a's order. With
-    ``require_all`` every point of ``a`` must have a partner."""
+def match(a: ControlPoints, b: ControlPoints, *, require_all: bool = False
+          ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Indices (ia, ib), each (k,), of the points present in both (by id), in a's order.
+    With ``require_all`` every point of ``a`` must have a partner."""
     pos = {k: i for i, k in enumerate(b.ids)}
     missing = [k for k in a.ids if k not in pos]
     if require_all and missing:

@@ -2,9 +2,10 @@
 per scan (the seed's Table 1), a histogram and the distance as a LAS scalar field.
 
 - ``cloud_to_cloud``: for every compared point the exact nearest reference point
-  (scipy ``cKDTree``, no approximation). ``max_dist`` clamps: a point with no reference
-  point within ``max_dist`` gets exactly ``max_dist`` (CloudCompare's "max. distance":
-  farther points are not searched and receive the limit). ``split=True`` also returns
+  (scipy ``cKDTree``, no approximation). ``max_distance_m`` clamps: a point with no
+  reference point within ``max_distance_m`` gets exactly ``max_distance_m``
+  (CloudCompare's "max. distance": farther points are not searched and receive the
+  limit). ``split=True`` also returns
   the signed components of (compared - nearest reference) along X, Y and Z (NaN where
   clamped). ``model="plane"``: the distance to the least-squares plane through the
   ``k`` nearest reference points (CloudCompare's local model "least square plane"),
@@ -13,67 +14,110 @@ per scan (the seed's Table 1), a histogram and the distance as a LAS scalar fiel
   2005, 5.1.5, on candidate triangles from a centroid k-d tree with a radius bound that
   keeps the search exact). Sign as CloudCompare: positive on the side the closest
   triangle's right-hand normal (b - a) x (c - a) points to.
+
+Arguments follow one order, the cloud measured first and the reference second
+(``cloud_to_cloud(compared, reference)``, ``cloud_to_mesh(compared, vertices, faces)``),
+as ``fit_helmert(source, target)`` does. Points may be (n, 3), a single (3,) point or a
+structured array with fields x, y, z; results hold one value per point (n = 1 for a
+single point).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from survey._checks import as_points
 from survey.errors import CompareError
+
+__all__ = ["BLOCK", "STAT_FIELDS", "Distances", "ReferenceCloud", "ReferenceMesh",
+           "cloud_to_cloud", "cloud_to_mesh", "distance_stats"]
 
 #: Points per block in the distance loops (bounds the candidate lists' memory).
 BLOCK = 200_000
 
 
-def _points(a, name):
-    a = np.asarray(a, dtype=np.float64)
-    if a.ndim != 2 or a.shape[1] != 3:
-        raise CompareError(f"Expected `{name}` to have shape (n, 3), got {a.shape}.")
-    if not np.isfinite(a).all():
-        raise CompareError(f"Expected finite coordinates in `{name}`, got NaN or inf; "
-                           "drop those points first.")
-    return a
+def _max_distance(value: float | None) -> float | None:
+    if value is None:
+        return None
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise CompareError(f"Expected `max_distance_m` as a number of metres, got "
+                           f"{value!r}.") from None
+    if not v > 0:   # NaN fails too
+        raise CompareError(f"Expected a positive max distance `max_distance_m`, got "
+                           f"{value!r}; leave it None for no limit.")
+    return v
 
 
-@dataclass
+@dataclass(repr=False)
 class Distances:
-    """Result of a comparison.
+    """Result of a comparison: one value per compared point.
 
     distance : (n,) float64, m (unsigned for C2C, signed for C2M)
-    dx, dy, dz : (n,) float64 or None, split components (C2C with ``split``)
     nearest : (n,) int64, index of the nearest reference point or triangle (-1 where
         clamped)
+    dx, dy, dz : (n,) float64 or None, split components (C2C with ``split``), m
+
+    A single compared point (3,) gives n = 1.
     """
 
-    distance: np.ndarray
-    nearest: np.ndarray
-    dx: np.ndarray | None = None
-    dy: np.ndarray | None = None
-    dz: np.ndarray | None = None
+    distance: NDArray[np.float64]
+    nearest: NDArray[np.int64]
+    dx: NDArray[np.float64] | None = None
+    dy: NDArray[np.float64] | None = None
+    dz: NDArray[np.float64] | None = None
+
+    def __len__(self) -> int:
+        return len(self.distance)
+
+    def __repr__(self) -> str:
+        d = self.distance
+        if d.size == 0:
+            return "Distances(0 points)"
+        a = np.abs(d)
+        clamped = int((self.nearest < 0).sum())
+        return (f"Distances({d.size:,} points, mean {1000 * d.mean():.2f} mm, "
+                f"RMS {1000 * np.sqrt(np.mean(d * d)):.2f} mm, max |d| "
+                f"{1000 * a.max():.2f} mm" + (f", {clamped:,} clamped" if clamped else "")
+                + (", split" if self.dx is not None else "") + ")")
 
 
 class ReferenceCloud:
-    """A reference cloud prepared once (k-d tree) for comparing many clouds or chunks."""
+    """A reference cloud prepared once (k-d tree) for comparing many clouds or chunks.
 
-    def __init__(self, reference):
-        self.points = _points(reference, "reference")
+    Parameters
+    ----------
+    reference : (m, 3) array_like of float, or structured array with x, y, z
+        Reference points, metres; at least one.
+    """
+
+    def __init__(self, reference: ArrayLike) -> None:
+        self.points, _ = as_points(reference, "reference", CompareError)
         if len(self.points) == 0:
             raise CompareError("Expected a reference cloud with points, got none.")
         # Local origin: the tree works on small numbers (UTM-sized inputs keep mm).
         self.origin = self.points.mean(axis=0)
         self.tree = cKDTree(self.points - self.origin)
 
-    def distances(self, compared, *, max_dist=None, split=False, model=None,
+    def __repr__(self) -> str:
+        return f"ReferenceCloud({len(self.points):,} points)"
+
+    def distances(self, compared: ArrayLike, *, max_distance_m: float | None = None,
+                  split: bool = False, model: Literal["plane"] | None = None,
                   k: int = 6) -> Distances:
-        p = _points(compared, "compared") - self.origin
-        if max_dist is not None and not max_dist > 0:
-            raise CompareError(f"Expected a positive max distance, got {max_dist}.")
+        """Distances from each compared point (n, 3) or (3,) to this cloud; see the
+        module doc for ``max_distance_m``, ``split``, ``model`` and ``k``."""
+        p = as_points(compared, "compared", CompareError)[0] - self.origin
+        max_d = _max_distance(max_distance_m)
         if model not in (None, "plane"):
             raise CompareError(f"Expected model None or 'plane', got {model!r}.")
-        ub = np.inf if max_dist is None else float(max_dist)
+        ub = np.inf if max_d is None else max_d
         d, idx = self.tree.query(p, k=1, distance_upper_bound=ub, workers=-1)
         far = ~np.isfinite(d)
         idx = np.where(far, -1, idx).astype(np.int64)
@@ -96,19 +140,45 @@ class ReferenceCloud:
         return out
 
 
-def cloud_to_cloud(compared, reference, *, max_dist=None, split=False, model=None,
-                   k: int = 6) -> Distances:
-    """Distances (n,) from each compared point (n, 3) to the reference cloud (m, 3);
-    see the module doc for ``max_dist``, ``split`` and ``model``."""
-    return ReferenceCloud(reference).distances(compared, max_dist=max_dist, split=split,
-                                               model=model, k=k)
+def cloud_to_cloud(compared: ArrayLike, reference: ArrayLike, *,
+                   max_distance_m: float | None = None, split: bool = False,
+                   model: Literal["plane"] | None = None, k: int = 6) -> Distances:
+    """Distance from each compared point to the nearest reference point.
+
+    Parameters
+    ----------
+    compared : (n, 3) or (3,) array_like of float, or structured array with x, y, z
+        The cloud measured, metres.
+    reference : (m, 3) array_like of float, or structured array with x, y, z
+        The cloud it is compared with, metres.
+    max_distance_m : float, optional
+        Clamp: farther points get exactly this distance and ``nearest`` -1.
+    split : bool
+        Also return the signed components dx, dy, dz of (compared - nearest).
+    model : None or "plane"
+        "plane": the distance to the least-squares plane of the ``k`` nearest
+        reference points.
+
+    Returns
+    -------
+    Distances
+        (n,) arrays; n = 1 for a single (3,) point.
+    """
+    return ReferenceCloud(reference).distances(compared, max_distance_m=max_distance_m,
+                                               split=split, model=model, k=k)
 
 
 class ReferenceMesh:
-    """A reference triangle mesh prepared once for signed point-to-mesh distances."""
+    """A reference triangle mesh prepared once for signed point-to-mesh distances.
 
-    def __init__(self, vertices, faces):
-        v = _points(vertices, "vertices")
+    Parameters
+    ----------
+    vertices : (v, 3) array_like of float, or structured array with x, y, z
+    faces : (m, 3) array_like of int, vertex indices
+    """
+
+    def __init__(self, vertices: ArrayLike, faces: ArrayLike) -> None:
+        v, _ = as_points(vertices, "vertices", CompareError)
         f = np.asarray(faces)
         if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or \
                 not np.issubdtype(f.dtype, np.integer) or f.min() < 0 or f.max() >= len(v):
@@ -125,17 +195,22 @@ class ReferenceMesh:
         # one centroid tree each, so one big triangle (an end-cap fan) does not widen
         # every small triangle's search radius.
         grp = np.floor(np.log2(np.maximum(rad, 1e-9))).astype(int)
-        self.groups = []
+        self.groups: list[tuple[NDArray[np.intp], Any, float]] = []
         for g in np.unique(grp):
             ids = np.flatnonzero(grp == g)
             self.groups.append((ids, cKDTree(cen[ids]), float(rad[ids].max())))
 
-    def distances(self, points, *, max_dist=None) -> Distances:
+    def __repr__(self) -> str:
+        return f"ReferenceMesh({len(self.tris):,} triangles)"
+
+    def distances(self, compared: ArrayLike, *,
+                  max_distance_m: float | None = None) -> Distances:
+        """Signed distances from each compared point (n, 3) or (3,) to this mesh;
+        ``max_distance_m`` clamps |d| keeping the sign."""
         from survey._kernels.closest import nearest_triangles
 
-        p = _points(points, "points") - self.origin
-        if max_dist is not None and not max_dist > 0:
-            raise CompareError(f"Expected a positive max distance, got {max_dist}.")
+        p = as_points(compared, "compared", CompareError)[0] - self.origin
+        max_d = _max_distance(max_distance_m)
         dist = np.empty(len(p))
         tri = np.empty(len(p), dtype=np.int64)
         for b in range(0, len(p), BLOCK):
@@ -159,24 +234,40 @@ class ReferenceMesh:
             sign = np.where(np.einsum("ni,ni->n", diff, self.normals[out_t]) < 0, -1.0, 1.0)
             dist[b:b + BLOCK] = sign * dd
             tri[b:b + BLOCK] = out_t
-        if max_dist is not None:
-            far = np.abs(dist) > max_dist
-            dist[far] = np.sign(dist[far]) * max_dist
+        if max_d is not None:
+            far = np.abs(dist) > max_d
+            dist[far] = np.sign(dist[far]) * max_d
             tri[far] = -1
         return Distances(dist, tri)
 
 
-def cloud_to_mesh(points, vertices, faces, *, max_dist=None) -> Distances:
-    """Signed distances (n,) from points (n, 3) to a triangle mesh (vertices (v, 3),
-    faces (m, 3)); ``max_dist`` clamps |d| keeping the sign."""
-    return ReferenceMesh(vertices, faces).distances(points, max_dist=max_dist)
+def cloud_to_mesh(compared: ArrayLike, vertices: ArrayLike, faces: ArrayLike, *,
+                  max_distance_m: float | None = None) -> Distances:
+    """Signed distance from each compared point to a triangle mesh.
+
+    Parameters
+    ----------
+    compared : (n, 3) or (3,) array_like of float, or structured array with x, y, z
+        The points measured, metres.
+    vertices : (v, 3) array_like of float; faces : (m, 3) array_like of int
+        The reference mesh.
+    max_distance_m : float, optional
+        Clamp |d| to this (keeping the sign); clamped points get ``nearest`` -1.
+
+    Returns
+    -------
+    Distances
+        (n,) arrays (n = 1 for a single (3,) point); positive on the side the closest
+        triangle's normal (b - a) x (c - a) points to.
+    """
+    return ReferenceMesh(vertices, faces).distances(compared, max_distance_m=max_distance_m)
 
 
 # ------------------------------------------------------------------ statistics, outputs
 STAT_FIELDS = ("n", "mean", "median", "std", "p95", "rms", "max_abs")
 
 
-def distance_stats(d) -> dict:
+def distance_stats(d: ArrayLike) -> dict[str, float]:
     """n, mean, median, std (ddof 0), p95 of |d|, RMS and max |d| of distances (m)."""
     d = np.asarray(d, dtype=np.float64)
     if d.size == 0:
@@ -185,5 +276,3 @@ def distance_stats(d) -> dict:
     return {"n": int(d.size), "mean": float(d.mean()), "median": float(np.median(d)),
             "std": float(d.std()), "p95": float(np.percentile(a, 95)),
             "rms": float(np.sqrt(np.mean(d * d))), "max_abs": float(a.max())}
-
-

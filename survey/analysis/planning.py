@@ -24,10 +24,24 @@ HiGHS) on cells merged by identical candidate signature, with the greedy set (Ch
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from survey.errors import PlanningError
+from survey.world.alignment import Alignment
+
+if TYPE_CHECKING:
+    from raytrace import Scene
+    from sensors.spec import SensorSpec
+
+__all__ = ["FLOOR_NORMAL_Z", "OCCLUSION_EPS_M", "TRIPOD_HEIGHT_M", "Cells", "Plan",
+           "Planner", "StationQuality", "Thresholds", "axis_stations", "lining_cells",
+           "station_quality"]
+
+Floats = NDArray[np.float64]
+Ints = NDArray[np.int64]
 
 #: Tripod height above the floor (m) for stations on the axis.
 TRIPOD_HEIGHT_M = 1.5
@@ -39,60 +53,78 @@ FLOOR_NORMAL_Z = 0.8
 OCCLUSION_EPS_M = 2e-3
 
 
-@dataclass
+@dataclass(repr=False)
 class Thresholds:
-    """Quality limits for a cell served by a station (SI, radians)."""
+    """Quality limits for a cell served by a station: point spacing (m), incidence
+    angle between beam and surface normal (radians) and range (m)."""
 
     spacing_m: float = 0.005
-    incidence_rad: float = np.deg2rad(70.0)
+    incidence_rad: float = float(np.deg2rad(70.0))
     range_m: float = 30.0
 
-    def __post_init__(self):
+    def __repr__(self) -> str:
+        return (f"Thresholds(spacing_m={self.spacing_m:g}, incidence_rad="
+                f"{self.incidence_rad:.4f} ({np.degrees(self.incidence_rad):.1f} deg), "
+                f"range_m={self.range_m:g})")
+
+    def __post_init__(self) -> None:
         for k in ("spacing_m", "incidence_rad", "range_m"):
             v = getattr(self, k)
             if not (np.isfinite(v) and v > 0):
                 raise PlanningError(f"Expected a positive threshold `{k}`, got {v}.")
 
 
-@dataclass
+@dataclass(repr=False)
 class Cells:
     """Lining cells on an unrolled grid of ``shape`` (rings, around).
 
-    chainage, angle : (k,) float64, cell centre (angle from the crown, positive left, rad)
-    points, normals : (k, 3) float64, surface point and unit normal facing the axis
+    chainage, angle : (k,) float64, cell centre: chainage (m) and angle from the crown
+        (radians, positive left)
+    points, normals : (k, 3) float64, surface point (m) and unit normal facing the axis
     area : (k,) float64, m^2
     ring, col : (k,) int64, grid indices
+    s_edges : (rings + 1,) float64, m; a_edges : (around + 1,) float64, radians
+    is_floor : (k,) bool, floor cells (kept only by ``keep_floor``)
     """
 
-    chainage: np.ndarray
-    angle: np.ndarray
-    points: np.ndarray
-    normals: np.ndarray
-    area: np.ndarray
-    ring: np.ndarray
-    col: np.ndarray
-    shape: tuple
-    s_edges: np.ndarray
-    a_edges: np.ndarray
-    is_floor: np.ndarray | None = None
+    chainage: Floats
+    angle: Floats
+    points: Floats
+    normals: Floats
+    area: Floats
+    ring: Ints
+    col: Ints
+    shape: tuple[int, int]
+    s_edges: Floats
+    a_edges: Floats
+    is_floor: NDArray[np.bool_]
+
+    def __repr__(self) -> str:
+        return (f"Cells({len(self.area):,} cells on a {self.shape[0]} x {self.shape[1]} "
+                f"grid, {self.total_area:.1f} m^2)")
 
     @property
     def total_area(self) -> float:
+        """Sum of the cell areas (m^2)."""
         return float(self.area.sum())
 
 
-def lining_cells(scene, alignment, centre_height_m, *, s_range=None, cell_m=0.25,
-                 cell_rad=np.deg2rad(2.0), keep_floor=False) -> Cells:
-    """Sample the visible surface around the axis in cells of ``cell_m`` x ``cell_rad``
-    (floor cells dropped unless ``keep_floor``; ``Cells.is_floor`` marks them)."""
-    c0, c1 = alignment.chainage_range if s_range is None else s_range
+def lining_cells(scene: Scene, alignment: Alignment, centre_height_m: float, *,
+                 chainage_range_m: tuple[float, float] | None = None, cell_m: float = 0.25,
+                 cell_rad: float = float(np.deg2rad(2.0)), keep_floor: bool = False
+                 ) -> Cells:
+    """Sample the visible surface around the axis in cells of ``cell_m`` (m) x
+    ``cell_rad`` (radians) between the chainages ``chainage_range_m`` (default: the
+    whole alignment); floor cells dropped unless ``keep_floor`` (``Cells.is_floor``
+    marks them)."""
+    c0, c1 = alignment.chainage_range if chainage_range_m is None else chainage_range_m
     if not (cell_m > 0 and cell_rad > 0 and c1 > c0):
         raise PlanningError(f"Expected positive cell sizes and a chainage range with end > "
                             f"start, got {cell_m} m, {cell_rad} rad, [{c0}, {c1}].")
     n_s = max(1, int(np.floor((c1 - c0) / cell_m)))
     n_a = max(4, int(round(2 * np.pi / cell_rad)))
-    s_edges = c0 + np.arange(n_s + 1) * cell_m
-    a_edges = -np.pi + np.arange(n_a + 1) * (2 * np.pi / n_a)
+    s_edges = np.asarray(c0 + np.arange(n_s + 1) * cell_m, dtype=np.float64)
+    a_edges = np.asarray(-np.pi + np.arange(n_a + 1) * (2 * np.pi / n_a), dtype=np.float64)
     s = 0.5 * (s_edges[1:] + s_edges[:-1])
     a = 0.5 * (a_edges[1:] + a_edges[:-1])
     S, A = np.meshgrid(s, a, indexing="ij")
@@ -115,22 +147,28 @@ def lining_cells(scene, alignment, centre_height_m, *, s_range=None, cell_m=0.25
                  floor[keep])
 
 
-@dataclass
+@dataclass(repr=False)
 class StationQuality:
-    """Per-cell view of one station: visible (bool), range, incidence, spacing (k,)."""
+    """Per-cell view of one station, each (k,): visible (bool), range (m), incidence
+    (radians), point spacing (m)."""
 
-    visible: np.ndarray
-    range_m: np.ndarray
-    incidence_rad: np.ndarray
-    spacing_m: np.ndarray
+    visible: NDArray[np.bool_]
+    range_m: Floats
+    incidence_rad: Floats
+    spacing_m: Floats
 
-    def meets(self, th: Thresholds) -> np.ndarray:
+    def __repr__(self) -> str:
+        return f"StationQuality({int(self.visible.sum()):,} of {len(self.visible):,} cells seen)"
+
+    def meets(self, th: Thresholds) -> NDArray[np.bool_]:
+        """Cells (k,) seen within every threshold."""
         return self.visible & (self.range_m <= th.range_m) & \
             (self.incidence_rad <= th.incidence_rad) & (self.spacing_m <= th.spacing_m)
 
 
-def station_quality(scene, cells: Cells, station, step_rad, *, range_max_m,
-                    vertical_fov_rad=2 * np.pi) -> StationQuality:
+def station_quality(scene: Scene, cells: Cells, station: ArrayLike, step_rad: float, *,
+                    range_max_m: float, vertical_fov_rad: float = 2 * np.pi
+                    ) -> StationQuality:
     """Quality of every cell seen from ``station`` (3,) by a level scanner with angular
     step ``step_rad`` (see module doc); cells beyond ``range_max_m`` are not cast."""
     st = np.asarray(station, dtype=np.float64)
@@ -150,10 +188,10 @@ def station_quality(scene, cells: Cells, station, step_rad, *, range_max_m,
     return StationQuality(vis, r, inc, spacing)
 
 
-def axis_stations(scene, alignment, centre_height_m, chainages, *,
-                  height_m=TRIPOD_HEIGHT_M) -> np.ndarray:
+def axis_stations(scene: Scene, alignment: Alignment, centre_height_m: float,
+                  chainages: ArrayLike, *, height_m: float = TRIPOD_HEIGHT_M) -> Floats:
     """Stations (k, 3) on the axis at ``height_m`` above the floor found straight below
-    the axis at each chainage."""
+    the axis at each chainage (k,) (m)."""
     s = np.asarray(chainages, dtype=np.float64).reshape(-1)
     top = alignment.to_world(s, 0.0, centre_height_m)
     hits = scene.cast(top, np.broadcast_to([0.0, 0.0, -1.0], top.shape))
@@ -167,11 +205,11 @@ def axis_stations(scene, alignment, centre_height_m, chainages, *,
     return out
 
 
-@dataclass
+@dataclass(repr=False)
 class Plan:
     """Stations and what they achieve.
 
-    stations : (k, 3); chainages (k,)
+    stations : (k, 3), m; chainages (k,), m
     served : (k_cells,) int, stations meeting the thresholds per cell
     seen : (k_cells,) int, stations seeing the cell within the range threshold
     coverage : area share of cells served by at least one station
@@ -181,28 +219,37 @@ class Plan:
     """
 
     name: str
-    stations: np.ndarray
-    chainages: np.ndarray
-    served: np.ndarray
-    seen: np.ndarray
+    stations: Floats
+    chainages: Floats
+    served: Ints
+    seen: Ints
     coverage: float
-    per_station: np.ndarray
-    overlap: np.ndarray
-    gaps: list = field(default_factory=list)
+    per_station: Floats
+    overlap: Floats
+    gaps: list[dict[str, float]] = field(default_factory=list)
     note: str = ""
+
+    def __repr__(self) -> str:
+        return (f"Plan({self.name!r}, {len(self.chainages)} stations, coverage "
+                f"{100 * self.coverage:.2f} %, {len(self.gaps)} gaps"
+                + (f", {self.note}" if self.note else "") + ")")
 
 
 class Planner:
     """Coverage of candidate stations on one tunnel, computed once and reused."""
 
-    def __init__(self, scene, alignment, centre_height_m, sensor, *, resolution=None,
-                 thresholds: Thresholds | None = None, cell_m=0.25,
-                 cell_rad=np.deg2rad(2.0), s_range=None, height_m=TRIPOD_HEIGHT_M):
+    def __init__(self, scene: Scene, alignment: Alignment, centre_height_m: float,
+                 sensor: SensorSpec, *, resolution: str | None = None,
+                 thresholds: Thresholds | None = None, cell_m: float = 0.25,
+                 cell_rad: float = float(np.deg2rad(2.0)),
+                 chainage_range_m: tuple[float, float] | None = None,
+                 height_m: float = TRIPOD_HEIGHT_M) -> None:
         if sensor.kind != "tls":
             raise PlanningError(f"Expected a TLS sensor for station planning, got "
                                 f"{sensor.name} ({sensor.kind}).")
-        res = resolution or sensor.pattern.default_resolution
-        steps = sensor.pattern.resolutions_rad
+        pattern: Any = sensor.pattern          # a TLSPattern (checked above)
+        res = resolution or pattern.default_resolution
+        steps = pattern.resolutions_rad
         if res not in steps:
             raise PlanningError(f"Expected a resolution of {sensor.name} "
                                 f"({', '.join(steps)}), got {res!r}.")
@@ -210,27 +257,35 @@ class Planner:
         self.sensor, self.resolution, self.step_rad = sensor, res, float(steps[res])
         self.th = thresholds or Thresholds()
         self.height_m = height_m
-        self.cells = lining_cells(scene, alignment, self.hc, s_range=s_range,
-                                  cell_m=cell_m, cell_rad=cell_rad)
+        self.cells = lining_cells(scene, alignment, self.hc,
+                                  chainage_range_m=chainage_range_m, cell_m=cell_m,
+                                  cell_rad=cell_rad)
         if len(self.cells.area) == 0:
             raise PlanningError("Expected lining cells around the axis, got none; does "
                                 "the axis run inside the mesh?")
-        self._cache = {}
+        self._cache: dict[tuple[float, ...], StationQuality] = {}
 
-    def quality(self, station) -> StationQuality:
-        key = tuple(np.round(station, 6))
+    def __repr__(self) -> str:
+        return (f"Planner({self.sensor.name} at {self.resolution}, "
+                f"{len(self.cells.area):,} cells, {self.th!r})")
+
+    def quality(self, station: ArrayLike) -> StationQuality:
+        """Quality of every cell from ``station`` (3,) (cached per station)."""
+        key = tuple(np.round(np.asarray(station, dtype=np.float64), 6))
         if key not in self._cache:
             rmax = min(self.sensor.physics.range_max_m, self.th.range_m)
+            pattern: Any = self.sensor.pattern
             self._cache[key] = station_quality(
                 self.scene, self.cells, station, self.step_rad, range_max_m=rmax,
-                vertical_fov_rad=self.sensor.pattern.vertical_fov_rad)
+                vertical_fov_rad=pattern.vertical_fov_rad)
         return self._cache[key]
 
-    def stations_at(self, chainages):
+    def stations_at(self, chainages: ArrayLike) -> Floats:
+        """Stations (k, 3) on the axis at chainages (k,) (m)."""
         return axis_stations(self.scene, self.alignment, self.hc, chainages,
                              height_m=self.height_m)
 
-    def spaced(self, spacing_m, *, start_m=None) -> np.ndarray:
+    def spaced(self, spacing_m: float, *, start_m: float | None = None) -> Floats:
         """Chainages every ``spacing_m`` (first at half a spacing from the start)."""
         c0, c1 = self.cells.s_edges[0], self.cells.s_edges[-1]
         if not spacing_m > 0:
@@ -238,7 +293,8 @@ class Planner:
         first = c0 + spacing_m / 2 if start_m is None else start_m
         return np.arange(first, c1, spacing_m)
 
-    def evaluate(self, chainages, name="plan", note="") -> Plan:
+    def evaluate(self, chainages: ArrayLike, name: str = "plan", note: str = "") -> Plan:
+        """The plan of stations at ``chainages`` (k,) (m)."""
         s = np.sort(np.asarray(chainages, dtype=np.float64).reshape(-1))
         st = self.stations_at(s) if len(s) else np.zeros((0, 3))
         a = self.cells.area
@@ -259,7 +315,7 @@ class Planner:
         return Plan(name, st, s, served, seen, cov, np.array(per), overlap,
                     self.gaps(served > 0), note)
 
-    def gaps(self, covered) -> list:
+    def gaps(self, covered: NDArray[np.bool_]) -> list[dict[str, float]]:
         """Connected uncovered regions of the unrolled grid, largest first."""
         from scipy import ndimage
 
@@ -280,7 +336,8 @@ class Planner:
         return sorted(out, key=lambda g: -g["area_m2"])
 
     # ------------------------------------------------------------------ optimisation
-    def optimize(self, candidates, *, target=0.99, time_limit_s=60.0) -> tuple:
+    def optimize(self, candidates: ArrayLike, *, target: float = 0.99,
+                 time_limit_s: float = 60.0) -> tuple[Plan, Plan, dict[str, Any]]:
         """Smallest set of candidate chainages whose stations serve ``target`` of the
         lining area. Returns (Plan of the optimum (or best found), Plan of the greedy set,
         info dict with the MILP status, bound and gap)."""
@@ -297,7 +354,7 @@ class Planner:
         a = self.cells.area
         total = a.sum()
         reach = a[M.any(axis=1)].sum() / total
-        info = {"candidates": len(cand), "target": target, "reachable": float(reach)}
+        info: dict[str, Any] = {"candidates": len(cand), "target": target, "reachable": float(reach)}
         goal = target
         if reach < target:
             goal = reach
@@ -343,7 +400,7 @@ class Planner:
         return best, gr, info
 
     @staticmethod
-    def _greedy(sig, w, goal):
+    def _greedy(sig: NDArray[np.bool_], w: Floats, goal: float) -> list[int]:
         covered = np.zeros(len(w), dtype=bool)
         chosen = []
         while w[covered].sum() < goal - 1e-9:

@@ -26,19 +26,35 @@ Metrics per configuration:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from survey.errors import StudyError
+from survey.world.alignment import Alignment
+
+if TYPE_CHECKING:
+    from raytrace import Scene
+    from sensors.physics import Settings
+    from sensors.spec import SensorSpec
+    from sensors.trajectory import Mount, Trajectory
+
+__all__ = ["FORWARD_AZ_RAD", "MOUNTS", "Study", "StudyRow"]
 
 #: Forward beams used for the along-track line spacing (|azimuth| below this, rad).
 FORWARD_AZ_RAD = np.deg2rad(2.0)
 MOUNTS = ("level", "down")
 
+Floats = NDArray[np.float64]
+
 
 @dataclass
 class StudyRow:
+    """One configuration's metrics (SI units; see the module doc)."""
+
     speed_mps: float
     rate_hz: float
     mount: str
@@ -54,11 +70,12 @@ class StudyRow:
     pulses: int
     seconds: float
 
-    def to_dict(self):
+    def to_dict(self) -> dict[str, Any]:
+        """The fields by name (JSON-ready)."""
         return dict(self.__dict__)
 
 
-def _with_rate(spec, rate_hz):
+def _with_rate(spec: SensorSpec, rate_hz: float) -> SensorSpec:
     from sensors.spec import with_rate
 
     if spec.kind in ("spinning", "profiler"):
@@ -67,30 +84,79 @@ def _with_rate(spec, rate_hz):
                      f"({spec.kind}); plan TLS stations with 'tunnelsim plan'.")
 
 
-class Study:
-    """One tunnel, one sensor; ``run`` evaluates a configuration."""
+def _line_spacing(fwd: dict[tuple[int, int], list[float]]) -> float:
+    """Median along-track shift (m) of each channel's mean forward-floor footprint
+    chainage between consecutive sweeps; NaN without consecutive sweeps."""
+    by_ch: dict[int, list[tuple[int, float]]] = {}
+    for (ch, frm), (tot, n) in fwd.items():
+        by_ch.setdefault(ch, []).append((frm, tot / n))
+    diffs: list[float] = []
+    for v in by_ch.values():
+        v.sort()
+        fr_, ss_ = np.array(v).T
+        ok = np.diff(fr_) == 1
+        diffs.extend(np.abs(np.diff(ss_))[ok].tolist())
+    return float(np.median(diffs)) if diffs else float("nan")
 
-    def __init__(self, scene, alignment, centre_height_m, sensor, *, strip=None,
-                 lead_m=5.0, height_m=0.5, cell_m=0.1, cell_rad=np.deg2rad(2.0),
-                 settings=None, seed=0, reflectivity=None, keep_points=0):
+
+@dataclass
+class _Tally:
+    """Per-run accumulators over the simulated chunks."""
+
+    counts: NDArray[np.int64]
+    fwd: dict[tuple[int, int], list[float]] = field(default_factory=dict)
+    dmax: float = 0.0
+    dsq: float = 0.0
+    nd: int = 0
+    keep: list[Floats] = field(default_factory=list)
+
+
+class Study:
+    """One tunnel, one sensor; ``run`` evaluates a configuration.
+
+    Parameters
+    ----------
+    scene : raytrace.Scene
+    alignment : Alignment; centre_height_m : float, profile-centre height (m)
+    sensor : SensorSpec, a spinning lidar or a profiler
+    strip_m : (start, end) chainages (m) of the evaluation strip (default: 5 m in the
+        middle of the tunnel)
+    lead_m : the sensor's run-in and run-out on each side of the strip (m)
+    height_m : sensor height above the floor (m)
+    cell_m, cell_rad : lining cell size along (m) and around (rad) the axis
+    keep_points : floor points kept per configuration for the figure (0: none)
+    """
+
+    def __init__(self, scene: Scene, alignment: Alignment, centre_height_m: float,
+                 sensor: SensorSpec, *, strip_m: tuple[float, float] | None = None,
+                 lead_m: float = 5.0, height_m: float = 0.5, cell_m: float = 0.1,
+                 cell_rad: float = np.deg2rad(2.0), settings: Settings | None = None,
+                 seed: int = 0, reflectivity: Any = None, keep_points: int = 0) -> None:
         from survey.analysis.planning import axis_stations, lining_cells
 
         self.scene, self.al, self.hc = scene, alignment, float(centre_height_m)
         self.sensor = sensor
         _with_rate(sensor, 1.0)                        # kind check
         c0, c1 = alignment.chainage_range
-        if strip is None:
+        if strip_m is None:
             mid = 0.5 * (c0 + c1)
-            strip = (mid - 2.5, mid + 2.5)
-        sa, sb = map(float, strip)
+            strip_m = (mid - 2.5, mid + 2.5)
+        try:
+            sa, sb = (float(v) for v in strip_m)
+        except (TypeError, ValueError):
+            raise StudyError(f"Expected `strip_m` as (start, end) chainages in m, got "
+                             f"{strip_m!r}.") from None
         if not (c0 <= sa - lead_m and sb + lead_m <= c1 and sb > sa):
             raise StudyError(f"Expected the strip [{sa}, {sb}] m with {lead_m} m lead on "
                              f"both sides inside the tunnel [{c0}, {c1}] m, got it outside; "
                              "shorten the strip or the lead.")
-        self.strip, self.lead = (sa, sb), float(lead_m)
-        self.cells = lining_cells(scene, alignment, self.hc, s_range=(sa, sb), cell_m=cell_m,
-                                  cell_rad=cell_rad, keep_floor=True)
+        self.strip_m, self.lead_m = (sa, sb), float(lead_m)
+        self.cells = lining_cells(scene, alignment, self.hc, chainage_range_m=(sa, sb),
+                                  cell_m=cell_m, cell_rad=cell_rad, keep_floor=True)
         self.cell_m, self.n_a = cell_m, self.cells.shape[1]
+        # Cell index of each (ring, column) of the grid, -1 where there is no cell.
+        self._lookup = np.full(self.cells.shape, -1, dtype=np.int64)
+        self._lookup[self.cells.ring, self.cells.col] = np.arange(len(self.cells.area))
         self.height_m = height_m
         self.settings, self.seed, self.refl = settings, seed, reflectivity
         self.keep_points = int(keep_points)
@@ -102,11 +168,82 @@ class Study:
         self._ball_c = alignment.to_world(0.5 * (sa + sb), 0.0, self.hc)
         self._ball_r = float(np.linalg.norm(self.cells.points - self._ball_c, axis=1).max()
                              + 2 * cell_m)
-        self.kept = {}
+        #: Floor footprints per (speed, rate, mount): (k, 4) chainage, offset, height,
+        #: time since the strip centre.
+        self.kept: dict[tuple[float, float, str], Floats] = {}
 
-    def run(self, speed_mps, rate_hz, mount="level") -> StudyRow:
-        from sensors import Mount, Trajectory, simulate_drive
+    def __repr__(self) -> str:
+        return (f"Study({self.sensor.name}, strip {self.strip_m[0]:g}-{self.strip_m[1]:g} "
+                f"m, lead {self.lead_m:g} m, {len(self.cells.area):,} cells)")
+
+    def _trajectory(self, speed_mps: float, rate_hz: float
+                    ) -> tuple[Trajectory, float, float]:
+        """(trajectory, t0, t1): along the path at constant speed, or standing at the
+        strip's centre for one sweep at v = 0."""
         from scipy.spatial.transform import Rotation
+
+        from sensors import Trajectory
+
+        if speed_mps > 0:
+            traj = Trajectory.along_polyline(self.path, speed_mps)
+            return traj, traj.start_s, traj.end_s
+        mid = len(self.path) // 2
+        d = self.path[mid + 1] - self.path[mid - 1]
+        rot = Rotation.from_euler("z", np.arctan2(d[1], d[0]))
+        return Trajectory.static(self.path[mid], rot), 0.0, 1.0 / rate_hz + 1e-6
+
+    def _tally_chunk(self, tally: _Tally, pts: NDArray[Any], traj: Trajectory,
+                     mnt: Mount, t0: float, t1: float, speed_mps: float,
+                     rate_hz: float) -> None:
+        """Add one simulated chunk: cell counts, rolling-shutter distortion, forward
+        floor footprints and (with ``keep_points``) the figure's floor points."""
+        c = self.cells
+        sa, sb = self.strip_m
+        xyz = np.stack([pts["x"], pts["y"], pts["z"]], 1)
+        near = np.einsum("ni,ni->n", xyz - self._ball_c, xyz - self._ball_c) <= \
+            self._ball_r ** 2
+        pts, xyz = pts[near], xyz[near]
+        s, off, h = self.al.to_local(xyz)
+        ins = (s >= sa) & (s < sb)
+        if not ins.any():
+            return
+        p = pts[ins]
+        s, off, h = s[ins], off[ins], h[ins]
+        phi = np.arctan2(off, h - self.hc)
+        ring = np.clip(((s - sa) / self.cell_m).astype(np.int64), 0, c.shape[0] - 1)
+        col = np.clip(((phi + np.pi) / (2 * np.pi) * self.n_a).astype(np.int64), 0,
+                      self.n_a - 1)
+        np.add.at(tally.counts, (ring, col), 1)
+        # Rolling shutter: the sweep assembled with the pose at its start.
+        fr = p["frame"].astype(np.int64)
+        tf = t0 + fr / rate_hz
+        pos, mats = traj.sensor_matrices(np.minimum(tf, t1), mnt)
+        sxyz = np.stack([p["sx"], p["sy"], p["sz"]], 1)
+        ref = np.einsum("nij,nj->ni", mats, sxyz) + pos
+        dd = np.linalg.norm(ref - np.stack([p["x"], p["y"], p["z"]], 1), axis=1)
+        tally.dmax = max(tally.dmax, float(dd.max()))
+        tally.dsq += float((dd * dd).sum())
+        tally.nd += len(dd)
+        # Forward floor beams for the line spacing.
+        cell = self._lookup[ring, col]
+        floor = (cell >= 0) & c.is_floor[np.maximum(cell, 0)]
+        f = floor & (np.abs(p["azimuth"]) < FORWARD_AZ_RAD)
+        for ch, frm, ss in zip(p["channel"][f], fr[f], s[f]):
+            a = tally.fwd.setdefault((int(ch), int(frm)), [0.0, 0])
+            a[0] += ss
+            a[1] += 1
+        if self.keep_points:
+            # Floor footprint of three sweeps from when the sensor passes the strip
+            # centre (the rings of the seed's Figure 7).
+            tc = t0 + (self.lead_m + 0.5 * (sb - sa)) / speed_mps if speed_mps > 0 else t0
+            k = floor & (p["time"] >= tc) & (p["time"] < tc + 3.0 / rate_hz) & \
+                (p["channel"] % 6 == 0)
+            tally.keep.append(np.stack([s, off, h, p["time"] - tc], 1)[k])
+
+    def run(self, speed_mps: float, rate_hz: float, mount: str = "level") -> StudyRow:
+        """Drive the sensor through the strip at ``speed_mps`` with its rotation or
+        profile rate set to ``rate_hz``, mounted "level" or "down"; the metrics."""
+        from sensors import Mount, simulate_drive
 
         if not (np.isfinite(speed_mps) and speed_mps >= 0):
             raise StudyError(f"Expected a speed >= 0 m/s, got {speed_mps}.")
@@ -116,100 +253,40 @@ class Study:
             raise StudyError(f"Expected a mount in {MOUNTS}, got {mount!r}.")
         spec = _with_rate(self.sensor, rate_hz)
         mnt = Mount.pointing_down() if mount == "down" else Mount()
-        if speed_mps > 0:
-            traj = Trajectory.along_polyline(self.path, speed_mps)
-            t0, t1 = traj.start_s, traj.end_s
-        else:
-            mid = len(self.path) // 2
-            d = self.path[mid + 1] - self.path[mid - 1]
-            rot = Rotation.from_euler("z", np.arctan2(d[1], d[0]))
-            traj = Trajectory.static(self.path[mid], rot)
-            t0, t1 = 0.0, 1.0 / rate_hz + 1e-6
+        traj, t0, t1 = self._trajectory(speed_mps, rate_hz)
         run = simulate_drive(self.scene, spec, traj, mnt, settings=self.settings,
                              seed=self.seed, reflectivity=self.refl, t_start=t0, t_end=t1)
         c = self.cells
-        counts = np.zeros(c.shape, dtype=np.int64)
-        lookup = np.full(c.shape, -1, dtype=np.int64)
-        lookup[c.ring, c.col] = np.arange(len(c.area))
-        fwd = {}
-        dmax, dsq, nd = 0.0, 0.0, 0
-        keep = []
-        sa, sb = self.strip
+        tally = _Tally(np.zeros(c.shape, dtype=np.int64))
         for pts in run:
-            if len(pts) == 0:
-                continue
-            xyz = np.stack([pts["x"], pts["y"], pts["z"]], 1)
-            near = np.einsum("ni,ni->n", xyz - self._ball_c, xyz - self._ball_c) <= \
-                self._ball_r ** 2
-            pts, xyz = pts[near], xyz[near]
-            s, off, h = self.al.to_local(xyz)
-            ins = (s >= sa) & (s < sb)
-            if not ins.any():
-                continue
-            p = pts[ins]
-            s, off, h = s[ins], off[ins], h[ins]
-            phi = np.arctan2(off, h - self.hc)
-            ring = np.clip(((s - sa) / self.cell_m).astype(np.int64), 0, c.shape[0] - 1)
-            col = np.clip(((phi + np.pi) / (2 * np.pi) * self.n_a).astype(np.int64), 0,
-                          self.n_a - 1)
-            np.add.at(counts, (ring, col), 1)
-            # Rolling shutter: the sweep assembled with the pose at its start.
-            fr = p["frame"].astype(np.int64)
-            tf = t0 + fr / rate_hz
-            pos, mats = traj.sensor_matrices(np.minimum(tf, t1), mnt)
-            sxyz = np.stack([p["sx"], p["sy"], p["sz"]], 1)
-            ref = np.einsum("nij,nj->ni", mats, sxyz) + pos
-            dd = np.linalg.norm(ref - np.stack([p["x"], p["y"], p["z"]], 1), axis=1)
-            dmax = max(dmax, float(dd.max()))
-            dsq += float((dd * dd).sum())
-            nd += len(dd)
-            # Forward floor beams for the line spacing.
-            cell = lookup[ring, col]
-            floor = (cell >= 0) & c.is_floor[np.maximum(cell, 0)]
-            f = floor & (np.abs(p["azimuth"]) < FORWARD_AZ_RAD)
-            for ch, frm, ss in zip(p["channel"][f], fr[f], s[f]):
-                a = fwd.setdefault((int(ch), int(frm)), [0.0, 0])
-                a[0] += ss
-                a[1] += 1
-            if self.keep_points:
-                # Floor footprint of three sweeps from when the sensor passes the strip
-                # centre (the rings of the seed's Figure 7).
-                tc = t0 + (self.lead + 0.5 * (sb - sa)) / speed_mps if speed_mps > 0 else t0
-                k = floor & (p["time"] >= tc) & (p["time"] < tc + 3.0 / rate_hz) & \
-                    (p["channel"] % 6 == 0)
-                keep.append(np.stack([s, off, h, p["time"] - tc], 1)[k])
+            if len(pts):
+                self._tally_chunk(tally, pts, traj, mnt, t0, t1, speed_mps, rate_hz)
         if self.keep_points:
-            kp = np.concatenate(keep) if keep else np.zeros((0, 4))
+            kp = np.concatenate(tally.keep) if tally.keep else np.zeros((0, 4))
             if len(kp) > self.keep_points:
                 kp = kp[np.random.default_rng(0).choice(len(kp), self.keep_points,
                                                         replace=False)]
             self.kept[(float(speed_mps), float(rate_hz), mount)] = kp
-        got = counts[c.ring, c.col]
+        got = tally.counts[c.ring, c.col]
         lin, flo = ~c.is_floor, c.is_floor
         dens_l = got[lin].sum() / max(c.area[lin].sum(), 1e-12)
         dens_f = got[flo].sum() / max(c.area[flo].sum(), 1e-12)
         empty = float(c.area[lin & (got == 0)].sum() / max(c.area[lin].sum(), 1e-12))
-        # Line spacing: per channel, mean footprint chainage per sweep, consecutive diffs.
-        by_ch = {}
-        for (ch, frm), (tot, n) in fwd.items():
-            by_ch.setdefault(ch, []).append((frm, tot / n))
-        diffs = []
-        for v in by_ch.values():
-            v.sort()
-            fr_, ss_ = np.array(v).T
-            ok = np.diff(fr_) == 1
-            diffs.extend(np.abs(np.diff(ss_))[ok].tolist())
-        spacing = float(np.median(diffs)) if diffs else float("nan")
         st = run.stats
         return StudyRow(float(speed_mps), float(rate_hz), mount, int(got.sum()),
-                        float(dens_l), float(dens_f), empty, spacing,
-                        float(speed_mps / rate_hz), dmax,
-                        float(np.sqrt(dsq / nd)) if nd else 0.0,
+                        float(dens_l), float(dens_f), empty, _line_spacing(tally.fwd),
+                        float(speed_mps / rate_hz), tally.dmax,
+                        float(np.sqrt(tally.dsq / tally.nd)) if tally.nd else 0.0,
                         float(speed_mps / rate_hz), int(st.get("pulses", 0)),
                         float(st.get("seconds", 0.0)))
 
-    def grid(self, speeds, rates, mounts=("level",), progress=None) -> list:
+    def grid(self, speeds: Iterable[float], rates: Iterable[float],
+             mounts: Iterable[str] = ("level",),
+             progress: Callable[[int, int], object] | None = None) -> list[StudyRow]:
+        """``run`` for every (speed, rate, mount), speeds varying fastest;
+        ``progress(done, total)`` after each."""
         rows = []
+        speeds, rates, mounts = list(speeds), list(rates), list(mounts)
         combos = [(v, f, m) for m in mounts for f in rates for v in speeds]
         for i, (v, f, m) in enumerate(combos):
             rows.append(self.run(v, f, m))

@@ -1,30 +1,49 @@
-"""The tunnel axis of a cloud or mesh, and the unrolling about it."""
+"""The tunnel axis of a cloud or mesh, and the unrolling about it.
+
+Points may be (n, 3), a single (3,) point or a structured array with fields x, y, z.
+Angles are radians: ``phi`` from the crown, positive to the left.
+"""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from survey._checks import as_points
 from survey.errors import AlignmentError, ReconstructionError
 from survey.world.alignment import Alignment
 from survey.world.mesh import read_axis, sidecar
+
+if TYPE_CHECKING:
+    from raytrace import Scene
+
+__all__ = ["AXIS_SAMPLE", "cell_runs", "estimate_axis", "fill_gaps", "tunnel_frame",
+           "unroll"]
+
+Floats = NDArray[np.float64]
 
 #: Points used to estimate the axis (a seeded random subset of larger clouds).
 AXIS_SAMPLE = 200_000
 
 
-def _centres(q):
+def _centres(q: Floats) -> tuple[Floats, Floats]:
     """Robust mid-range centre of 2-D points (k, 2)."""
     a = np.percentile(q, [2, 98], axis=0)
     return (a[0] + a[1]) / 2, a[1] - a[0]
 
 
-def estimate_axis(points, *, slice_m: float = 2.0, knot_spacing_m: float = 15.0,
-                  min_points: int = 50):
-    """(Alignment, centre height h_c): a centreline at the profile's mid-height and the
-    height of the profile centre above it (0 here: the axis runs through the centre)."""
-    p = np.asarray(points, dtype=np.float64)
-    if p.ndim != 2 or p.shape[1] != 3 or len(p) < 3 * min_points:
+def estimate_axis(points: ArrayLike, *, slice_m: float = 2.0, knot_spacing_m: float = 15.0,
+                  min_points: int = 50) -> tuple[Alignment, float]:
+    """(Alignment, centre height h_c in m) of a tunnel cloud (n, 3): a centreline at the
+    profile's mid-height and the height of the profile centre above it (0 here: the
+    axis runs through the centre). Slices ``slice_m`` long, knots every
+    ``knot_spacing_m``; slices with fewer than ``min_points`` points are skipped."""
+    p, _ = as_points(points, "points", ReconstructionError)
+    if len(p) < 3 * min_points:
         raise ReconstructionError(f"Expected a cloud of at least {3 * min_points} points "
                                   f"(n, 3), got shape {p.shape}.")
     if len(p) > AXIS_SAMPLE:   # the axis needs shape, not every point
@@ -89,18 +108,23 @@ def estimate_axis(points, *, slice_m: float = 2.0, knot_spacing_m: float = 15.0,
     return al2, 0.0
 
 
-def unroll(points, alignment=None, centre_height_m=None):
-    """(alignment, h_c, s, offset, height, phi, rho) of points about the profile centre:
-    the alignment estimated when not given (its axis runs through the centre, h_c = 0),
-    phi from the crown positive to the left, rho the distance from the centre."""
+def unroll(points: ArrayLike, alignment: Alignment | None = None,
+           centre_height_m: float | None = None
+           ) -> tuple[Alignment, float, Floats, Floats, Floats, Floats, Floats]:
+    """(alignment, h_c, s, offset, height, phi, rho) of points (n, 3) about the profile
+    centre: the alignment estimated when not given (its axis runs through the centre,
+    h_c = 0), chainage s, offset and height (m, each (n,)), phi (n,) from the crown
+    positive to the left (radians), rho (n,) the distance from the centre (m)."""
+    p, _ = as_points(points, "points", ReconstructionError)
     if alignment is None:
-        alignment, _ = estimate_axis(points)
+        alignment, _ = estimate_axis(p)
     hc = 0.0 if centre_height_m is None else float(centre_height_m)
-    s, off, h = alignment.to_local(points)
+    s, off, h = alignment.to_local(p)
     return alignment, hc, s, off, h, np.arctan2(off, h - hc), np.hypot(off, h - hc)
 
 
-def cell_runs(cell, values):
+def cell_runs(cell: NDArray[Any], values: Floats
+              ) -> tuple[NDArray[Any], Floats, NDArray[np.intp], NDArray[np.intp]]:
     """Values grouped by cell: (cell ids (k,), values sorted within each cell (n,),
     start of each cell's run (k,), run lengths (k,))."""
     order = np.lexsort((values, cell))
@@ -109,7 +133,7 @@ def cell_runs(cell, values):
     return cs[starts], vs, starts, np.diff(np.append(starts, len(cs)))
 
 
-def fill_gaps(grid, axis_coords):
+def fill_gaps(grid: Floats, axis_coords: Floats) -> Floats:
     """NaN cells of a (rings, around) grid filled in place: periodic linear
     interpolation around each ring, then linear along the axis at ``axis_coords``."""
     n_a = grid.shape[1]
@@ -125,10 +149,11 @@ def fill_gaps(grid, axis_coords):
     return grid
 
 
-
-def tunnel_frame(mesh_path, scene=None):
-    """(Scene, reflectivity, Alignment, profile-centre height) of a mesh: the axis from
-    the generated tunnel's JSON beside it, else estimated from the mesh vertices."""
+def tunnel_frame(mesh_path: str | Path, scene: Scene | None = None
+                 ) -> tuple[Scene, Any, Alignment, float]:
+    """(Scene, reflectivity, Alignment, profile-centre height in m) of a mesh: the axis
+    from the generated tunnel's JSON beside it, else estimated from the mesh vertices.
+    With ``scene`` given, the mesh is not loaded again and reflectivity is None."""
     from sensors.meshes import load_mesh
 
     sc, refl = load_mesh(mesh_path) if scene is None else (scene, None)
@@ -136,12 +161,12 @@ def tunnel_frame(mesh_path, scene=None):
     if js.is_file():
         meta = json.loads(js.read_text())
         if "alignment" in meta and "profile" in meta:
-            return (sc, refl, *read_axis(js))
+            al, hc = read_axis(js)
+            return sc, refl, al, hc
     import trimesh
 
-    from survey.clouds.axis import estimate_axis
-
-    v = np.asarray(trimesh.load(str(mesh_path), force="mesh", process=False).vertices)
+    mesh: Any = trimesh.load(str(mesh_path), force="mesh", process=False)
+    v = np.asarray(mesh.vertices)
     al, hc = estimate_axis(v)
     return sc, refl, al, hc
 

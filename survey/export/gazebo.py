@@ -30,13 +30,25 @@ import os
 import shutil
 import tempfile
 import warnings
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 from xml.sax.saxutils import escape
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from raytrace.fileio import atomic_writer
 from survey.errors import GazeboExportError
+
+if TYPE_CHECKING:
+    from sensors.spec import SensorSpec
+    from survey.world.alignment import Alignment
+
+__all__ = ["BASE", "COLLISION_MAX_TRIANGLES", "MAX_METRIC_EXTENT_M", "RANGE_RESOLUTION_M",
+           "decimate", "export_gazebo", "lidar_sdf", "unit_warnings", "write_obj"]
+
+Floats = NDArray[np.float64]
 
 #: The visual mesh is decimated for collisions above this many triangles.
 COLLISION_MAX_TRIANGLES = 200_000
@@ -51,7 +63,7 @@ BASE = {"length": 0.322, "width": 0.220, "height": 0.10, "clearance": 0.05,
 
 
 # ------------------------------------------------------------------------------- checks
-def unit_warnings(vertices) -> list:
+def unit_warnings(vertices: ArrayLike) -> list[str]:
     """Plain-language warnings about units and axes of a tunnel mesh (n, 3)."""
     v = np.asarray(vertices, dtype=np.float64)
     ext = v.max(axis=0) - v.min(axis=0)
@@ -74,7 +86,8 @@ def unit_warnings(vertices) -> list:
     return out
 
 
-def decimate(vertices, faces, cell_m):
+def decimate(vertices: ArrayLike, faces: ArrayLike, cell_m: float
+             ) -> tuple[Floats, NDArray[np.int64]]:
     """Vertex clustering (see module doc): (vertices (k, 3), faces (j, 3))."""
     v = np.asarray(vertices, dtype=np.float64)
     key = np.floor((v - v.min(axis=0)) / cell_m).astype(np.int64)
@@ -89,7 +102,8 @@ def decimate(vertices, faces, cell_m):
     return nv, f[np.sort(first)]
 
 
-def _decimate_to(vertices, faces, max_tris):
+def _decimate_to(vertices: Floats, faces: NDArray[np.int64], max_tris: int
+                 ) -> tuple[Floats, NDArray[np.int64]]:
     if len(faces) <= max_tris:
         return vertices, faces
     ext = np.ptp(vertices, axis=0)
@@ -103,9 +117,11 @@ def _decimate_to(vertices, faces, max_tris):
 
 
 # ------------------------------------------------------------------------------ sensor
-def lidar_sdf(spec, *, name="lidar", topic="lidar", pose="0 0 0 0 0 0", indent=10):
+def lidar_sdf(spec: SensorSpec, *, name: str = "lidar", topic: str = "lidar",
+              pose: str = "0 0 0 0 0 0", indent: int = 10) -> tuple[str, list[str]]:
     """(XML of a ``<sensor type="gpu_lidar">``, list of what SDF cannot express)."""
-    p, ph = spec.pattern, spec.physics
+    p: Any = spec.pattern          # SpinningPattern or ProfilerPattern (by kind)
+    ph = spec.physics
     limits = ["per-pulse timing (each Gazebo sweep is rendered at one instant: no "
               "rolling shutter)", "dual/multiple returns and beam divergence (one return "
               "per ray)", "intensity physics (reflectivity, incidence, range falloff) and "
@@ -178,13 +194,13 @@ def lidar_sdf(spec, *, name="lidar", topic="lidar", pose="0 0 0 0 0 0", indent=1
 
 
 # ------------------------------------------------------------------------------- world
-def _inertia_box(m, x, y, z):
+def _inertia_box(m: float, x: float, y: float, z: float) -> str:
     return (f"<inertial><mass>{m:g}</mass><inertia><ixx>{m * (y * y + z * z) / 12:.6g}</ixx>"
             f"<iyy>{m * (x * x + z * z) / 12:.6g}</iyy><izz>{m * (x * x + y * y) / 12:.6g}"
             "</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>")
 
 
-def _robot_sdf(pose, sensor_xml):
+def _robot_sdf(pose: str, sensor_xml: str) -> str:
     b = BASE
     zc = b["clearance"] + b["height"] / 2
     wr, ww = b["wheel_radius"], b["wheel_width"]
@@ -237,17 +253,7 @@ def _robot_sdf(pose, sensor_xml):
     </model>"""
 
 
-def export_gazebo(mesh_path, sensor, out_dir, *, force=False, mount="level",
-                  chainage_m=None, light_spacing_m=25.0) -> dict:
-    """Write the world folder (see module doc); returns a summary dict with
-    ``limitations`` and ``warnings``. An existing ``out_dir`` is refused unless
-    ``force`` (then replaced as a whole, atomically)."""
-    import trimesh
-
-    from survey.clouds.axis import tunnel_frame
-    from survey.analysis.planning import axis_stations
-
-    out = Path(out_dir)
+def _check_output(out: Path, force: bool, mount: str) -> None:
     if out.exists() and not force:
         raise GazeboExportError(f"Expected a new output folder, got '{out}' which exists; "
                                 "pass --force to replace it.")
@@ -255,46 +261,40 @@ def export_gazebo(mesh_path, sensor, out_dir, *, force=False, mount="level",
         raise GazeboExportError(f"Expected an existing parent folder for '{out}', got none.")
     if mount not in ("level", "down"):
         raise GazeboExportError(f"Expected mount 'level' or 'down', got {mount!r}.")
-    from sensors.meshes import load_mesh
 
-    scene, _ = load_mesh(mesh_path)
-    mesh = trimesh.load(str(mesh_path), force="mesh", process=False)
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    f = np.asarray(mesh.faces, dtype=np.int64)
-    warns = unit_warnings(v)
-    for w in warns:
-        warnings.warn(w, UserWarning, stacklevel=2)
-    _, _, al, hc = tunnel_frame(mesh_path, scene)
-    origin = np.floor(v.min(axis=0))
-    s0 = al.chainage_range[0] + 1.0 if chainage_m is None else float(chainage_m)
-    floor = axis_stations(scene, al, hc, [s0], height_m=0.0)[0] - origin
-    yaw = float(al.heading(np.array([s0]))[0])
-    if mount == "down":
-        pose = f"0.10 0 {BASE['clearance'] + BASE['height'] + 0.15:.3f} 3.14159265 0 0"
-    else:
-        pose = f"0.10 0 {BASE['clearance'] + BASE['height'] + 0.05:.3f} 0 0 0"
+
+def _sensor_pose(sensor: SensorSpec, mount: str) -> str:
+    """The lidar's SDF pose on the chassis: level, upside down, or (a profiler) turned
+    to scan the cross-section."""
+    top = BASE["clearance"] + BASE["height"]
     if sensor.kind == "profiler":
-        pose = f"0.10 0 {BASE['clearance'] + BASE['height'] + 0.05:.3f} 0 -1.5707963 0"
-    sensor_xml, limits = lidar_sdf(sensor, name=sensor.name, topic=f"{sensor.name}/points",
-                                   pose=pose)
-    cv, cf = _decimate_to(v - origin, f, COLLISION_MAX_TRIANGLES)
-    # Lights along the axis under the crown, every light_spacing_m.
+        return f"0.10 0 {top + 0.05:.3f} 0 -1.5707963 0"
+    if mount == "down":
+        return f"0.10 0 {top + 0.15:.3f} 3.14159265 0 0"
+    return f"0.10 0 {top + 0.05:.3f} 0 0 0"
+
+
+def _lights_sdf(al: Alignment, hc: float, origin: Floats, spacing_m: float) -> str:
+    """Point lights along the axis under the crown, every ``spacing_m``."""
     c0, c1 = al.chainage_range
-    ls = np.arange(c0 + light_spacing_m / 2, c1, light_spacing_m)
+    ls = np.arange(c0 + spacing_m / 2, c1, spacing_m)
     top = al.to_world(ls, 0.0, hc) - origin
-    lights = "\n".join(f"""    <light name="lamp_{i}" type="point">
+    return "\n".join(f"""    <light name="lamp_{i}" type="point">
       <pose>{p[0]:.3f} {p[1]:.3f} {p[2] + 1.0:.3f} 0 0 0</pose>
       <diffuse>1 0.95 0.85 1</diffuse><specular>0.2 0.2 0.2 1</specular>
-      <attenuation><range>{1.5 * light_spacing_m:g}</range><constant>0.3</constant>
+      <attenuation><range>{1.5 * spacing_m:g}</range><constant>0.3</constant>
         <linear>0.05</linear><quadratic>0.005</quadratic></attenuation>
       <cast_shadows>false</cast_shadows>
     </light>""" for i, p in enumerate(top))
-    lim_text = "\n".join(f"  - {x}" for x in limits)
-    org = " ".join(f"{x:.3f}" for x in origin)
-    world = f"""<?xml version="1.0"?>
-<!-- Generated by tunnelsim from {escape(Path(mesh_path).name)}. Coordinates are local:
+
+
+def _world_sdf(mesh_name: str, sensor_name: str, org: str, lim_text: str, lights: str,
+               robot: str) -> str:
+    """world.sdf: physics, systems, scene, lights, the tunnel model and the robot."""
+    return f"""<?xml version="1.0"?>
+<!-- Generated by tunnelsim from {escape(mesh_name)}. Coordinates are local:
      world = local + ({org}) m.
-     Sensor {escape(sensor.name)} translated to gpu_lidar. SDF cannot express:
+     Sensor {escape(sensor_name)} translated to gpu_lidar. SDF cannot express:
 {escape(lim_text)}
      Run: GZ_SIM_RESOURCE_PATH=$PWD/models gz sim world.sdf -->
 <sdf version="1.9">
@@ -322,11 +322,15 @@ def export_gazebo(mesh_path, sensor, out_dir, *, force=False, mount="level",
       <static>true</static>
       <pose>0 0 0 0 0 0</pose>
     </include>
-{_robot_sdf(f"{floor[0]:.3f} {floor[1]:.3f} {floor[2]:.3f} 0 0 {yaw:.6f}", sensor_xml)}
+{robot}
   </world>
 </sdf>
 """
-    model = f"""<?xml version="1.0"?>
+
+
+def _model_sdf(org: str) -> str:
+    """models/tunnel/model.sdf: the static tunnel, visual OBJ and collision STL."""
+    return f"""<?xml version="1.0"?>
 <sdf version="1.9" xmlns:tunnelsim="https://github.com/tunnelsim">
   <model name="tunnel">
     <static>true</static>
@@ -343,31 +347,37 @@ def export_gazebo(mesh_path, sensor, out_dir, *, force=False, mount="level",
   </model>
 </sdf>
 """
-    config = f"""<?xml version="1.0"?>
+
+
+def _model_config(mesh_name: str, n_faces: int, n_collision: int, org: str) -> str:
+    """models/tunnel/model.config: Gazebo's model metadata."""
+    return f"""<?xml version="1.0"?>
 <model>
   <name>tunnel</name>
   <version>1.0</version>
   <sdf version="1.9">model.sdf</sdf>
   <author><name>tunnelsim</name></author>
-  <description>Tunnel mesh from {escape(Path(mesh_path).name)}: {len(f):,} triangles
-    (collision {len(cf):,}). Local coordinates: world = local + ({org}) m.</description>
+  <description>Tunnel mesh from {escape(mesh_name)}: {n_faces:,} triangles
+    (collision {n_collision:,}). Local coordinates: world = local + ({org}) m.</description>
 </model>
 """
+
+
+def _readme(mesh_name: str, sensor_name: str, out_name: str, org: str,
+            lim_text: str) -> str:
+    return (f"Gazebo world for {mesh_name} with {sensor_name} on a LIMO-sized "
+            f"robot.\nRun:  cd {out_name} && GZ_SIM_RESOURCE_PATH=$PWD/models gz sim "
+            f"world.sdf\nLocal origin (world = local + origin): {org} m\nDrive: gz topic "
+            "-t /cmd_vel -m gz.msgs.Twist -p 'linear: {x: 0.5}'\nNot expressible in "
+            f"SDF:\n{lim_text}\n")
+
+
+def _replace_folder(out: Path, fill: Callable[[Path], None]) -> None:
+    """Build the folder in a temporary sibling with ``fill(tmp)``, then swap it in for
+    ``out`` (a crash leaves ``out`` as it was and no temporary behind)."""
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     try:
-        (tmp / "models" / "tunnel" / "meshes").mkdir(parents=True)
-        _write(tmp / "world.sdf", world)
-        _write(tmp / "models" / "tunnel" / "model.sdf", model)
-        _write(tmp / "models" / "tunnel" / "model.config", config)
-        mdir = tmp / "models" / "tunnel" / "meshes"
-        write_obj(mdir / "tunnel.obj", v - origin, f)
-        trimesh.Trimesh(cv, cf, process=False).export(mdir / "tunnel_collision.stl")
-        _write(tmp / "README.txt",
-               f"Gazebo world for {Path(mesh_path).name} with {sensor.name} on a LIMO-sized "
-               f"robot.\nRun:  cd {out.name} && GZ_SIM_RESOURCE_PATH=$PWD/models gz sim "
-               f"world.sdf\nLocal origin (world = local + origin): {org} m\nDrive: gz topic "
-               "-t /cmd_vel -m gz.msgs.Twist -p 'linear: {x: 0.5}'\nNot expressible in "
-               f"SDF:\n{lim_text}\n")
+        fill(tmp)
         if out.exists():
             old = out.with_name(f".{out.name}.old")
             shutil.rmtree(old, ignore_errors=True)
@@ -379,12 +389,79 @@ def export_gazebo(mesh_path, sensor, out_dir, *, force=False, mount="level",
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path, *,
+                  force: bool = False, mount: str = "level",
+                  chainage_m: float | None = None,
+                  light_spacing_m: float = 25.0) -> dict[str, Any]:
+    """Write the world folder (see module doc).
+
+    Parameters
+    ----------
+    mesh_path : the tunnel mesh (PLY, with its JSON sidecar when generated)
+    sensor : SensorSpec, a spinning lidar or a profiler
+    out_dir : the world folder; an existing one is refused unless ``force`` (then
+        replaced as a whole, atomically)
+    mount : "level" or "down"
+    chainage_m : where the robot starts (default: 1 m into the tunnel)
+    light_spacing_m : distance between the lamps along the axis (m)
+
+    Returns
+    -------
+    dict
+        path, triangles, collision_triangles, origin (m), limitations, warnings and
+        robot_pose (x, y, z in m, yaw in radians).
+    """
+    import trimesh
+
+    from sensors.meshes import load_mesh
+    from survey.analysis.planning import axis_stations
+    from survey.clouds.axis import tunnel_frame
+
+    out = Path(out_dir)
+    _check_output(out, force, mount)
+    scene, _ = load_mesh(mesh_path)
+    mesh: Any = trimesh.load(str(mesh_path), force="mesh", process=False)
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    f = np.asarray(mesh.faces, dtype=np.int64)
+    warns = unit_warnings(v)
+    for w in warns:
+        warnings.warn(w, UserWarning, stacklevel=2)
+    _, _, al, hc = tunnel_frame(mesh_path, scene)
+    origin = np.floor(v.min(axis=0))
+    s0 = al.chainage_range[0] + 1.0 if chainage_m is None else float(chainage_m)
+    floor = axis_stations(scene, al, hc, [s0], height_m=0.0)[0] - origin
+    yaw = float(al.heading(np.array([s0]))[0])
+    sensor_xml, limits = lidar_sdf(sensor, name=sensor.name, topic=f"{sensor.name}/points",
+                                   pose=_sensor_pose(sensor, mount))
+    cv, cf = _decimate_to(v - origin, f, COLLISION_MAX_TRIANGLES)
+    lim_text = "\n".join(f"  - {x}" for x in limits)
+    org = " ".join(f"{x:.3f}" for x in origin)
+    name = Path(mesh_path).name
+    robot = _robot_sdf(f"{floor[0]:.3f} {floor[1]:.3f} {floor[2]:.3f} 0 0 {yaw:.6f}",
+                       sensor_xml)
+
+    def fill(tmp: Path) -> None:
+        (tmp / "models" / "tunnel" / "meshes").mkdir(parents=True)
+        _write(tmp / "world.sdf", _world_sdf(name, sensor.name, org, lim_text,
+                                             _lights_sdf(al, hc, origin, light_spacing_m),
+                                             robot))
+        _write(tmp / "models" / "tunnel" / "model.sdf", _model_sdf(org))
+        _write(tmp / "models" / "tunnel" / "model.config",
+               _model_config(name, len(f), len(cf), org))
+        mdir = tmp / "models" / "tunnel" / "meshes"
+        write_obj(mdir / "tunnel.obj", v - origin, f)
+        trimesh.Trimesh(cv, cf, process=False).export(mdir / "tunnel_collision.stl")
+        _write(tmp / "README.txt", _readme(name, sensor.name, out.name, org, lim_text))
+
+    _replace_folder(out, fill)
     return {"path": str(out), "triangles": int(len(f)), "collision_triangles": int(len(cf)),
             "origin": origin.tolist(), "limitations": limits, "warnings": warns,
             "robot_pose": [float(floor[0]), float(floor[1]), float(floor[2]), yaw]}
 
 
-def write_obj(path, vertices, faces):
+def write_obj(path: str | Path, vertices: ArrayLike, faces: ArrayLike) -> str | Path:
     """Wavefront OBJ (vertices to 0.1 mm, 1-based faces), streamed; atomic. OBJ needs
     no extra package and Gazebo (Classic and Sim) loads it."""
     v = np.asarray(vertices, dtype=np.float64)
@@ -398,6 +475,6 @@ def write_obj(path, vertices, faces):
     return path
 
 
-def _write(path, text):
+def _write(path: Path, text: str) -> None:
     with atomic_writer(path, "w") as fh:
         fh.write(text)

@@ -3,10 +3,23 @@ software: parameters with standard deviations, sigma0, tests, residuals per poin
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 import numpy as np
+from numpy.typing import NDArray
+
+from survey.errors import DriftError
+
+if TYPE_CHECKING:  # annotations only: the report module stays light to import
+    from sensors.trajectory import Trajectory
+    from survey.adjust.drift import DriftCorrection
+    from survey.adjust.helmert import HelmertResult
+
+__all__ = ["drift_report", "helmert_report"]
 
 
-def helmert_report(res, *, title: str = "Helmert adjustment") -> str:
+def helmert_report(res: HelmertResult, *, title: str = "Helmert adjustment") -> str:
     """Markdown report of a ``HelmertResult``."""
     lines = [f"# {title}", "",
              f"Model: {res.model}-parameter, PROJ form x_target = t + (1 + s·1e-6)·R·x_source, "
@@ -50,12 +63,16 @@ def helmert_report(res, *, title: str = "Helmert adjustment") -> str:
     return "\n".join(lines) + "\n"
 
 
-def drift_report(corr, loo, *, traj=None, plot_path=None,
+def drift_report(corr: DriftCorrection, loo: NDArray[np.float64], *,
+                 traj: Trajectory | None = None, plot_path: Path | None = None,
                  title: str = "MLS drift correction") -> str:
     """Markdown report of a ``DriftCorrection``: fit residuals and leave-one-out
     check-point residuals per control point, and (with the MLS trajectory) the
     correction magnitude along the distance travelled, plotted to ``plot_path``."""
     fit = corr.residuals
+    if fit is None:
+        raise DriftError("Expected a fitted DriftCorrection (from fit_drift), got one "
+                         "without residuals.")
     rms_fit = float(np.sqrt(np.mean(np.sum(fit ** 2, axis=1))))
     rms_loo = float(np.sqrt(np.mean(np.sum(loo ** 2, axis=1))))
     lines = [f"# {title}", "",
@@ -87,12 +104,11 @@ def drift_report(corr, loo, *, traj=None, plot_path=None,
     return "\n".join(lines) + "\n"
 
 
-def _plot_correction(dist, mag, path):
+def _plot_correction(dist: NDArray[np.float64], mag: NDArray[np.float64],
+                     path: Path) -> None:
     from survey.report.plotting import pyplot, save_png
 
     plt = pyplot()
-
-
     fig, ax = plt.subplots(figsize=(7, 3))
     ax.plot(dist, mag * 1000)
     ax.set_xlabel("distance along the run (m)")

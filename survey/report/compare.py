@@ -2,10 +2,18 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from pathlib import Path
+
 import numpy as np
+from numpy.typing import ArrayLike
+
 from survey.analysis.compare import STAT_FIELDS
 
-def stats_csv(rows: dict) -> str:
+__all__ = ["plot_histogram", "stats_csv", "stats_markdown"]
+
+
+def stats_csv(rows: Mapping[str, Mapping[str, float]]) -> str:
     """rows {scan name: distance_stats} -> CSV text (metres)."""
     lines = ["scan," + ",".join(f if f == "n" else f + "_m" for f in STAT_FIELDS)]
     for name, s in rows.items():
@@ -14,7 +22,8 @@ def stats_csv(rows: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def stats_markdown(rows: dict, *, title="Distances") -> str:
+def stats_markdown(rows: Mapping[str, Mapping[str, float]], *,
+                   title: str = "Distances") -> str:
     """rows {scan name: distance_stats} -> Markdown table in millimetres."""
     out = [f"| {title} | points | mean (mm) | median (mm) | std (mm) | 95 % abs (mm) | "
            "RMS (mm) |", "|---|---:|---:|---:|---:|---:|---:|"]
@@ -24,20 +33,20 @@ def stats_markdown(rows: dict, *, title="Distances") -> str:
     return "\n".join(out) + "\n"
 
 
-def plot_histogram(named: dict, path, *, xlabel="distance (mm)", bins=80):
+def plot_histogram(named: Mapping[str, ArrayLike], path: str | Path, *,
+                   xlabel: str = "distance (mm)", bins: int = 80) -> str | Path:
     """Histogram PNG of {name: distances (m)} (overlaid, in mm); atomic."""
     from survey.report.plotting import pyplot, save_png
 
     plt = pyplot()
-
-
     fig, ax = plt.subplots(figsize=(7, 4), dpi=110)
     allv = np.concatenate([np.asarray(v, dtype=float) for v in named.values()]) * 1000
     lo, hi = (np.percentile(allv, [0.5, 99.5]) if allv.size else (0, 1))
     if hi <= lo:
         hi = lo + 1.0
-    for name, d in named.items():
-        ax.hist(np.asarray(d) * 1000, bins=bins, range=(lo, hi), histtype="step", lw=1.4,
+    for name, dd in named.items():
+        d = np.asarray(dd, dtype=float)
+        ax.hist(d * 1000, bins=bins, range=(lo, hi), histtype="step", lw=1.4,
                 label=f"{name} (mean {1000 * np.mean(d):.1f} mm)" if len(d) else name)
     ax.set_xlabel(xlabel)
     ax.set_ylabel("points")
@@ -46,4 +55,3 @@ def plot_histogram(named: dict, path, *, xlabel="distance (mm)", bins=80):
     fig.tight_layout()
     save_png(fig, path)
     return path
-

@@ -3,10 +3,17 @@ as PNG atomically (a crash never leaves a half-written image)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any, TypeVar
+
 from raytrace.fileio import atomic_writer
 
+__all__ = ["pyplot", "save_png"]
 
-def pyplot():
+P = TypeVar("P", bound="str | Path")
+
+
+def pyplot() -> Any:
     """matplotlib.pyplot on the Agg backend (no display needed)."""
     import matplotlib
 
@@ -16,7 +23,7 @@ def pyplot():
     return plt
 
 
-def save_png(fig, path, **kwargs):
+def save_png(fig: Any, path: P, **kwargs: Any) -> P:
     """Write ``fig`` to ``path`` as PNG (atomic) and close it; returns ``path``."""
     plt = pyplot()
     try:

@@ -2,19 +2,27 @@
 
 from __future__ import annotations
 
-import numpy as np
-from survey.clouds.reconstruct import ReconstructedTunnel
+from pathlib import Path
+from typing import TYPE_CHECKING
 
-def plot_support(rec: ReconstructedTunnel, path, *, title=None):
+import numpy as np
+
+if TYPE_CHECKING:
+    from survey.clouds.reconstruct import ReconstructedTunnel
+
+__all__ = ["plot_support"]
+
+
+def plot_support(rec: ReconstructedTunnel, path: str | Path, *,
+                 title: str | None = None) -> str | Path:
     """Unrolled support map of a reconstruction (chainage x angle from the crown):
     colour = points per cell (log), grey = cells filled by interpolation (support 0),
     as the seed's support-coloured mesh (Figure 2). Atomic PNG."""
+    from matplotlib.colors import LogNorm
+
     from survey.report.plotting import pyplot, save_png
 
     plt = pyplot()
-    from matplotlib.colors import LogNorm
-
-
     n_s, n_a = len(rec.chainages), len(rec.angles)
     sup = rec.support[:n_s * n_a].reshape(n_s, n_a).astype(float)
     fig, ax = plt.subplots(figsize=(11, 3.6), dpi=110, layout="constrained")
@@ -35,4 +43,3 @@ def plot_support(rec: ReconstructedTunnel, path, *, title=None):
     fig.colorbar(im, ax=ax, label="points per cell")
     save_png(fig, path)
     return path
-

@@ -3,8 +3,16 @@ and density-versus-speed curves."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 import numpy as np
 
+if TYPE_CHECKING:
+    from survey.analysis.study import Study, StudyRow
+
+__all__ = ["plot_study", "study_csv", "study_markdown"]
 
 _COLS = [("speed_mps", "speed (m/s)", "{:.2f}"), ("rate_hz", "rate (Hz)", "{:.0f}"),
          ("mount", "mount", "{}"), ("density_lining", "lining (pts/m^2)", "{:,.0f}"),
@@ -16,7 +24,8 @@ _COLS = [("speed_mps", "speed (m/s)", "{:.2f}"), ("rate_hz", "rate (Hz)", "{:.0f
          ("distortion_rms_m", "distortion RMS (m)", "{:.3f}")]
 
 
-def study_csv(rows) -> str:
+def study_csv(rows: Sequence[StudyRow]) -> str:
+    """CSV of the study rows (every field, SI units)."""
     keys = list(rows[0].to_dict()) if rows else []
     lines = [",".join(keys)]
     for r in rows:
@@ -26,7 +35,10 @@ def study_csv(rows) -> str:
     return "\n".join(lines) + "\n"
 
 
-def study_markdown(rows, sensor_name, strip, lead_m) -> str:
+def study_markdown(rows: Sequence[StudyRow], sensor_name: str,
+                   strip: tuple[float, float], lead_m: float) -> str:
+    """Markdown table of the study rows; ``strip`` (start, end) chainages and
+    ``lead_m`` in m."""
     out = [f"# MLS study: {sensor_name}", "",
            f"Evaluation strip: chainage {strip[0]:.1f}-{strip[1]:.1f} m; points counted "
            f"while the sensor is within {lead_m:.1f} m of it (one pass). Densities at "
@@ -40,14 +52,15 @@ def study_markdown(rows, sensor_name, strip, lead_m) -> str:
     return "\n".join(out) + "\n"
 
 
-def plot_study(study, rows, path, *, rings_mount=None, rings_rate=None):
+def plot_study(study: Study, rows: Sequence[StudyRow], path: str | Path, *,
+               rings_mount: str | None = None, rings_rate: float | None = None
+               ) -> str | Path:
     """Two panels: the floor footprint (chainage x lateral offset) of three sweeps at
     each speed, colour by speed (seed Figure 7), and lining/floor density against speed
     per rate, with the 1/v law through the slowest moving point. Atomic PNG."""
     from survey.report.plotting import pyplot, save_png
 
     plt = pyplot()
-
     kept = study.kept
     keys = [k for k in kept if (rings_mount is None or k[2] == rings_mount)
             and (rings_rate is None or k[1] == rings_rate)]

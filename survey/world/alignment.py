@@ -20,11 +20,19 @@ convention for tunnel profiles). Angles are radians, heading counter-clockwise f
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
+from survey._checks import as_points
 from survey.errors import AlignmentError
+
+__all__ = ["Alignment", "Element", "arc", "clothoid", "curve", "straight"]
+
+Floats = NDArray[np.float64]
 
 #: Gauss–Legendre nodes and weights on [0, 1] for the clothoid quadrature: 24 nodes for
 #: panels up to _PANEL_M, 8 for panels up to _SHORT_PANEL_M (fitted alignments are chains
@@ -43,7 +51,7 @@ _PANEL_M = 10.0
 
 @dataclass(frozen=True)
 class Element:
-    """One plan element: ``length_m`` and curvature from ``k_start`` to ``k_end``
+    """One plan element: ``length_m`` (m) and curvature from ``k_start`` to ``k_end``
     (1/m, positive turning left)."""
 
     length_m: float
@@ -52,6 +60,7 @@ class Element:
 
 
 def straight(length_m: float) -> Element:
+    """A straight of ``length_m`` (m)."""
     return Element(float(length_m), 0.0, 0.0)
 
 
@@ -70,7 +79,7 @@ def clothoid(length_m: float, radius_start_m: float, radius_end_m: float) -> Ele
     return Element(float(length_m), k0, k1)
 
 
-def curve(deflection_rad: float, radius_m: float, transition_m: float) -> list:
+def curve(deflection_rad: float, radius_m: float, transition_m: float) -> list[Element]:
     """A symmetric curve: clothoid in from a straight, circular arc, clothoid out.
 
     Each clothoid of length L turns by L / (2 R), so the arc's own deflection is
@@ -112,17 +121,22 @@ class Alignment:
     elements : sequence of Element
         Plan elements in order (``straight``, ``arc``, ``clothoid``).
     start_xy : (2,) float
-        Plan position at chainage ``start_chainage_m``.
+        Plan position (m) at chainage ``start_chainage_m``.
     heading_rad : float
-        Plan direction at the start, counter-clockwise from +x.
-    profile : sequence of (chainage_m, elevation_m)
-        Elevation points, chainage increasing; linear in between and constant beyond.
+        Plan direction at the start (radians), counter-clockwise from +x.
+    profile : (k, 2) sequence of (chainage_m, elevation_m)
+        Elevation points (the vertical profile, not the cross-section ``Profile``),
+        chainage increasing; linear in between and constant beyond.
     start_chainage_m : float
         Chainage of the first point (surveyors rarely start at 0).
+
+    ``repr`` is one line; ``to_local`` / ``to_world`` convert between world points
+    and (chainage, offset, height), all in metres.
     """
 
-    def __init__(self, elements, start_xy=(0.0, 0.0), heading_rad=0.0,
-                 profile=((0.0, 0.0),), start_chainage_m: float = 0.0):
+    def __init__(self, elements: Iterable[Element], start_xy: ArrayLike = (0.0, 0.0),
+                 heading_rad: float = 0.0, profile: ArrayLike = ((0.0, 0.0),),
+                 start_chainage_m: float = 0.0) -> None:
         elements = list(elements)
         if not elements:
             raise AlignmentError("Expected at least one plan element, got none.")
@@ -165,9 +179,17 @@ class Alignment:
                 self._len[i]
         self._xy_end = xy
 
+    def __repr__(self) -> str:
+        c0, c1 = self.chainage_range
+        x, y = self._xy0[0]
+        return (f"Alignment({self.length_m:.1f} m, chainage {c0:g}-{c1:g} m, "
+                f"{len(self.elements)} elements, start ({x:.3f}, {y:.3f}), heading "
+                f"{self._th0[0]:.4f} rad)")
+
     @classmethod
-    def fit(cls, points, *, knot_spacing_m: float = 15.0, segment_m: float = 2.0,
-            profile_step_m: float = 5.0, start_chainage_m: float = 0.0) -> "Alignment":
+    def fit(cls, points: ArrayLike, *, knot_spacing_m: float = 15.0,
+            segment_m: float = 2.0, profile_step_m: float = 5.0,
+            start_chainage_m: float = 0.0) -> Alignment:
         """Fit an alignment to centreline points (n, 3) ordered along the tunnel.
 
         Each coordinate is fitted against chord length by a least-squares cubic
@@ -185,8 +207,8 @@ class Alignment:
         """
         from scipy.interpolate import make_lsq_spline
 
-        p = np.asarray(points, dtype=np.float64)
-        if p.ndim != 2 or p.shape[1] != 3 or len(p) < 5 or not np.isfinite(p).all():
+        p, _ = as_points(points, "points", AlignmentError, finite=False)
+        if len(p) < 5 or not np.isfinite(p).all():
             raise AlignmentError(f"Expected at least 5 finite centreline points of shape "
                                  f"(n, 3), got {p.shape}.")
         origin = p[0].copy()  # fit in a local frame: UTM numbers would cost precision
@@ -246,7 +268,7 @@ class Alignment:
                    start_chainage_m=start_chainage_m)
 
     # ------------------------------------------------------------------ serialisation
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """Plain data (JSON-ready) that ``from_dict`` turns back into this alignment."""
         return {"elements": [[e.length_m, e.k_start, e.k_end] for e in self.elements],
                 "start_xy": [float(v) for v in self._xy0[0]],
@@ -255,7 +277,8 @@ class Alignment:
                 "start_chainage_m": self.start_chainage_m}
 
     @classmethod
-    def from_dict(cls, d) -> "Alignment":
+    def from_dict(cls, d: Mapping[str, Any]) -> Alignment:
+        """The alignment of a ``to_dict`` dictionary."""
         try:
             return cls([Element(*map(float, e)) for e in d["elements"]],
                        start_xy=d["start_xy"], heading_rad=d["heading_rad"],
@@ -266,7 +289,7 @@ class Alignment:
                                  f"keys {sorted(d) if isinstance(d, dict) else type(d)}."
                                  ) from exc
 
-    def min_radius(self):
+    def min_radius(self) -> tuple[float, float]:
         """(smallest left-turning radius, smallest right-turning radius) in metres;
         inf where the alignment never turns that way. Curvature is linear within each
         element, so its extremes are at element ends."""
@@ -274,7 +297,7 @@ class Alignment:
         kl, kr = k.max(initial=0.0), -k.min(initial=0.0)
         return (1.0 / kl if kl > 0 else np.inf), (1.0 / kr if kr > 0 else np.inf)
 
-    def chainage_of_curvature(self, k):
+    def chainage_of_curvature(self, k: float) -> float:
         """Chainage of the first element end where the curvature equals the extreme
         value k (used to name the place in error messages)."""
         ends = np.concatenate([self._s0[:-1], self._s0[1:]])
@@ -289,9 +312,10 @@ class Alignment:
 
     @property
     def chainage_range(self) -> tuple[float, float]:
+        """(first, last) chainage (m)."""
         return float(self._s0[0]), float(self._s0[-1])
 
-    def _locate(self, s):
+    def _locate(self, s: ArrayLike) -> tuple[NDArray[np.intp], Floats]:
         s = np.asarray(s, dtype=np.float64)
         lo, hi = self._s0[0], self._s0[-1]
         tol = 1e-9 * max(1.0, abs(hi))
@@ -302,14 +326,14 @@ class Alignment:
         i = np.clip(np.searchsorted(self._s0, s, side="right") - 1, 0, len(self._len) - 1)
         return i, np.clip(s - self._s0[i], 0.0, self._len[i])
 
-    def _heading_in(self, i, u):
+    def _heading_in(self, i: Any, u: Any) -> Any:
         c = (self._k1[i] - self._k0[i]) / self._len[i]
         return self._th0[i] + self._k0[i] * u + 0.5 * c * u * u
 
-    def _curvature_in(self, i, u):
+    def _curvature_in(self, i: Any, u: Any) -> Any:
         return self._k0[i] + (self._k1[i] - self._k0[i]) * u / self._len[i]
 
-    def _plan_in(self, i, u):
+    def _plan_in(self, i: ArrayLike, u: ArrayLike) -> Floats:
         """Plan position at local chainage u of element i (vectorised)."""
         i = np.asarray(i)
         u = np.asarray(u, dtype=np.float64)
@@ -342,28 +366,29 @@ class Alignment:
             out[other] = acc
         return self._xy0[i] + out
 
-    def plan(self, s):
-        """Plan position (..., 2), heading (...) and curvature (...) at chainages s."""
+    def plan(self, s: ArrayLike) -> tuple[Floats, Floats, Floats]:
+        """Plan position (..., 2) in m, heading (...) in radians and curvature (...) in
+        1/m at chainages s (m)."""
         i, u = self._locate(s)
         xy = self._plan_in(i, u)
         return xy, self._heading_in(i, u), self._curvature_in(i, u)
 
-    def heading(self, s):
+    def heading(self, s: ArrayLike) -> Floats:
         """Plan heading (radians, counter-clockwise from +x) at chainages s."""
         i, u = self._locate(s)
         return self._heading_in(i, u)
 
-    def elevation(self, s):
-        """Centreline elevation at chainages s (linear between profile points)."""
+    def elevation(self, s: ArrayLike) -> Floats:
+        """Centreline elevation (m) at chainages s (linear between profile points)."""
         return np.interp(np.asarray(s, dtype=np.float64), self._profile[:, 0],
                          self._profile[:, 1])
 
-    def point(self, s):
+    def point(self, s: ArrayLike) -> Floats:
         """Centreline points (..., 3) at chainages s."""
         xy, _, _ = self.plan(s)
         return np.concatenate([xy, self.elevation(s)[..., None]], axis=-1)
 
-    def frame(self, s):
+    def frame(self, s: ArrayLike) -> tuple[Floats, Floats, Floats]:
         """Moving frame at chainages s: (tangent, normal, up), each (..., 3) unit.
 
         tangent: plan direction (horizontal); normal: horizontal, to the left; up: +z.
@@ -378,7 +403,7 @@ class Alignment:
         up = np.stack([z, z, np.ones_like(c)], axis=-1)
         return t, n, up
 
-    def grade(self, s):
+    def grade(self, s: ArrayLike) -> Floats:
         """Slope dz/ds of the elevation profile at chainages s (right-hand value at a
         profile point)."""
         s = np.asarray(s, dtype=np.float64)
@@ -391,8 +416,9 @@ class Alignment:
         return np.where(inside, g[j], 0.0)
 
     # ------------------------------------------------------------------ local frame
-    def to_world(self, chainage, offset, height):
-        """World points (..., 3) from chainage, left offset and height (broadcast)."""
+    def to_world(self, chainage: ArrayLike, offset: ArrayLike, height: ArrayLike
+                 ) -> Floats:
+        """World points (..., 3) from chainage, left offset and height (m, broadcast)."""
         s, off, h = np.broadcast_arrays(np.asarray(chainage, dtype=np.float64),
                                         np.asarray(offset, dtype=np.float64),
                                         np.asarray(height, dtype=np.float64))
@@ -401,8 +427,10 @@ class Alignment:
         y = xy[..., 1] + off * np.cos(th)
         return np.stack([x, y, self.elevation(s) + h], axis=-1)
 
-    def to_local(self, points, *, max_iter: int = 30):
-        """(chainage, offset, height) of world points (n, 3).
+    def to_local(self, points: ArrayLike, *, max_iter: int = 30
+                 ) -> tuple[Floats, Floats, Floats]:
+        """(chainage, offset, height), each (n,) in m, of world points (n, 3); a single
+        (3,) point gives (1,) arrays. Structured arrays with x, y, z are accepted.
 
         The foot point is found by a coarse search on the centreline sampled every
         metre, then Newton's method on (p - c(s)) . t(s) = 0, with
@@ -411,10 +439,7 @@ class Alignment:
         """
         from scipy.spatial import cKDTree
 
-        p = np.asarray(points, dtype=np.float64)
-        if p.ndim != 2 or p.shape[1] != 3 or not np.isfinite(p).all():
-            raise AlignmentError(f"Expected finite `points` of shape (n, 3), got "
-                                 f"{p.shape}.")
+        p, _ = as_points(points, "points", AlignmentError)
         lo, hi = self.chainage_range
         n_s = max(2, int(np.ceil((hi - lo) / 1.0)) + 1)
         s_grid = np.linspace(lo, hi, n_s)

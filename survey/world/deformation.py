@@ -19,14 +19,25 @@ plates, prisms) move rigidly with the lining point they are attached to. Fields 
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from survey.errors import DeformationError
 
+if TYPE_CHECKING:
+    from survey.world.profiles import Profile
 
-def _taper(s, start, end, taper):
+__all__ = ["KINDS", "Bulge", "Convergence", "Deformation", "Ovalisation", "from_dict",
+           "to_dict", "total_field"]
+
+Floats = NDArray[np.float64]
+
+
+def _taper(s: ArrayLike, start: float, end: float, taper: float) -> Floats:
     """Window: 0 outside [start, end], half-cosine ramps of length ``taper`` inside."""
     s = np.asarray(s, dtype=np.float64)
     w = ((s >= start) & (s <= end)).astype(np.float64)
@@ -38,7 +49,7 @@ def _taper(s, start, end, taper):
     return w
 
 
-def _check_window(start_m, end_m, taper_m):
+def _check_window(start_m: float, end_m: float, taper_m: float) -> None:
     if not (np.isfinite(start_m) and np.isfinite(end_m) and end_m > start_m):
         raise DeformationError(f"Expected a chainage window with end_m > start_m, got "
                                f"[{start_m}, {end_m}].")
@@ -56,10 +67,11 @@ class Convergence:
     displacement_m: float
     taper_m: float = 5.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _check_window(self.start_m, self.end_m, self.taper_m)
 
-    def field(self, s, t, profile):
+    def field(self, s: ArrayLike, t: ArrayLike, profile: Profile) -> Floats:
+        """The field (m, positive inward) at chainages s and profile parameters t."""
         return self.displacement_m * _taper(s, self.start_m, self.end_m, self.taper_m) * \
             np.ones_like(np.asarray(t, dtype=np.float64))
 
@@ -74,10 +86,11 @@ class Ovalisation:
     axis_rad: float = 0.0
     taper_m: float = 5.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _check_window(self.start_m, self.end_m, self.taper_m)
 
-    def field(self, s, t, profile):
+    def field(self, s: ArrayLike, t: ArrayLike, profile: Profile) -> Floats:
+        """The field (m, positive inward) at chainages s and profile parameters t."""
         p = profile.points(t) - profile.centroid
         phi = np.arctan2(p[..., 0], p[..., 1])  # from the crown, positive to the left
         return self.amplitude_m * np.cos(2.0 * (phi - self.axis_rad)) * \
@@ -94,12 +107,13 @@ class Bulge:
     radius_m: float
     amplitude_m: float
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not (np.isfinite(self.radius_m) and self.radius_m > 0):
             raise DeformationError(f"Expected a positive bulge `radius_m`, got "
                                    f"{self.radius_m}.")
 
-    def field(self, s, t, profile):
+    def field(self, s: ArrayLike, t: ArrayLike, profile: Profile) -> Floats:
+        """The field (m, positive inward) at chainages s and profile parameters t."""
         t0 = profile.t_at_angle(self.angle_rad)
         per = profile.perimeter_m
         dt = np.mod(np.asarray(t, dtype=np.float64) - t0 + per / 2, per) - per / 2
@@ -109,10 +123,15 @@ class Bulge:
                         0.0)
 
 
-KINDS = {"convergence": Convergence, "ovalisation": Ovalisation, "bulge": Bulge}
+#: Any deformation field.
+Deformation = Convergence | Ovalisation | Bulge
+
+KINDS: dict[str, type[Any]] = {"convergence": Convergence, "ovalisation": Ovalisation,
+                               "bulge": Bulge}
 
 
-def total_field(deformations, s, t, profile):
+def total_field(deformations: Iterable[Deformation], s: ArrayLike, t: ArrayLike,
+                profile: Profile) -> Floats:
     """Sum of the fields (metres, positive inward) at (s, t); NaN t gives 0."""
     s, t = np.broadcast_arrays(np.asarray(s, dtype=np.float64),
                                np.asarray(t, dtype=np.float64))
@@ -125,19 +144,22 @@ def total_field(deformations, s, t, profile):
     return out
 
 
-def to_dict(d) -> dict:
+def to_dict(d: Deformation) -> dict[str, Any]:
+    """Plain data (JSON-ready) with a ``kind`` key; ``from_dict`` reads it back."""
     name = {v: k for k, v in KINDS.items()}[type(d)]
     return {"kind": name, **asdict(d)}
 
 
-def from_dict(d) -> object:
+def from_dict(d: Mapping[str, Any]) -> Deformation:
+    """The deformation of a ``to_dict`` dictionary."""
     d = dict(d)
     kind = d.pop("kind", None)
     if kind not in KINDS:
         raise DeformationError(f"Expected a deformation kind in {sorted(KINDS)}, got "
                                f"{kind!r}.")
     try:
-        return KINDS[kind](**d)
+        deformation: Deformation = KINDS[kind](**d)
+        return deformation
     except TypeError as exc:
         raise DeformationError(f"Expected the fields of a {kind} deformation, got "
                                f"{sorted(d)} ({exc}).") from exc

@@ -13,26 +13,31 @@ All lengths in metres, angles in radians, chainages in the alignment's chainage.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
 from survey.errors import FeatureError
 
+__all__ = ["KINDS", "Bolts", "Cable", "Drainage", "Feature", "Niche", "Prisms", "WetFloor",
+           "from_dict", "to_dict"]
 
-def _pos(name, v, allow_zero=False):
+
+def _pos(name: str, v: float, allow_zero: bool = False) -> None:
     v = float(v)
     if not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
         raise FeatureError(f"Expected `{name}` to be a {'non-negative' if allow_zero else 'positive'} "
                            f"number, got {v}.")
 
 
-def _side(v):
+def _side(v: str) -> None:
     if v not in ("left", "right"):
         raise FeatureError(f"Expected side 'left' or 'right', got {v!r}.")
 
 
-def _range(a, b):
+def _range(a: float | None, b: float | None) -> None:
     if a is not None and b is not None and not b > a:
         raise FeatureError(f"Expected end_m > start_m, got [{a}, {b}].")
 
@@ -50,7 +55,7 @@ class Cable:
     end_m: float | None = None
     sides: int = 8
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _side(self.side)
         _pos("radius_m", self.radius_m)
         _pos("gap_m", self.gap_m, allow_zero=True)
@@ -71,7 +76,7 @@ class Niche:
     top_m: float
     depth_m: float = 0.6
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _side(self.side)
         _range(self.start_m, self.end_m)
         if not self.top_m > self.bottom_m:
@@ -90,7 +95,7 @@ class Drainage:
     start_m: float | None = None
     end_m: float | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _pos("width_m", self.width_m)
         _pos("depth_m", self.depth_m)
         _range(self.start_m, self.end_m)
@@ -104,7 +109,7 @@ class WetFloor:
     start_m: float
     end_m: float
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         _range(self.start_m, self.end_m)
 
 
@@ -113,14 +118,14 @@ class Bolts:
     """Rock-bolt bearing plates (square, ``plate_m`` wide, ``thickness_m`` proud of the
     lining) every ``spacing_m`` along the tunnel at each angle from the crown."""
 
-    angles_rad: tuple
+    angles_rad: tuple[float, ...]
     spacing_m: float = 1.5
     start_m: float | None = None
     end_m: float | None = None
     plate_m: float = 0.15
     thickness_m: float = 0.02
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         object.__setattr__(self, "angles_rad", tuple(float(a) for a in self.angles_rad))
         _pos("spacing_m", self.spacing_m)
         _pos("plate_m", self.plate_m)
@@ -135,12 +140,12 @@ class Prisms:
     ``chainages_m`` and at each angle from the crown. Their centres are the control
     points written in the tunnel's metadata."""
 
-    chainages_m: tuple
-    angles_rad: tuple
+    chainages_m: tuple[float, ...]
+    angles_rad: tuple[float, ...]
     radius_m: float = 0.03
     standoff_m: float = 0.1
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         object.__setattr__(self, "chainages_m", tuple(float(c) for c in self.chainages_m))
         object.__setattr__(self, "angles_rad", tuple(float(a) for a in self.angles_rad))
         _pos("radius_m", self.radius_m)
@@ -149,24 +154,30 @@ class Prisms:
                                f"({self.radius_m} m), got {self.standoff_m}.")
 
 
-KINDS = {"cable": Cable, "niche": Niche, "drainage": Drainage, "wet_floor": WetFloor,
+#: Any feature the generator takes.
+Feature = Cable | Niche | Drainage | WetFloor | Bolts | Prisms
+
+KINDS: dict[str, type[Any]] = {"cable": Cable, "niche": Niche, "drainage": Drainage, "wet_floor": WetFloor,
          "bolts": Bolts, "prisms": Prisms}
 
 
-def to_dict(f) -> dict:
+def to_dict(f: Feature) -> dict[str, Any]:
+    """Plain data (JSON-ready) with a ``kind`` key; ``from_dict`` reads it back."""
     name = {v: k for k, v in KINDS.items()}[type(f)]
     d = asdict(f)
     return {"kind": name, **{k: (list(v) if isinstance(v, tuple) else v)
                              for k, v in d.items()}}
 
 
-def from_dict(d):
+def from_dict(d: Mapping[str, Any]) -> Feature:
+    """The feature of a ``to_dict`` dictionary."""
     d = dict(d)
     kind = d.pop("kind", None)
     if kind not in KINDS:
         raise FeatureError(f"Expected a feature kind in {sorted(KINDS)}, got {kind!r}.")
     try:
-        return KINDS[kind](**d)
+        feature: Feature = KINDS[kind](**d)
+        return feature
     except TypeError as exc:
         raise FeatureError(f"Expected the fields of a {kind} feature, got {sorted(d)} "
                            f"({exc}).") from exc

@@ -21,16 +21,24 @@ Everything is vectorised NumPy: a 1M-triangle tunnel takes seconds.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from raytrace.shapes import icosphere
-
+from survey.errors import TunnelError
 from survey.world import features as F
 from survey.world.alignment import Alignment
-from survey.world.profiles import Profile
-from survey.errors import TunnelError
 from survey.world.mesh import LABEL, LABELS, REFLECTIVITY, TunnelMesh
+from survey.world.profiles import Profile
+
+__all__ = ["MAX_TRIANGLES", "RECESS_EDGE_M", "ROUGHNESS_CLIP", "edge_length_for",
+           "fan_faces", "grid_faces", "make_tunnel"]
+
+Floats = NDArray[np.float64]
+Ints = NDArray[np.int64]
 
 
 #: Width of the sloping wall of a recess (niche sides, sill and lintel; channel banks).
@@ -50,15 +58,15 @@ _CUBE_F = np.array([[0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5
 
 
 def edge_length_for(n_triangles: int, profile: Profile, length_m: float) -> float:
-    """Edge length that gives about ``n_triangles`` lining triangles (2 per square cell
-    of the developed lining, perimeter x length)."""
+    """Edge length (m) that gives about ``n_triangles`` lining triangles (2 per square
+    cell of the developed lining, perimeter x length)."""
     n = int(n_triangles)
     if n < 100:
         raise TunnelError(f"Expected at least 100 triangles, got {n}.")
     return float(np.sqrt(2.0 * profile.perimeter_m * length_m / n))
 
 
-def _fill(breaks, spacing):
+def _fill(breaks: ArrayLike, spacing: float) -> Floats:
     """Sorted unique break points, each interval split evenly (pieces <= spacing)."""
     b = np.unique(np.asarray(breaks, dtype=np.float64))
     b = b[np.concatenate([[True], np.diff(b) > 1e-6])]
@@ -69,7 +77,8 @@ def _fill(breaks, spacing):
     return np.append(start + k * step, b[-1])
 
 
-def _roughness(s, t, s0, length, perimeter, rms, corr, seed):
+def _roughness(s: Floats, t: Floats, s0: float, length: float, perimeter: float,
+               rms: float, corr: float, seed: int) -> Floats:
     """Roughness field (len(s), len(t)) on the ring x profile grid (see module doc)."""
     from scipy.ndimage import gaussian_filter, map_coordinates
 
@@ -90,12 +99,13 @@ def _roughness(s, t, s0, length, perimeter, rms, corr, seed):
     return np.clip(out, -ROUGHNESS_CLIP * rms, ROUGHNESS_CLIP * rms)
 
 
-def _rel(t, t0, per):
+def _rel(t: ArrayLike, t0: float, per: float) -> Any:
     """Parameter distance from t0 going counter-clockwise, in [0, per)."""
     return np.mod(np.asarray(t, dtype=np.float64) - t0, per)
 
 
-def _arc_between(profile, ta, tb, wanted):
+def _arc_between(profile: Profile, ta: float, tb: float,
+                 wanted: Callable[[float], Any]) -> tuple[float, float]:
     """(start, length) of the profile arc between parameters ta and tb whose midpoint
     satisfies ``wanted`` (of the two arcs a pair of points splits a closed curve into)."""
     per = profile.perimeter_m
@@ -105,10 +115,10 @@ def _arc_between(profile, ta, tb, wanted):
     return hi, lo + per - hi
 
 
-def grid_faces(rings, k, first, outward):
-    """Faces of a closed-around tube grid of ``rings`` x ``k`` vertices starting at
-    vertex ``first``; ``outward`` flips the winding (solids) from the lining's
-    inward-facing one."""
+def grid_faces(rings: int, k: int, first: int, outward: bool) -> Ints:
+    """Faces (2 (rings - 1) k, 3) of a closed-around tube grid of ``rings`` x ``k``
+    vertices starting at vertex ``first``; ``outward`` flips the winding (solids) from
+    the lining's inward-facing one."""
     i = np.arange(rings - 1)[:, None] * k
     j = np.arange(k)[None, :]
     a = (first + i + j).ravel()
@@ -119,21 +129,28 @@ def grid_faces(rings, k, first, outward):
     return np.concatenate([np.stack([a, c, b], 1), np.stack([b, c, d], 1)])
 
 
-def fan_faces(centre, ring, forward):
+def fan_faces(centre: int, ring: Ints, forward: bool) -> Ints:
+    """Faces (len(ring), 3) of a fan from vertex ``centre`` to the closed ``ring`` of
+    vertex indices; ``forward`` picks the winding."""
     nxt = np.roll(ring, -1)
     c = np.full(len(ring), centre)
     return np.stack([c, ring, nxt] if forward else [c, nxt, ring], 1)
 
 
 class _Builder:
-    """Collects mesh parts in local (chainage, offset, height) or world coordinates."""
+    """Collects mesh parts: vertices, faces, labels, and the (chainage, profile t) of
+    the lining point each vertex is or is attached to."""
 
-    def __init__(self, alignment):
-        self.al = alignment
-        self.v, self.f, self.lab, self.s, self.t = [], [], [], [], []
+    def __init__(self) -> None:
+        self.v: list[Floats] = []
+        self.f: list[Ints] = []
+        self.lab: list[NDArray[np.uint8]] = []
+        self.s: list[Floats] = []
+        self.t: list[Floats] = []
         self.n = 0
 
-    def add(self, verts, faces, labels, s, t):
+    def add(self, verts: Floats, faces: Ints, labels: ArrayLike, s: ArrayLike,
+            t: ArrayLike) -> None:
         self.v.append(verts)
         self.f.append(faces + self.n)
         self.lab.append(np.broadcast_to(np.asarray(labels, np.uint8), (len(faces),)))
@@ -141,42 +158,47 @@ class _Builder:
         self.t.append(np.broadcast_to(np.asarray(t, float), (len(verts),)))
         self.n += len(verts)
 
-    def world(self, s, y, z):
-        """World points for local coordinates (broadcast), via the alignment frame."""
-        return self.al.to_world(s, y, z)
-
-    def result(self):
+    def result(self) -> tuple[Floats, Ints, NDArray[np.uint8], Floats, Floats]:
         return (np.concatenate(self.v), np.concatenate(self.f).astype(np.int64),
                 np.concatenate(self.lab), np.concatenate(self.s), np.concatenate(self.t))
 
 
-def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float = 0.1,
-                features=(), roughness_rms_m: float = 0.002, roughness_corr_m: float = 0.3,
-                closed_ends: bool = False, seed: int = 0, name: str = "tunnel"
-                ) -> TunnelMesh:
-    """Generate a tunnel mesh.
+class _Recess(NamedTuple):
+    """A recess cut into the lining: a rectangle in (chainage, profile t), metres."""
 
-    Parameters
-    ----------
-    alignment : Alignment
-        Centreline; the mesh spans its whole chainage range.
-    profile : Profile
-        Cross-section in (left offset, height above the alignment).
-    edge_length_m : float
-        Target edge length of the lining grid (see ``edge_length_for``).
-    features : sequence
-        ``Cable``, ``Niche``, ``Drainage``, ``WetFloor``, ``Bolts``, ``Prisms``.
-    roughness_rms_m, roughness_corr_m : float
-        Lining roughness (standard deviation, correlation length); 0 for a smooth lining.
-    closed_ends : bool
-        Cap both portals (watertight) instead of leaving them open.
-    seed : int
-        Seed of the roughness field.
+    s0: float
+    s1: float
+    t0: float
+    width: float
+    depth: float
+    label: int
 
-    Returns
-    -------
-    TunnelMesh
-    """
+
+class _Tunnel(NamedTuple):
+    """What every stage of ``make_tunnel`` reads: the geometry and its extent."""
+
+    alignment: Alignment
+    profile: Profile
+    c0: float
+    c1: float
+    roughness_rms_m: float
+
+
+def _span(f: Any, tun: _Tunnel) -> tuple[float, float]:
+    """A feature's chainage range (None ends: the tunnel's), checked to lie inside."""
+    c0, c1 = tun.c0, tun.c1
+    a = c0 if f.start_m is None else f.start_m
+    b = c1 if f.end_m is None else f.end_m
+    if a < c0 - 1e-9 or b > c1 + 1e-9:
+        raise TunnelError(f"Expected {type(f).__name__} chainages within the tunnel "
+                          f"[{c0:g}, {c1:g}] m, got [{a:g}, {b:g}].")
+    return a, b
+
+
+def _check_parameters(alignment: Alignment, profile: Profile, edge_length_m: float,
+                      roughness_rms_m: float, roughness_corr_m: float,
+                      features: Sequence[object]) -> float:
+    """Validate make_tunnel's arguments; the edge length as a float."""
     if not isinstance(alignment, Alignment) or not isinstance(profile, Profile):
         raise TunnelError(f"Expected an Alignment and a Profile, got "
                           f"{type(alignment).__name__} and {type(profile).__name__}.")
@@ -184,8 +206,7 @@ def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float 
     if not (np.isfinite(h) and h > 0):
         raise TunnelError(f"Expected a positive `edge_length_m`, got {edge_length_m}.")
     c0, c1 = alignment.chainage_range
-    length = c1 - c0
-    est = 2.0 * profile.perimeter_m * length / (h * h)
+    est = 2.0 * profile.perimeter_m * (c1 - c0) / (h * h)
     if est > MAX_TRIANGLES:
         raise TunnelError(f"Expected at most {MAX_TRIANGLES:,} triangles, got about "
                           f"{est:,.0f} for edge_length_m={h}; use a larger edge length.")
@@ -195,45 +216,42 @@ def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float 
             raise TunnelError(f"Expected `{name_}` >= 0, got {v}.")
     if roughness_rms_m > 0 and roughness_corr_m <= 0:
         raise TunnelError("Expected a positive `roughness_corr_m` with roughness, got 0.")
-    features = list(features)
     for f in features:
         if type(f) not in F.KINDS.values():
             raise TunnelError(f"Expected features from survey.world.features, got "
                               f"{type(f).__name__}.")
+    return h
+
+
+def _plan_recesses(tun: _Tunnel, features: Sequence[F.Feature], closed_ends: bool
+                   ) -> tuple[list[_Recess], list[float], list[float]]:
+    """Niches and drainage channels as recesses, and the chainage and profile break
+    points the lining grid must keep (recess edges, feature ends)."""
+    profile, c0, c1 = tun.profile, tun.c0, tun.c1
     per = profile.perimeter_m
     e = RECESS_EDGE_M
-
-    def span(f):
-        a = c0 if f.start_m is None else f.start_m
-        b = c1 if f.end_m is None else f.end_m
-        if a < c0 - 1e-9 or b > c1 + 1e-9:
-            raise TunnelError(f"Expected {type(f).__name__} chainages within the tunnel "
-                              f"[{c0:g}, {c1:g}] m, got [{a:g}, {b:g}].")
-        return a, b
-
-    # Recesses: rectangles in (s, t) with their depth.
-    recesses = []  # (s0, s1, t0, t1, depth, label)
+    recesses: list[_Recess] = []
     s_breaks, t_breaks = [c0, c1], []
     for f in features:
         if isinstance(f, F.Niche):
-            a, b = span(f)
+            a, b = _span(f, tun)
             ta = profile.t_at_height(f.side, f.bottom_m)
             tb = profile.t_at_height(f.side, f.top_m)
             sgn = 1.0 if f.side == "left" else -1.0
             t0, w = _arc_between(profile, ta, tb,
                                  lambda tm: sgn * profile.points(tm)[0] > 0)
-            recesses.append((a, b, t0, w, f.depth_m, LABEL["niche"]))
+            recesses.append(_Recess(a, b, t0, w, f.depth_m, LABEL["niche"]))
         elif isinstance(f, F.Drainage):
-            a, b = span(f)
+            a, b = _span(f, tun)
             ta = profile.t_at_floor_offset(f.offset_m - f.width_m / 2)
             tb = profile.t_at_floor_offset(f.offset_m + f.width_m / 2)
             t0, w = _arc_between(profile, ta, tb, profile.is_floor)
             if not profile.is_floor(t0 + w / 2):
                 raise TunnelError(f"Expected the drainage channel on the floor, got offset "
                                   f"{f.offset_m} m which is not on a floor piece.")
-            recesses.append((a, b, t0, w, f.depth_m, LABEL["drainage"]))
+            recesses.append(_Recess(a, b, t0, w, f.depth_m, LABEL["drainage"]))
         elif isinstance(f, (F.WetFloor, F.Cable)):
-            s_breaks += list(span(f))
+            s_breaks += list(_span(f, tun))
     for r in recesses:
         s0, s1, t0, w, _, _ = r
         if (s1 - s0) <= 2 * e + 1e-6 or w <= 2 * e + 1e-6:
@@ -251,39 +269,53 @@ def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float 
                 raise TunnelError(f"Expected non-overlapping niches and channels, got two "
                                   f"overlapping between chainages {max(r[0], q[0]):g} and "
                                   f"{min(r[1], q[1]):g} m.")
+    return recesses, s_breaks, t_breaks
 
+
+def _check_fit(tun: _Tunnel, recesses: Sequence[_Recess], closed_ends: bool) -> None:
+    """The lining must not fold in curves, and fan caps need a star-shaped profile."""
     # A curve tighter than the tunnel is wide folds the lining on its inner side.
-    left, right, _, _ = profile.extent()
-    reach = max((r[4] for r in recesses), default=0.0) + ROUGHNESS_CLIP * roughness_rms_m
-    r_left, r_right = alignment.min_radius()
+    left, right, _, _ = tun.profile.extent()
+    reach = max((r.depth for r in recesses), default=0.0) + \
+        ROUGHNESS_CLIP * tun.roughness_rms_m
+    r_left, r_right = tun.alignment.min_radius()
     for side, ext, rad, sgn in (("left", left, r_left, 1), ("right", right, r_right, -1)):
         if ext + reach >= rad:
-            where = alignment.chainage_of_curvature(sgn / rad)
+            where = tun.alignment.chainage_of_curvature(sgn / rad)
             raise TunnelError(f"Expected curve radii larger than the tunnel's {side} "
                               f"half-width ({ext + reach:.3f} m), got a {side}-hand radius "
                               f"of {rad:.3f} m near chainage {where:g} m; the lining would "
                               "fold on the inside of the curve.")
-    if closed_ends and not profile.star_shaped_about_centroid():
+    if closed_ends and not tun.profile.star_shaped_about_centroid():
         raise TunnelError("Expected a profile star-shaped about its centroid for closed "
                           "ends (fan caps), got one that is not; leave the ends open.")
 
-    # ---- lining grid
-    s = _fill(s_breaks, h)
-    t = profile.sample(h, breaks=t_breaks)
+
+#: Tolerance (m) for grid rows and columns on a recess edge.
+_GRID_TOL_M = 1e-7
+
+
+def _lining(b: _Builder, tun: _Tunnel, s: Floats, t: Floats,
+            recesses: Sequence[_Recess], features: Sequence[F.Feature],
+            roughness_corr_m: float, seed: int, closed_ends: bool) -> None:
+    """The lining grid (rings at chainages ``s`` x profile parameters ``t``): vertices
+    pushed into recesses and by the roughness, faces labelled per cell, and the fan caps
+    of closed ends."""
+    alignment, profile, c0, c1 = tun.alignment, tun.profile, tun.c0, tun.c1
+    per, e, tol = profile.perimeter_m, RECESS_EDGE_M, _GRID_TOL_M
     k, nr = len(t), len(s)
     n2 = profile.normals(t)                    # (k, 2) outward vertex normals
     yz = np.broadcast_to(profile.points(t), (nr, k, 2)).copy()
     push = np.zeros((nr, k))
-    tol = 1e-7
     for s0, s1, t0, w, depth, _ in recesses:
         rows = (s >= s0 + e - tol) & (s <= s1 - e + tol)
         rel = _rel(t, t0, per)
         cols = (rel >= e - tol) & (rel <= w - e + tol)
         push[np.ix_(rows, cols)] += depth
-    if roughness_rms_m > 0:
-        push += _roughness(s, t, c0, length, per, roughness_rms_m, roughness_corr_m, seed)
+    if tun.roughness_rms_m > 0:
+        push += _roughness(s, t, c0, c1 - c0, per, tun.roughness_rms_m, roughness_corr_m,
+                           seed)
     yz += push[:, :, None] * n2[None, :, :]
-    b = _Builder(alignment)
     verts = alignment.to_world(s[:, None], yz[..., 0], yz[..., 1]).reshape(-1, 3)
     faces = grid_faces(nr, k, 0, outward=False)
     # Labels per grid cell (ring interval x profile interval), same for both triangles.
@@ -296,9 +328,9 @@ def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float 
             rows = (sm > f.start_m) & (sm < f.end_m)
             cell[rows] = np.where(cell[rows] == LABEL["floor"], LABEL["wet_floor"],
                                   cell[rows])
-    for s0, s1, t0, w, _, lab in recesses:
+    for s0, s1, t0, w, _, lab_r in recesses:
         rel = _rel(tm, t0, per)
-        cell[np.ix_((sm > s0) & (sm < s1), (rel > 0) & (rel < w))] = lab
+        cell[np.ix_((sm > s0) & (sm < s1), (rel > 0) & (rel < w))] = lab_r
     lab = np.concatenate([cell.ravel(), cell.ravel()])
     b.add(verts, faces, lab, np.repeat(s, k), np.tile(t, nr))
     if closed_ends:
@@ -314,80 +346,151 @@ def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float 
         b.lab[-1] = np.concatenate([lab, np.full(len(cap_f), LABEL["end_cap"], np.uint8)])
         b.n += 2
 
-    # ---- closed solids
-    control = []
-    niches = [(r[0], r[1], r[2], r[3]) for r in recesses if r[5] == LABEL["niche"]]
 
-    def in_niche(sv, tv, margin):
+def _cable(b: _Builder, tun: _Tunnel, f: F.Cable, s: Floats) -> None:
+    """A closed polygonal tube along the rings of the lining, capped at both ends."""
+    profile, alignment, tol = tun.profile, tun.alignment, _GRID_TOL_M
+    a, bb = _span(f, tun)
+    tc = profile.t_at_height(f.side, f.height_m)
+    p, n = profile.points(tc), profile.normals(tc)
+    centre = p - n * (f.gap_m + f.radius_m)
+    phi = 2 * np.pi * np.arange(int(f.sides)) / int(f.sides)
+    ring = centre + f.radius_m * np.stack([np.cos(phi), np.sin(phi)], 1)
+    rs = s[(s >= a - tol) & (s <= bb + tol)]
+    m = len(ring)
+    cv = alignment.to_world(rs[:, None], ring[None, :, 0], ring[None, :, 1])
+    cc = alignment.to_world(np.array([rs[0], rs[-1]]), centre[0], centre[1])
+    verts_c = np.concatenate([cv.reshape(-1, 3), cc])
+    nc = len(rs) * m
+    fc = np.concatenate([grid_faces(len(rs), m, 0, outward=True),
+                         fan_faces(nc, np.arange(m), False),
+                         fan_faces(nc + 1, (len(rs) - 1) * m + np.arange(m), True)])
+    b.add(verts_c, fc, LABEL["cable"], np.concatenate([np.repeat(rs, m), [rs[0], rs[-1]]]),
+          tc)
+
+
+def _embedded_box(tun: _Tunnel, p: Floats, n: Floats, sc: float, size: float,
+                  height: float) -> Floats:
+    """The 8 world corners of a box ``size`` wide (along the tunnel and the profile)
+    standing ``height`` proud of the lining point p (normal n) at chainage sc, sunk a
+    little into the lining so that roughness never opens a gap under it."""
+    tau = np.array([-n[1], n[0]])
+    embed = ROUGHNESS_CLIP * tun.roughness_rms_m + 0.005
+    x, u, w = _CUBE_V.T
+    sl = sc + (x - 0.5) * size
+    lat = p[None] + ((u - 0.5) * size)[:, None] * tau - \
+        (w * (height + embed) - embed)[:, None] * n
+    return tun.alignment.to_world(sl, lat[:, 0], lat[:, 1])
+
+
+def _bolts(b: _Builder, tun: _Tunnel, f: F.Bolts,
+           in_niche: Callable[[float, float, float], bool]) -> None:
+    """Bolt bearing plates: boxes every ``spacing_m`` at each angle (none in niches)."""
+    a, bb = _span(f, tun)
+    chain = np.arange(a + f.spacing_m / 2, bb - f.plate_m / 2, f.spacing_m)
+    for ang in f.angles_rad:
+        tb = tun.profile.t_at_angle(ang)
+        p, n = tun.profile.points(tb), tun.profile.normals(tb)
+        for sb in chain:
+            if in_niche(sb, tb, f.plate_m):
+                continue
+            b.add(_embedded_box(tun, p, n, sb, f.plate_m, f.thickness_m), _CUBE_F,
+                  LABEL["bolt"], sb, tb)
+
+
+def _prisms(b: _Builder, tun: _Tunnel, f: F.Prisms,
+            in_niche: Callable[[float, float, float], bool],
+            control: list[dict[str, Any]]) -> None:
+    """Prisms (a sphere on a stalk) per cross-section and angle; their centres are
+    appended to ``control`` as control points."""
+    c0, c1, profile, alignment = tun.c0, tun.c1, tun.profile, tun.alignment
+    sph_v, sph_f = icosphere(1, f.radius_m)
+    for sc in f.chainages_m:
+        if not (c0 <= sc <= c1):
+            raise TunnelError(f"Expected prism chainages within [{c0:g}, {c1:g}] "
+                              f"m, got {sc:g}.")
+        for ang in f.angles_rad:
+            tp = profile.t_at_angle(ang)
+            if in_niche(sc, tp, 0.05):
+                raise TunnelError(f"Expected prisms outside niches, got one at "
+                                  f"chainage {sc:g} m, angle {ang:g} rad.")
+            p, n = profile.points(tp), profile.normals(tp)
+            ctr = p - n * f.standoff_m
+            cw = alignment.to_world(sc, ctr[0], ctr[1])
+            b.add(cw + sph_v, sph_f, LABEL["prism"], sc, tp)
+            b.add(_embedded_box(tun, p, n, sc, _STALK_M, f.standoff_m), _CUBE_F,
+                  LABEL["prism"], sc, tp)
+            th = alignment.heading(sc)
+            nw = [float(-n[0] * np.sin(th)), float(n[0] * np.cos(th)), float(n[1])]
+            control.append({"id": f"P{len(control) + 1:03d}", "chainage_m": sc,
+                            "angle_rad": ang, "profile_t_m": float(tp),
+                            "xyz": cw.tolist(), "lining_normal": nw})
+
+
+def _solids(b: _Builder, tun: _Tunnel, features: Sequence[F.Feature], s: Floats,
+            recesses: Sequence[_Recess]) -> list[dict[str, Any]]:
+    """Cables, bolt plates and prisms as closed solids, in the order given; returns the
+    control points (the prism centres)."""
+    per = tun.profile.perimeter_m
+    niches = [(r.s0, r.s1, r.t0, r.width) for r in recesses if r.label == LABEL["niche"]]
+
+    def in_niche(sv: float, tv: float, margin: float) -> bool:
         return any(a - margin < sv < bb + margin and
                    _rel(tv, t0 - margin, per) < w + 2 * margin
                    for a, bb, t0, w in niches)
 
+    control: list[dict[str, Any]] = []
     for f in features:
         if isinstance(f, F.Cable):
-            a, bb = span(f)
-            tc = profile.t_at_height(f.side, f.height_m)
-            p, n = profile.points(tc), profile.normals(tc)
-            centre = p - n * (f.gap_m + f.radius_m)
-            phi = 2 * np.pi * np.arange(int(f.sides)) / int(f.sides)
-            ring = centre + f.radius_m * np.stack([np.cos(phi), np.sin(phi)], 1)
-            rs = s[(s >= a - tol) & (s <= bb + tol)]
-            m = len(ring)
-            cv = alignment.to_world(rs[:, None], ring[None, :, 0], ring[None, :, 1])
-            cc = alignment.to_world(np.array([rs[0], rs[-1]]), centre[0], centre[1])
-            verts_c = np.concatenate([cv.reshape(-1, 3), cc])
-            nc = len(rs) * m
-            fc = np.concatenate([grid_faces(len(rs), m, 0, outward=True),
-                                 fan_faces(nc, np.arange(m), False),
-                                 fan_faces(nc + 1, (len(rs) - 1) * m + np.arange(m), True)])
-            b.add(verts_c, fc, LABEL["cable"],
-                  np.concatenate([np.repeat(rs, m), [rs[0], rs[-1]]]), tc)
+            _cable(b, tun, f, s)
         elif isinstance(f, F.Bolts):
-            a, bb = span(f)
-            chain = np.arange(a + f.spacing_m / 2, bb - f.plate_m / 2, f.spacing_m)
-            for ang in f.angles_rad:
-                tb = profile.t_at_angle(ang)
-                p, n = profile.points(tb), profile.normals(tb)
-                tau = np.array([-n[1], n[0]])
-                embed = ROUGHNESS_CLIP * roughness_rms_m + 0.005
-                for sb in chain:
-                    if in_niche(sb, tb, f.plate_m):
-                        continue
-                    x, u, w = _CUBE_V.T
-                    sl = sb + (x - 0.5) * f.plate_m
-                    lat = p[None] + ((u - 0.5) * f.plate_m)[:, None] * tau - \
-                        (w * (f.thickness_m + embed) - embed)[:, None] * n
-                    b.add(alignment.to_world(sl, lat[:, 0], lat[:, 1]), _CUBE_F,
-                          LABEL["bolt"], sb, tb)
+            _bolts(b, tun, f, in_niche)
         elif isinstance(f, F.Prisms):
-            sph_v, sph_f = icosphere(1, f.radius_m)
-            for sc in f.chainages_m:
-                if not (c0 <= sc <= c1):
-                    raise TunnelError(f"Expected prism chainages within [{c0:g}, {c1:g}] "
-                                      f"m, got {sc:g}.")
-                for ang in f.angles_rad:
-                    tp = profile.t_at_angle(ang)
-                    if in_niche(sc, tp, 0.05):
-                        raise TunnelError(f"Expected prisms outside niches, got one at "
-                                          f"chainage {sc:g} m, angle {ang:g} rad.")
-                    p, n = profile.points(tp), profile.normals(tp)
-                    tau = np.array([-n[1], n[0]])
-                    ctr = p - n * f.standoff_m
-                    cw = alignment.to_world(sc, ctr[0], ctr[1])
-                    b.add(cw + sph_v, sph_f, LABEL["prism"], sc, tp)
-                    embed = ROUGHNESS_CLIP * roughness_rms_m + 0.005
-                    x, u, w = _CUBE_V.T
-                    sl = sc + (x - 0.5) * _STALK_M
-                    lat = p[None] + ((u - 0.5) * _STALK_M)[:, None] * tau - \
-                        (w * (f.standoff_m + embed) - embed)[:, None] * n
-                    b.add(alignment.to_world(sl, lat[:, 0], lat[:, 1]), _CUBE_F,
-                          LABEL["prism"], sc, tp)
-                    th = alignment.heading(sc)
-                    nw = [float(-n[0] * np.sin(th)), float(n[0] * np.cos(th)), float(n[1])]
-                    control.append({"id": f"P{len(control) + 1:03d}", "chainage_m": sc,
-                                    "angle_rad": ang, "profile_t_m": float(tp),
-                                    "xyz": cw.tolist(), "lining_normal": nw})
+            _prisms(b, tun, f, in_niche, control)
+    return control
 
+
+def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float = 0.1,
+                features: Iterable[F.Feature] = (), roughness_rms_m: float = 0.002,
+                roughness_corr_m: float = 0.3, closed_ends: bool = False, seed: int = 0,
+                name: str = "tunnel") -> TunnelMesh:
+    """Generate a tunnel mesh.
+
+    Parameters
+    ----------
+    alignment : Alignment
+        Centreline; the mesh spans its whole chainage range.
+    profile : Profile
+        Cross-section in (left offset, height above the alignment), metres.
+    edge_length_m : float
+        Target edge length of the lining grid (see ``edge_length_for``).
+    features : sequence
+        ``Cable``, ``Niche``, ``Drainage``, ``WetFloor``, ``Bolts``, ``Prisms``.
+    roughness_rms_m, roughness_corr_m : float
+        Lining roughness (standard deviation, correlation length); 0 for a smooth lining.
+    closed_ends : bool
+        Cap both portals (watertight) instead of leaving them open.
+    seed : int
+        Seed of the roughness field.
+    name : str
+        Recorded in the metadata.
+
+    Returns
+    -------
+    TunnelMesh
+    """
+    features = list(features)
+    h = _check_parameters(alignment, profile, edge_length_m, roughness_rms_m,
+                          roughness_corr_m, features)
+    c0, c1 = alignment.chainage_range
+    tun = _Tunnel(alignment, profile, c0, c1, roughness_rms_m)
+    recesses, s_breaks, t_breaks = _plan_recesses(tun, features, closed_ends)
+    _check_fit(tun, recesses, closed_ends)
+    s = _fill(s_breaks, h)
+    t = profile.sample(h, breaks=t_breaks)
+    b = _Builder()
+    _lining(b, tun, s, t, recesses, features, roughness_corr_m, seed, closed_ends)
+    control = _solids(b, tun, features, s, recesses)
     verts, faces, labels, vs, vt = b.result()
     counts = np.bincount(labels, minlength=len(LABELS))
     meta = {
@@ -398,7 +501,7 @@ def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float 
         "parameters": {"edge_length_m": h, "roughness_rms_m": roughness_rms_m,
                        "roughness_corr_m": roughness_corr_m,
                        "roughness_clip_sigma": ROUGHNESS_CLIP, "closed_ends": closed_ends,
-                       "seed": int(seed), "recess_edge_m": e},
+                       "seed": int(seed), "recess_edge_m": RECESS_EDGE_M},
         "labels": {str(i): n for i, n in enumerate(LABELS)},
         "reflectivity": dict(REFLECTIVITY),
         "face_counts": {n: int(c) for n, c in zip(LABELS, counts) if c},

@@ -30,26 +30,46 @@ Coordinates are local (portal centreline at the origin, heading east) unless an
 
 from __future__ import annotations
 
-import numpy as np
+from collections.abc import Callable
+from typing import Any
 
+import numpy as np
+from numpy.typing import ArrayLike
+
+from survey.errors import TunnelError
 from survey.world import features as F
 from survey.world.alignment import Alignment, curve, straight
-from survey.world.deformation import Convergence
-from survey.world.profiles import circle, horseshoe
-from survey.errors import TunnelError
+from survey.world.deformation import Convergence, Deformation
 from survey.world.generator import make_tunnel
+from survey.world.mesh import TunnelMesh
+from survey.world.profiles import Profile, circle, horseshoe
+
+__all__ = ["PRESETS", "bfo_parts", "preset", "tbm_parts"]
+
+#: (alignment, profile, features, deformations) of a preset world.
+Parts = tuple[Alignment, Profile, list[F.Feature], list[Deformation]]
 
 
-def bfo_parts(origin=(0.0, 0.0, 0.0), heading_rad: float = 0.0):
-    """(alignment, profile, features, deformations) of the BFO-like gallery."""
-    e0, n0, h0 = (float(v) for v in origin)
+def _origin(origin: ArrayLike) -> tuple[float, float, float]:
+    o = np.asarray(origin, dtype=np.float64)
+    if o.shape != (3,) or not np.isfinite(o).all():
+        raise TunnelError(f"Expected `origin` as finite (easting, northing, height) in m, "
+                          f"got shape {o.shape}.")
+    return float(o[0]), float(o[1]), float(o[2])
+
+
+def bfo_parts(origin: ArrayLike = (0.0, 0.0, 0.0), heading_rad: float = 0.0) -> Parts:
+    """(alignment, profile, features, deformations) of the BFO-like gallery; ``origin``
+    (3,) in m is the portal's centreline point, ``heading_rad`` counter-clockwise from
+    east."""
+    e0, n0, h0 = _origin(origin)
     elements = [straight(120.0), *curve(0.25, 300.0, 20.0)]
     used = sum(el.length_m for el in elements)
     elements.append(straight(300.0 - used))
     al = Alignment(elements, start_xy=(e0, n0), heading_rad=heading_rad,
                    profile=((0.0, h0), (300.0, h0 + 3.0)))
     prof = horseshoe(2.8, 1.4)
-    feats = [
+    feats: list[F.Feature] = [
         F.Cable("left", 1.50, radius_m=0.020, start_m=1.0, end_m=299.0),
         F.Cable("left", 1.58, radius_m=0.015, start_m=1.0, end_m=299.0),
         F.Cable("left", 1.66, radius_m=0.015, start_m=1.0, end_m=299.0),
@@ -60,34 +80,37 @@ def bfo_parts(origin=(0.0, 0.0, 0.0), heading_rad: float = 0.0):
         F.Bolts((-0.9, -0.45, 0.0, 0.45, 0.9), spacing_m=2.0, start_m=20.0, end_m=280.0),
         F.Prisms(tuple(np.arange(12.5, 300.0, 25.0)), (1.25, 0.0, -1.25)),
     ]
-    deform = [Convergence(120.0, 160.0, 0.005, taper_m=5.0)]
+    deform: list[Deformation] = [Convergence(120.0, 160.0, 0.005, taper_m=5.0)]
     return al, prof, feats, deform
 
 
-def tbm_parts(origin=(0.0, 0.0, 0.0), heading_rad: float = 0.0):
+def tbm_parts(origin: ArrayLike = (0.0, 0.0, 0.0), heading_rad: float = 0.0) -> Parts:
     """A straight 100 m bored tunnel, 5 m diameter, with a cable bundle and prisms
     every 20 m: a simple second world (ASSUMED dimensions, typical of a metro TBM)."""
-    e0, n0, h0 = (float(v) for v in origin)
+    e0, n0, h0 = _origin(origin)
     al = Alignment([straight(100.0)], start_xy=(e0, n0), heading_rad=heading_rad,
                    profile=((0.0, h0),))
     prof = circle(2.5)
-    feats = [F.Cable("left", 3.0, radius_m=0.03),
-             F.Prisms(tuple(np.arange(10.0, 100.0, 20.0)), (1.3, -1.3))]
-    deform = [Convergence(40.0, 60.0, 0.005, taper_m=5.0)]
+    feats: list[F.Feature] = [F.Cable("left", 3.0, radius_m=0.03),
+                              F.Prisms(tuple(np.arange(10.0, 100.0, 20.0)), (1.3, -1.3))]
+    deform: list[Deformation] = [Convergence(40.0, 60.0, 0.005, taper_m=5.0)]
     return al, prof, feats, deform
 
 
-PRESETS = {"bfo": bfo_parts, "tbm": tbm_parts}
+PRESETS: dict[str, Callable[[ArrayLike, float], Parts]] = {"bfo": bfo_parts,
+                                                            "tbm": tbm_parts}
 
 
-def preset(name: str, *, edge_length_m: float = 0.1, seed: int = 0, closed_ends=False,
-           roughness_rms_m: float | None = None, origin=(0.0, 0.0, 0.0),
-           heading_rad: float = 0.0):
-    """Generate a preset tunnel; returns (TunnelMesh, its default deformations)."""
+def preset(name: str, *, edge_length_m: float = 0.1, seed: int = 0,
+           closed_ends: bool = False, roughness_rms_m: float | None = None,
+           origin: ArrayLike = (0.0, 0.0, 0.0), heading_rad: float = 0.0
+           ) -> tuple[TunnelMesh, list[Deformation]]:
+    """Generate a preset tunnel ("bfo" or "tbm"); returns (TunnelMesh, its default
+    deformations). ``origin`` (3,) in m and ``heading_rad`` place it (e.g. in UTM)."""
     if name not in PRESETS:
         raise TunnelError(f"Expected a preset in {sorted(PRESETS)}, got {name!r}.")
     al, prof, feats, deform = PRESETS[name](origin, heading_rad)
-    kw = {} if roughness_rms_m is None else {"roughness_rms_m": roughness_rms_m}
+    kw: dict[str, Any] = {} if roughness_rms_m is None else {"roughness_rms_m": roughness_rms_m}
     if name == "bfo" and roughness_rms_m is None:
         kw["roughness_rms_m"] = 0.003
     if closed_ends:  # recesses must stop short of closed ends

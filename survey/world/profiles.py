@@ -24,9 +24,17 @@ Shapes (all dimensions in metres):
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Mapping
+from typing import Any
+
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from survey.errors import ProfileError
+
+__all__ = ["FLOOR_MAX_TILT_RAD", "Profile", "arched_rectangle", "circle", "horseshoe"]
+
+Floats = NDArray[np.float64]
 
 #: Faces whose outward normal points down within this angle of -z are "floor".
 FLOOR_MAX_TILT_RAD = np.deg2rad(30.0)
@@ -36,7 +44,7 @@ _DENSE_M = 1e-3
 _LINE, _ARC = 0, 1
 
 
-def _positive(name, value):
+def _positive(name: str, value: float) -> float:
     value = float(value)
     if not (np.isfinite(value) and value > 0):
         raise ProfileError(f"Expected `{name}` to be a positive number of metres, got "
@@ -54,7 +62,8 @@ class Profile:
     "angle_sweep": da}`` (radians, da > 0 counter-clockwise).
     """
 
-    def __init__(self, pieces, name: str = "custom"):
+    def __init__(self, pieces: Iterable[Mapping[str, Any]], name: str = "custom") -> None:
+        pieces = list(pieces)
         self.name = name
         kind, geo, lengths = [], [], []
         for p in pieces:
@@ -81,7 +90,7 @@ class Profile:
             raise ProfileError("Expected a profile of pieces with finite geometry and "
                                "positive length, got a degenerate piece.")
         self._t0 = np.concatenate([[0.0], np.cumsum(self._len)])
-        self._dense = None
+        self._dense: tuple[Floats, Floats] | None = None
         self.pieces = tuple(dict(p) for p in pieces)
         # Closedness, then orientation from the exact signed area.
         ends = self._piece_points(np.arange(len(self._len)), self._len)
@@ -97,7 +106,11 @@ class Profile:
         self.area_m2 = float(area)
         self.centroid = np.array([my, mz]) / area
 
-    def _moments(self):
+    def __repr__(self) -> str:
+        return (f"Profile({self.name!r}, perimeter {self.perimeter_m:.3f} m, area "
+                f"{self.area_m2:.3f} m^2, {len(self._len)} pieces)")
+
+    def _moments(self) -> tuple[float, float, float]:
         """Exact area and first moments (A, A*cy, A*cz) by Green's theorem over the
         pieces: A = 1/2 closed-integral (y dz - z dy), A cy = closed-integral y^2/2 dz,
         A cz = -closed-integral z^2/2 dy, integrated in closed form on lines and arcs."""
@@ -125,7 +138,7 @@ class Profile:
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def from_polyline(cls, points, name: str = "polyline") -> "Profile":
+    def from_polyline(cls, points: ArrayLike, name: str = "polyline") -> Profile:
         """A closed simple polygon (k, 2) of (offset, height) vertices; the last joins
         the first. Either orientation; self-intersecting polygons are rejected."""
         p = np.asarray(points, dtype=np.float64)
@@ -152,26 +165,34 @@ class Profile:
         return cls([{"kind": "line", "start": tuple(a), "end": tuple(b)}
                     for a, b in zip(p, q)], name=name)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data (JSON-ready) that ``from_dict`` turns back into this profile."""
         return {"name": self.name, "pieces": [
             {k: (list(v) if isinstance(v, tuple) else v) for k, v in p.items()}
             for p in self.pieces]}
 
     @classmethod
-    def from_dict(cls, d) -> "Profile":
-        return cls(d["pieces"], name=d.get("name", "custom"))
+    def from_dict(cls, d: Mapping[str, Any]) -> Profile:
+        """The profile of a ``to_dict`` dictionary."""
+        try:
+            return cls(d["pieces"], name=d.get("name", "custom"))
+        except (KeyError, TypeError) as exc:
+            raise ProfileError(f"Expected a profile dictionary with pieces, got "
+                               f"{sorted(d) if isinstance(d, Mapping) else type(d)}."
+                               ) from exc
 
     # ------------------------------------------------------------------ evaluation
     @property
     def perimeter_m(self) -> float:
+        """Length of the closed curve (m)."""
         return float(self._t0[-1])
 
-    def _locate(self, t):
+    def _locate(self, t: ArrayLike) -> tuple[NDArray[np.intp], Floats]:
         t = np.mod(np.asarray(t, dtype=np.float64), self.perimeter_m)
         i = np.clip(np.searchsorted(self._t0, t, side="right") - 1, 0, len(self._len) - 1)
         return i, t - self._t0[i]
 
-    def _piece_points(self, i, u):
+    def _piece_points(self, i: Any, u: Any) -> Floats:
         g = self._geo[i]
         line = self._kind[i] == _LINE
         f = u / self._len[i]
@@ -182,7 +203,7 @@ class Profile:
                      g[..., 1] + g[..., 2] * np.sin(ang))
         return np.stack([y, z], axis=-1)
 
-    def _piece_normals(self, i, u):
+    def _piece_normals(self, i: Any, u: Any) -> Floats:
         g = self._geo[i]
         line = self._kind[i] == _LINE
         d = np.stack([g[..., 2] - g[..., 0], g[..., 3] - g[..., 1]], axis=-1)
@@ -195,12 +216,13 @@ class Profile:
         an = sgn * np.stack([np.cos(ang), np.sin(ang)], axis=-1)
         return np.where(line[..., None], ln, an)
 
-    def points(self, t):
-        """Points (..., 2) at arc-length parameters t (wrapped to the perimeter)."""
+    def points(self, t: ArrayLike) -> Floats:
+        """Points (..., 2) (offset, height in m) at arc-length parameters t (m, wrapped to
+        the perimeter)."""
         i, u = self._locate(t)
         return self._piece_points(i, u)
 
-    def normals(self, t):
+    def normals(self, t: ArrayLike) -> Floats:
         """Outward unit normals (..., 2) at t; at a join between pieces (a corner), the
         normalised mean of the two pieces' normals."""
         i, u = self._locate(t)
@@ -214,7 +236,7 @@ class Profile:
             n = np.where(at_join[..., None], m, n)
         return n
 
-    def sample(self, spacing_m: float, breaks=()):
+    def sample(self, spacing_m: float, breaks: ArrayLike = ()) -> Floats:
         """Arc-length parameters (k,) of mesh vertices: every piece start and every
         break, each interval split evenly into pieces no longer than ``spacing_m``."""
         spacing_m = _positive("spacing_m", spacing_m)
@@ -230,14 +252,14 @@ class Profile:
         k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
         return start + k * step
 
-    def dense(self):
+    def dense(self) -> tuple[Floats, Floats]:
         """Dense polyline (t, points) with ~1 mm spacing for locating positions."""
         if self._dense is None:
             t = self.sample(_DENSE_M)
             self._dense = (t, self.points(t))
         return self._dense
 
-    def distance(self, yz):
+    def distance(self, yz: ArrayLike) -> Floats:
         """Distance (n,) of points (n, 2) from the profile curve (exact pieces)."""
         yz = np.asarray(yz, dtype=np.float64)
         out = np.full(len(yz), np.inf)
@@ -264,13 +286,14 @@ class Profile:
         return out
 
     # ------------------------------------------------------------------ positions
-    def extent(self):
-        """(max offset to the left, max offset to the right, min height, max height)."""
+    def extent(self) -> tuple[float, float, float, float]:
+        """(max offset to the left, max offset to the right, min height, max height), m."""
         _, p = self.dense()
         return float(p[:, 0].max()), float(-p[:, 0].min()), float(p[:, 1].min()), \
             float(p[:, 1].max())
 
-    def _crossing(self, values, level, choose):
+    def _crossing(self, values: Floats, level: float,
+                  choose: Callable[[Floats], int]) -> Any:
         """Parameters where the dense polyline's ``values`` cross ``level``; pick one."""
         t, _ = self.dense()
         v = values - level
@@ -322,7 +345,7 @@ class Profile:
             raise ProfileError(f"Expected the angle {angle_rad} rad to meet the profile.")
         return float(t)
 
-    def is_floor(self, t):
+    def is_floor(self, t: ArrayLike) -> NDArray[np.bool_]:
         """True where the outward normal at t points down within FLOOR_MAX_TILT_RAD."""
         return self.normals(t)[..., 1] < -np.cos(FLOOR_MAX_TILT_RAD)
 
@@ -334,18 +357,18 @@ class Profile:
         return bool((q[:, 0] * r[:, 1] - q[:, 1] * r[:, 0] > 0).all())
 
 
-def _first_self_intersection(p):
+def _first_self_intersection(p: Floats) -> tuple[int, int] | None:
     """First pair (i, j) of non-adjacent edges of the closed polygon p that touch or
     cross, or None. Orientation tests on all pairs, in row blocks (O(k^2) time,
     O(k * block) memory): profiles have hundreds to a few thousand vertices."""
     k = len(p)
     a, b = p, np.roll(p, -1, axis=0)
 
-    def orient(p1, p2, p3):
+    def orient(p1: Floats, p2: Floats, p3: Floats) -> Floats:
         return (p2[..., 0] - p1[..., 0]) * (p3[..., 1] - p1[..., 1]) - \
             (p2[..., 1] - p1[..., 1]) * (p3[..., 0] - p1[..., 0])
 
-    def on_seg(p1, p2, q):
+    def on_seg(p1: Floats, p2: Floats, q: Floats) -> NDArray[np.bool_]:
         return (np.minimum(p1[..., 0], p2[..., 0]) <= q[..., 0]) & \
             (q[..., 0] <= np.maximum(p1[..., 0], p2[..., 0])) & \
             (np.minimum(p1[..., 1], p2[..., 1]) <= q[..., 1]) & \

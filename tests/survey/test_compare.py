@@ -37,7 +37,7 @@ def test_c2c_max_dist_clamps():
     ref = rng.uniform(0, 10, size=(500, 3))
     cmp_ = rng.uniform(-5, 15, size=(800, 3))
     full, _ = naive_nearest(cmp_, ref)
-    r = cloud_to_cloud(cmp_, ref, max_dist=0.6, split=True)
+    r = cloud_to_cloud(cmp_, ref, max_distance_m=0.6, split=True)
     far = full > 0.6
     assert far.any() and (~far).any()
     np.testing.assert_allclose(r.distance[~far], full[~far], atol=1e-12)
@@ -90,8 +90,8 @@ def test_c2m_sign_hand_built():
     # Flipping the winding flips the sign.
     d2 = cloud_to_mesh(p, v, f[:, ::-1]).distance
     np.testing.assert_allclose(d2, -d, atol=1e-12)
-    # max_dist clamps |d| and keeps the sign.
-    d3 = cloud_to_mesh(p, v, f, max_dist=0.4).distance
+    # max_distance_m clamps |d| and keeps the sign.
+    d3 = cloud_to_mesh(p, v, f, max_distance_m=0.4).distance
     np.testing.assert_allclose(d3, [0.4, -0.3, 0.4, 0.0, -0.4], atol=1e-12)
 
 
@@ -126,7 +126,7 @@ def test_bad_inputs():
     with pytest.raises(CompareError, match="finite"):
         cloud_to_cloud(np.full((1, 3), np.nan), np.zeros((3, 3)))
     with pytest.raises(CompareError, match="positive max distance"):
-        ReferenceCloud(np.zeros((3, 3))).distances(np.zeros((1, 3)), max_dist=0)
+        ReferenceCloud(np.zeros((3, 3))).distances(np.zeros((1, 3)), max_distance_m=0)
     with pytest.raises(CompareError, match="faces"):
         cloud_to_mesh(np.zeros((1, 3)), np.zeros((3, 3)), np.array([[0, 1, 5]]))
 

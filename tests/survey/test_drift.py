@@ -54,7 +54,7 @@ def test_drift_is_realistic(run):
 
 
 def test_piecewise_correction_reaches_millimetres(run):
-    corr = fit_drift(run["m"], run["tau"], run["g"], sigma_world=0.0015, ids=run["ids"])
+    corr = fit_drift(run["m"], run["tau"], run["g"], sigma_world_m=0.0015, ids=run["ids"])
     fixed = corr.apply(run["mls"], run["time"])
     rms = np.sqrt(np.mean(np.sum((fixed - run["truth"]) ** 2, axis=1)))
     assert rms <= 0.005
@@ -72,9 +72,9 @@ def test_piecewise_correction_reaches_millimetres(run):
 def test_check_points_tell_the_true_accuracy(run):
     """Leave-one-out residuals at the prisms against the error the corrected cloud
     really has near them (truth known here): the same size, millimetres."""
-    loo = leave_one_out(run["m"], run["tau"], run["g"], sigma_world=0.0015)
+    loo = leave_one_out(run["m"], run["tau"], run["g"], sigma_world_m=0.0015)
     loo_rms = np.sqrt(np.mean(np.sum(loo ** 2, axis=1)))
-    corr = fit_drift(run["m"], run["tau"], run["g"], sigma_world=0.0015)
+    corr = fit_drift(run["m"], run["tau"], run["g"], sigma_world_m=0.0015)
     true_err = corr.apply(run["m"], run["tau"]) - run["g_true"]
     assert loo_rms < 0.02
     assert loo_rms >= np.sqrt(np.mean(np.sum(corr.residuals ** 2, axis=1)))  # honest > fit

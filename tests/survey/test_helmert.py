@@ -97,7 +97,7 @@ def test_sigma0_is_one_within_its_confidence_interval():
     dst0 = _proj(src, "position_vector", True)
     s0 = []
     for _ in range(200):
-        res = fit_helmert(src, dst0 + rng.normal(0, 0.002, src.shape), sigma_target=0.002)
+        res = fit_helmert(src, dst0 + rng.normal(0, 0.002, src.shape), sigma_target_m=0.002)
         s0.append(res.sigma0)
     r = 3 * 10 - 7
     stat = np.array(s0) ** 2 * r
@@ -114,8 +114,8 @@ def test_gauss_helmert_weights_both_systems():
     src0 = _pts(30, seed=7)
     dst = _proj(src0, "position_vector", True) + rng.normal(0, 0.003, src0.shape)
     src = src0 + rng.normal(0, 0.003, src0.shape)
-    one = fit_helmert(src, dst, sigma_target=0.003)
-    both = fit_helmert(src, dst, sigma_target=0.003, sigma_source=0.003)
+    one = fit_helmert(src, dst, sigma_target_m=0.003)
+    both = fit_helmert(src, dst, sigma_target_m=0.003, sigma_source_m=0.003)
     assert one.sigma0 > 1.2
     assert 0.7 < both.sigma0 < 1.3
     assert np.all(both.translation_sigma_m > one.translation_sigma_m)
@@ -126,7 +126,7 @@ def test_blunder_is_flagged_and_clean_points_are_not():
     src = _pts(15, seed=9)
     dst = _proj(src, "position_vector", True) + rng.normal(0, 0.002, src.shape)
     dst[6, 2] += 10 * 0.002 * 2          # 20 sigma in z
-    res = fit_helmert(src, dst, sigma_target=0.002, ids=[f"P{i}" for i in range(15)])
+    res = fit_helmert(src, dst, sigma_target_m=0.002, ids=[f"P{i}" for i in range(15)])
     assert res.outliers == ["P6"] and res.test == "w"
     assert res.w_tests[6] > res.critical == pytest.approx(3.29)
     assert np.argmax(res.w_tests) == 6
@@ -148,7 +148,7 @@ def test_bad_input_is_reported():
     with pytest.raises(HelmertError, match="model"):
         fit_helmert(src, src, model="5")
     with pytest.raises(HelmertError, match="sigma_target"):
-        fit_helmert(src, src, sigma_target=-1.0)
+        fit_helmert(src, src, sigma_target_m=-1.0)
 
 
 def test_control_point_files(tmp_path):
@@ -204,7 +204,7 @@ def test_textbook_example_with_errors_in_both_systems():
                    [8780.080, 4840.290, 782.620], [10185.800, 4700.210, 851.320]])
     s_src = np.array([[7, 8, 5], [11, 8, 9], [6, 5, 7], [5, 8, 9]]) * 0.001
     s_tgt = np.array([[5, 6, 5], [4, 6, 9], [2, 4, 2], [3, 5, 3]]) * 0.01
-    gh = fit_helmert(x, xt, sigma_source=s_src, sigma_target=s_tgt)
+    gh = fit_helmert(x, xt, sigma_source_m=s_src, sigma_target_m=s_tgt)
     assert 1 + gh.scale_ppm * 1e-6 == pytest.approx(0.9499549354, abs=5e-11)
-    target_only = fit_helmert(x, xt, sigma_target=s_tgt)
+    target_only = fit_helmert(x, xt, sigma_target_m=s_tgt)
     assert abs(1 + target_only.scale_ppm * 1e-6 - 0.9499549354) > 1e-7

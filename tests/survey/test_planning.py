@@ -143,3 +143,13 @@ def test_read_axis_bad_input(tmp_path):
     (tmp_path / "x.json").write_text('{"format": "other"}')
     with pytest.raises(TunnelFileError, match="'alignment' and 'profile'"):
         read_axis(tmp_path / "x.json")
+
+
+def test_planner_cells_and_plans_print_one_line(planner):
+    plan = planner.evaluate([10.0, 30.0], "two")
+    for obj, start in ((planner, "Planner(zf_imager_5016 at high, "),
+                       (planner.cells, f"Cells({len(planner.cells.area):,} cells on a "),
+                       (plan, f"Plan('two', 2 stations, coverage {100 * plan.coverage:.2f} %"),
+                       (planner.quality(plan.stations[0]), "StationQuality(")):
+        text = repr(obj)
+        assert text.startswith(start) and "\n" not in text and len(text) < 200, text

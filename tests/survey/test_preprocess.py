@@ -68,7 +68,7 @@ def test_statistical_filter_matches_open3d(k, ratio):
         nb_neighbors=k, std_ratio=ratio)
     keep = np.zeros(len(p), bool)
     keep[ind] = True
-    np.testing.assert_array_equal(~statistical_outliers(p, k, ratio), keep)
+    np.testing.assert_array_equal(~statistical_outliers(p, k=k, std_ratio=ratio), keep)
 
 
 @pytest.mark.parametrize("n, r", [(2, 0.2), (5, 0.2), (9, 0.3)])
@@ -79,7 +79,7 @@ def test_radius_filter_matches_open3d(n, r):
         nb_points=n, radius=r)
     keep = np.zeros(len(p), bool)
     keep[ind] = True
-    np.testing.assert_array_equal(~radius_outliers(p, n, r), keep)
+    np.testing.assert_array_equal(~radius_outliers(p, min_neighbours=n, radius_m=r), keep)
 
 
 def test_filters_against_brute_force():
@@ -88,9 +88,9 @@ def test_filters_against_brute_force():
     d = np.linalg.norm(p[:, None] - p[None], axis=2)
     srt = np.sort(d, axis=1)
     mean = srt[:, :8].mean(axis=1)                       # itself (0) + 7 others
-    np.testing.assert_array_equal(statistical_outliers(p, 8, 2.0),
+    np.testing.assert_array_equal(statistical_outliers(p, k=8, std_ratio=2.0),
                                   mean > mean.mean() + 2.0 * mean.std())
-    np.testing.assert_array_equal(radius_outliers(p, 3, 0.5), (d <= 0.5).sum(axis=1) - 1 < 3)
+    np.testing.assert_array_equal(radius_outliers(p, min_neighbours=3, radius_m=0.5), (d <= 0.5).sum(axis=1) - 1 < 3)
 
 
 def test_bad_input():

@@ -26,7 +26,7 @@ def tunnel():
 def study(tunnel):
     return Study(Scene(tunnel.vertices, tunnel.faces), tunnel.alignment,
                  float(tunnel.profile.centroid[1]), load_sensor("velodyne_vlp16"),
-                 strip=(11.0, 13.0), lead_m=3.0, settings=Settings.ideal(), keep_points=5000)
+                 strip_m=(11.0, 13.0), lead_m=3.0, settings=Settings.ideal(), keep_points=5000)
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +69,7 @@ def test_bad_inputs(tunnel, study):
     with pytest.raises(StudyError, match="moving sensor"):
         Study(scene, tunnel.alignment, 0.0, load_sensor("zf_imager_5016"))
     with pytest.raises(StudyError, match="inside the tunnel"):
-        Study(scene, tunnel.alignment, 0.0, load_sensor("velodyne_vlp16"), strip=(1, 3))
+        Study(scene, tunnel.alignment, 0.0, load_sensor("velodyne_vlp16"), strip_m=(1, 3))
     with pytest.raises(StudyError, match="speed"):
         study.run(-1.0, 10.0)
     with pytest.raises(StudyError, match="mount"):
@@ -106,3 +106,9 @@ def test_with_rate_changes_the_turn_not_the_firing():
         with_rate(s, 0.0)
     with pytest.raises(SensorSpecError, match="spinning lidar or a profiler"):
         with_rate(load_sensor("zf_imager_5016"), 10.0)
+
+
+def test_study_prints_one_line(study):
+    assert repr(study) == (f"Study(velodyne_vlp16, strip 11-13 m, lead 3 m, "
+                           f"{len(study.cells.area):,} cells)")
+    assert study.strip_m == (11.0, 13.0) and study.lead_m == 3.0

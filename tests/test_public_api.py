@@ -1,0 +1,104 @@
+"""The public API is discoverable: every public module declares ``__all__``, every name in
+it imports, every package has a ``__version__`` (the distribution's), every public error
+is exported from its package and from the root, and ``dir()`` shows no stray imports."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import inspect
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("raytrace", "sensors", "survey")
+
+
+def _public_modules() -> list[str]:
+    out = []
+    for pkg in PACKAGES:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            if any(p.startswith("_") and p != "__init__" for p in parts):
+                continue  # private modules (_kernels, _helpers) and __main__
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out.append(".".join(parts))
+    return out
+
+
+MODULES = _public_modules()
+
+
+def _declares_all(mod: str) -> bool:
+    path = ROOT / Path(*mod.split("."))
+    path = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+    tree = ast.parse(path.read_text())
+    for node in tree.body:
+        targets = node.targets if isinstance(node, ast.Assign) else \
+            [node.target] if isinstance(node, ast.AnnAssign) else []
+        for t in targets:
+            names = [t] if isinstance(t, ast.Name) else \
+                list(t.elts) if isinstance(t, ast.Tuple) else []
+            if any(isinstance(n, ast.Name) and n.id == "__all__" for n in names):
+                return True
+    return False
+
+
+def test_modules_found():
+    assert len(MODULES) > 40 and "survey.world.alignment" in MODULES
+
+
+@pytest.mark.parametrize("mod", MODULES)
+def test_every_public_module_declares_all(mod):
+    assert _declares_all(mod), f"{mod} has no __all__"
+
+
+@pytest.mark.parametrize("mod", [m for m in MODULES if m != "survey.cli.__main__"])
+def test_every_name_in_all_imports(mod):
+    m = importlib.import_module(mod)
+    names = list(getattr(m, "__all__", []))
+    assert len(names) == len(set(names)), f"{mod}.__all__ repeats a name"
+    missing = [n for n in names if not hasattr(m, n)]
+    assert not missing, f"{mod}.__all__ names {missing}, which it does not define"
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_version_is_the_distributions(pkg):
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert importlib.import_module(pkg).__version__ == meta["project"]["version"]
+
+
+def test_every_public_error_is_exported_from_its_package_and_the_root():
+    import survey
+    from raytrace.errors import TunnelsimError
+
+    for pkg in PACKAGES:
+        errors = importlib.import_module(f"{pkg}.errors")
+        classes = [c for _n, c in inspect.getmembers(errors, inspect.isclass)
+                   if issubclass(c, TunnelsimError)]
+        assert len(classes) >= 2
+        for c in classes:
+            assert issubclass(c, ValueError) or c is TunnelsimError, c
+            assert getattr(importlib.import_module(pkg), c.__name__) is c, (pkg, c)
+            if pkg == "survey":
+                assert getattr(survey, c.__name__) is c
+
+
+def test_dir_of_a_package_shows_its_api_only():
+    import survey
+
+    shown = set(dir(survey))
+    assert {"fit_helmert", "cloud_to_mesh", "preset", "make_tunnel", "world"} <= shown
+    assert not shown & {"np", "importlib", "TYPE_CHECKING", "lazy_exports"}
+
+
+def test_lazy_names_are_the_defining_modules_objects():
+    import survey
+    from survey.analysis.compare import cloud_to_mesh
+
+    assert survey.cloud_to_mesh is cloud_to_mesh
+    with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
+        survey.nonexistent  # noqa: B018
