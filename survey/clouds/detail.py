@@ -9,16 +9,27 @@ length becomes a tube: per ``slab_m`` of chainage, a least-squares circle throug
 the cross-section (the scanner sees the front half of a round cable), smoothed along
 the axis by a running median, swept with ``sides`` sides and capped (a closed solid,
 faces outward).
+
+``with_detail_layer`` adds those tubes to a reconstructed lining (``survey.clouds.
+reconstruct``): the attachments are found by ``segment_tunnel`` on the same alignment,
+and the tubes' vertices carry support -1 so a viewer can tell them from the lining.
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.ndimage import median_filter
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from survey.clouds.segment import ATTACHMENT, segment_tunnel
 from survey.world.generator import fan_faces, grid_faces
+
+#: Support of the detail layer's vertices (the lining's are >= 0).
+DETAIL_SUPPORT = -1.0
 
 
 def attachment_tubes(points, alignment, *, link_m: float = 0.03, slab_m: float = 0.25,
@@ -80,3 +91,55 @@ def _circle(y, z, max_radius_m: float = 0.15):
             return np.array([sol[0], sol[1], np.sqrt(r2)])
     cy, cz = np.median(y), np.median(z)
     return np.array([cy, cz, np.quantile(np.hypot(y - cy, z - cz), 0.9) if len(y) else 0])
+
+
+@dataclass(repr=False)
+class DetailedMesh:
+    """A reconstructed lining with its detail layer: vertices (n, 3) float64, faces
+    (m, 3) int64, support (n,) float64 (points per cell; 0 interpolated;
+    ``DETAIL_SUPPORT`` on the tubes) and ``detail_faces``, the number of tube faces
+    (the last ones)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    support: np.ndarray
+    detail_faces: int
+
+    def __repr__(self) -> str:
+        return (f"DetailedMesh({len(self.vertices):,} vertices, {len(self.faces):,} faces, "
+                f"{self.detail_faces:,} of them attachment tubes)")
+
+    def write(self, path: str | Path) -> Path:
+        """Binary PLY with a ``support`` vertex property; atomic."""
+        from survey.world.mesh import write_ply
+
+        return write_ply(path, self.vertices, self.faces,
+                         vertex_fields={"support": self.support})
+
+
+def with_detail_layer(reconstruction, points, **tubes) -> DetailedMesh:
+    """The lining of ``reconstruction`` (a ``ReconstructedTunnel``) plus its points'
+    attachments as closed tubes.
+
+    Parameters
+    ----------
+    reconstruction : ReconstructedTunnel
+        Vertices, faces, support, alignment and centre height of the lining.
+    points : (n, 3) float64
+        The cloud it was made from; ``segment_tunnel`` on the reconstruction's alignment
+        picks the attachments.
+    **tubes
+        Options of ``attachment_tubes`` (``link_m``, ``slab_m``...).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    rec = reconstruction
+    cls = segment_tunnel(p, alignment=rec.alignment, centre_height_m=rec.centre_height_m)
+    tv, tf = attachment_tubes(p[cls == ATTACHMENT], rec.alignment, **tubes)
+    return DetailedMesh(np.concatenate([rec.vertices, tv]),
+                        np.concatenate([rec.faces, tf + len(rec.vertices)]).astype(np.int64),
+                        np.concatenate([rec.support.astype(np.float64),
+                                        np.full(len(tv), DETAIL_SUPPORT)]),
+                        len(tf))
+
+
+__all__ = ["DETAIL_SUPPORT", "DetailedMesh", "attachment_tubes", "with_detail_layer"]

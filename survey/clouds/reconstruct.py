@@ -189,3 +189,57 @@ def poisson_tunnel(points, *, alignment: Alignment | None = None,
     return v[used], remap[f]
 
 
+
+
+#: Growth of the cells per step of ``reconstruct_within_budget``: at least 2 % (cell
+#: counts round, so a smaller step might not change the mesh).
+BUDGET_MIN_GROWTH = 1.02
+#: Largest cell growth ``reconstruct_within_budget`` tries before giving up.
+BUDGET_MAX_GROWTH = 1e3
+
+
+def reconstruct_within_budget(points, max_triangles: int, *,
+                              alignment: Alignment | None = None,
+                              centre_height_m: float | None = None, cell_m: float = 0.1,
+                              cell_rad: float = np.deg2rad(2.0),
+                              min_points: int = 3) -> ReconstructedTunnel:
+    """``reconstruct_tunnel`` with at most ``max_triangles`` faces.
+
+    The same reconstruction on proportionally larger cells (both directions scaled
+    alike, by the square root of the excess, at least ``BUDGET_MIN_GROWTH`` a step, the
+    angle capped below pi/4), until the mesh fits: the grid stays regular and the
+    support per cell meaningful. The axis is estimated once, on the first pass.
+
+    Parameters
+    ----------
+    points : (n, 3) float64
+    max_triangles : int
+        The budget, > 0.
+    alignment, centre_height_m, cell_m, cell_rad, min_points
+        As ``reconstruct_tunnel``; ``cell_m``/``cell_rad`` are the finest cells tried.
+
+    Raises
+    ------
+    ReconstructionError
+        When even cells ``BUDGET_MAX_GROWTH`` times larger exceed the budget.
+    """
+    if not (isinstance(max_triangles, (int, np.integer)) and max_triangles > 0):
+        raise ReconstructionError(f"Expected a positive integer triangle budget, got "
+                                  f"{max_triangles!r}.")
+    rec = reconstruct_tunnel(points, alignment=alignment, centre_height_m=centre_height_m,
+                             cell_m=cell_m, cell_rad=cell_rad, min_points=min_points)
+    grow = 1.0
+    while len(rec.faces) > max_triangles:
+        grow *= max(BUDGET_MIN_GROWTH, np.sqrt(len(rec.faces) / max_triangles))
+        if grow > BUDGET_MAX_GROWTH:
+            raise ReconstructionError(f"Expected a reachable triangle budget, got "
+                                      f"{max_triangles}; ask for more triangles.")
+        rec = reconstruct_tunnel(points, alignment=rec.alignment,
+                                 centre_height_m=rec.centre_height_m, cell_m=cell_m * grow,
+                                 cell_rad=min(cell_rad * grow, np.pi / 4 - 1e-9),
+                                 min_points=min_points)
+    return rec
+
+
+__all__ = ["BUDGET_MAX_GROWTH", "BUDGET_MIN_GROWTH", "ReconstructedTunnel", "poisson_tunnel",
+           "reconstruct_tunnel", "reconstruct_within_budget"]

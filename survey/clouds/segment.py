@@ -108,3 +108,7 @@ def segment_tunnel(points, *, alignment=None, centre_height_m: float | None = No
         np.maximum(np.bincount(cell, minlength=n_s * n_a), 1)
     out[behind & (share[cell] < RECESS_SHARE)] = NOISE
     return out
+
+
+__all__ = ["ATTACHMENT", "CLASS_NAMES", "FLOOR", "FLOOR_TILT_RAD", "LINING", "LINING_QUANTILE",
+           "NOISE", "OBJECT", "RECESS_SHARE", "SMOOTH_CELLS", "segment_tunnel"]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -20,7 +21,7 @@ def demo_summary(folder) -> dict:
     from sensors import Trajectory
 
     d = Path(folder)
-    out = {}
+    out: dict[str, Any] = {}
     if (d / "mls_raw_trajectory.txt").is_file():
         slam = Trajectory.read(d / "mls_raw_trajectory.txt")
         true = Trajectory.read(d / "mls_raw_true_trajectory.txt")
@@ -34,10 +35,12 @@ def demo_summary(folder) -> dict:
             # Between the first and the last control point the correction is constrained;
             # beyond them it extrapolates.
             tau = read_control_points(seen).time
-            ok = (true.times >= tau.min()) & (true.times <= tau.max())
-            fx = Trajectory.read(fixed)
-            out["corrected_drift_max_m"] = float(np.linalg.norm(
-                fx.positions[ok] - true.positions[ok], axis=1).max())
+            ok = np.zeros(len(true.times), dtype=bool) if tau is None or not len(tau) else \
+                (true.times >= tau.min()) & (true.times <= tau.max())
+            if ok.any():
+                fx = Trajectory.read(fixed)
+                out["corrected_drift_max_m"] = float(np.linalg.norm(
+                    fx.positions[ok] - true.positions[ok], axis=1).max())
     if (d / "mls_corrected.json").is_file():
         c = json.loads((d / "mls_corrected.json").read_text())
         out["corrected_check_rms_m"] = c["check_rms_m"]
@@ -100,3 +103,6 @@ def summary_markdown(s: dict) -> str:
         rows.append(("Gazebo world", "gazebo/world.sdf" if s["gazebo_world"] else "missing"))
     return "\n".join(["| key number | value |", "|---|---|"] +
                      [f"| {a} | {b} |" for a, b in rows]) + "\n"
+
+
+__all__ = ["demo_summary", "summary_markdown"]

@@ -19,13 +19,13 @@ def plan_csv(plan, planner) -> str:
 
 def plan_markdown(plans, planner, info=None) -> str:
     th = planner.th
-    out = [f"# Station plan: {planner.sensor.name}, resolution {planner.resolution} "
-           f"({np.degrees(planner.step_rad):.4f} deg)", "",
-           f"Thresholds: point spacing <= {1000 * th.spacing_m:.1f} mm, incidence <= "
-           f"{np.degrees(th.incidence_rad):.0f} deg, range <= {th.range_m:.1f} m. Lining "
-           f"area {planner.cells.total_area:.1f} m^2 in {len(planner.cells.area):,} cells; "
-           f"stations {planner.height_m:.2f} m above the floor on the axis. Point spacing "
-           "is the preset's angular step times range over cos(incidence).", "",
+    out = [(f"# Station plan: {planner.sensor.name}, resolution {planner.resolution} "
+            f"({np.degrees(planner.step_rad):.4f} deg)"), "",
+           (f"Thresholds: point spacing <= {1000 * th.spacing_m:.1f} mm, incidence <= "
+            f"{np.degrees(th.incidence_rad):.0f} deg, range <= {th.range_m:.1f} m. Lining "
+            f"area {planner.cells.total_area:.1f} m^2 in {len(planner.cells.area):,} cells; "
+            f"stations {planner.height_m:.2f} m above the floor on the axis. Point spacing "
+            "is the preset's angular step times range over cos(incidence)."), "",
            "| plan | stations | coverage | largest gap (m^2) | gaps | min overlap with next |",
            "|---|---:|---:|---:|---:|---:|"]
     for p in plans:
@@ -35,10 +35,10 @@ def plan_markdown(plans, planner, info=None) -> str:
                    f"{big:.2f} | {len(p.gaps)} | {ov} |")
     if info:
         out += ["", "## Optimisation", "",
-                f"- candidates: {info['candidates']}, target {100 * info['target']:.1f} % "
-                f"(reachable with all candidates: {100 * info['reachable']:.2f} %)",
-                f"- greedy: {info['greedy']} stations; MILP: {info.get('milp')} stations "
-                f"({info.get('milp_status')})",
+                (f"- candidates: {info['candidates']}, target {100 * info['target']:.1f} % "
+                 f"(reachable with all candidates: {100 * info['reachable']:.2f} %)"),
+                (f"- greedy: {info['greedy']} stations; MILP: {info.get('milp')} stations "
+                 f"({info.get('milp_status')})"),
                 f"- lower bound {info.get('lower_bound')}, optimality gap "
                 f"{100 * info['gap']:.1f} %" if np.isfinite(info.get("gap", np.nan))
                 else "- optimality gap: unknown (no bound)"]
@@ -54,6 +54,23 @@ def plan_markdown(plans, planner, info=None) -> str:
                            f"{g['angle_from_deg']:.0f} | {g['angle_to_deg']:.0f} | "
                            f"{g['area_m2']:.2f} |")
     return "\n".join(out) + "\n"
+
+
+def plan_summary(plans, planner, info=None) -> dict:
+    """The plans as plain data (what ``tunnelsim plan`` writes as plan.json): sensor,
+    resolution, per plan its name, station count, coverage share, gap count and station
+    chainages (m), and the optimisation's figures (``Planner.optimize``'s info) or None.
+    NumPy numbers become Python ones; a NaN stays NaN (strict JSON writers make it
+    null)."""
+    def plain(v):
+        return v.item() if isinstance(v, np.generic) else v
+
+    return {"sensor": planner.sensor.name, "resolution": planner.resolution,
+            "plans": [{"name": p.name, "stations": len(p.chainages),
+                       "coverage": float(p.coverage), "gaps": len(p.gaps),
+                       "chainages_m": np.asarray(p.chainages, dtype=np.float64).tolist()}
+                      for p in plans],
+            "optimisation": None if info is None else {k: plain(v) for k, v in info.items()}}
 
 
 def plot_coverage(plans, planner, path):
@@ -88,3 +105,6 @@ def plot_coverage(plans, planner, path):
     cb.ax.set_yticklabels(["gap", "below thr.", "1 station", "2", "3+"], fontsize=8)
     save_png(fig, path)
     return path
+
+
+__all__ = ["plan_csv", "plan_markdown", "plan_summary", "plot_coverage"]

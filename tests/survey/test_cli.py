@@ -299,7 +299,7 @@ def test_preprocess_streams_a_cloud(tmp_path, capsys):
     g = VoxelGrid(0.5, lo)
     g.add(stored)
     want, counts = g.result()
-    want = want[~statistical_outliers(want, 8, 2.0)]
+    want = want[~statistical_outliers(want, k=8, std_ratio=2.0)]
     got = np.stack([out.x, out.y, out.z], 1)
     assert len(got) == len(want)
     np.testing.assert_allclose(got, want, atol=0.6e-4)

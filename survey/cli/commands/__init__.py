@@ -1,1 +1,4 @@
-"""The subcommands of ``tunnelsim``, grouped by topic; ``survey.cli`` builds the parser."""
+"""The commands of ``tunnelsim``, one module per topic; each registers its own commands
+(``register(commands)``) and ``survey.cli.registry`` puts them under one parser."""
+
+__all__: list[str] = []

@@ -2,15 +2,64 @@
 
 from __future__ import annotations
 
-import numpy as np
-
+from survey.cli.common import CommandSet, write_json, write_text
 from survey.errors import TunnelsimCLIError
-from survey.cli.main import _write_text
+
+
+def register(commands: CommandSet) -> None:
+    """Add adjust, transform and correct."""
+    c = commands.add(
+        "adjust", cmd_adjust, help="Helmert adjustment between two control-point files",
+        description="Least-squares Helmert transformation (PROJ form, position-vector "
+                    "convention) between two CSV files of control points (id,x,y,z"
+                    "[,sigma|sx,sy,sz]) matched by id, with residuals, sigma0, global test "
+                    "and outlier tests.",
+        epilog="Example: tunnelsim adjust mls_cp.csv total_station.csv --model 7 --report "
+               "adjust.md --json helmert.json")
+    c.option("source", path="in", help="control points in the source system (CSV)")
+    c.option("target", path="in", help="control points in the target system (CSV)")
+    c.option("--model", choices=["7", "6", "9"], default="7",
+             help="7 similarity (default), 6 rigid, 9 scale per axis")
+    c.option("--report", path="out", help="write the Markdown report here")
+    c.option("--json", path="out", help="write the result (parameters and statistics) here")
+    c.option("--quiet", action="store_true", help="do not print the report")
+
+    c = commands.add(
+        "transform", cmd_transform, help="apply a Helmert transform to a point cloud",
+        description="Apply the Helmert transform of 'tunnelsim adjust --json' to a LAS/LAZ "
+                    "or binary PLY cloud, chunk by chunk, keeping every other field.",
+        epilog="Example: tunnelsim transform --helmert helmert.json mls.laz -o mls_utm.laz")
+    c.option("cloud", path="in", help="input cloud (.las, .laz, .ply)")
+    c.option("--helmert", required=True, path="in",
+             help="Helmert JSON from 'tunnelsim adjust'")
+    c.option("-o", "--output", required=True, path="out", help="output cloud (same kind)")
+    c.option("--quiet", action="store_true", help="print nothing on success")
+
+    c = commands.add(
+        "correct", cmd_correct, help="correct the drift of an MLS run with control points",
+        description="Correct a drifting MLS run (trajectory and cloud with GPS time) with "
+                    "control points: world coordinates (--control, id,x,y,z[,sigma]) and "
+                    "their MLS-frame coordinates with observation time (--observed, "
+                    "id,x,y,z,time). Writes the corrected cloud, the corrected trajectory "
+                    "(_trajectory.txt), a report (_report.md) and a plot of the correction.",
+        epilog="Example: tunnelsim correct --trajectory slam.txt --cloud mls.laz --control "
+               "cp.csv --observed cp_mls.csv -o corrected.laz")
+    c.option("--trajectory", required=True, path="in", help="MLS trajectory (TUM or CSV)")
+    c.option("--cloud", required=True, path="in",
+             help="MLS cloud with GPS time (.las/.laz/.ply)")
+    c.option("--control", required=True, path="in",
+             help="control points, world coordinates (CSV)")
+    c.option("--observed", required=True, path="in",
+             help="the same points in the MLS frame with their time (CSV)")
+    c.option("--model", choices=["piecewise", "global"], default="piecewise",
+             help="piecewise rigid per control section (default) or one similarity")
+    c.option("-o", "--output", required=True, path="out", help="corrected cloud")
+    c.option("--json", path="out", help="also write the key figures (check-point RMS, "
+                                        "largest correction) as JSON")
+    c.option("--quiet", action="store_true", help="print nothing on success")
 
 
 def cmd_adjust(args) -> int:
-    import json
-
     from survey.adjust.controlpoints import match, read_control_points
     from survey.adjust.helmert import fit_helmert
     from survey.report.adjustment import helmert_report
@@ -19,14 +68,14 @@ def cmd_adjust(args) -> int:
     b = read_control_points(args.target)
     ia, ib = match(a, b)
     res = fit_helmert(a.xyz[ia], b.xyz[ib], model=args.model,
-                      sigma_source=None if a.sigma is None else a.sigma[ia],
-                      sigma_target=None if b.sigma is None else b.sigma[ib],
+                      sigma_source_m=None if a.sigma is None else a.sigma[ia],
+                      sigma_target_m=None if b.sigma is None else b.sigma[ib],
                       ids=[a.ids[i] for i in ia])
     text = helmert_report(res)
     if args.report:
-        _write_text(args.report, text)
+        write_text(args.report, text)
     if args.json:
-        _write_text(args.json, json.dumps(res.to_dict(), indent=1))
+        write_json(args.json, res.to_dict())
     if not args.quiet:
         print(text, end="")
     return 0
@@ -36,8 +85,8 @@ def cmd_transform(args) -> int:
     import json
     from pathlib import Path
 
-    from survey.clouds.cloudio import map_cloud
     from survey.adjust.helmert import HelmertResult
+    from survey.clouds.cloudio import map_cloud
 
     p = Path(args.helmert)
     if not p.is_file():
@@ -45,7 +94,7 @@ def cmd_transform(args) -> int:
                                 f"got '{p}' which does not exist.")
     try:
         res = HelmertResult.from_dict(json.loads(p.read_text()))
-    except json.JSONDecodeError as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise TunnelsimCLIError(f"Expected JSON in '{p}', got invalid text ({exc}).") from exc
     n = map_cloud(args.cloud, args.output, lambda xyz, t: res.apply(xyz))
     if not args.quiet:
@@ -56,12 +105,13 @@ def cmd_transform(args) -> int:
 def cmd_correct(args) -> int:
     from pathlib import Path
 
-    from sensors import Trajectory
+    import numpy as np
 
-    from survey.clouds.cloudio import map_cloud
-    from survey.errors import ControlPointError
+    from sensors import Trajectory
     from survey.adjust.controlpoints import match, read_control_points
     from survey.adjust.drift import fit_drift, leave_one_out
+    from survey.clouds.cloudio import map_cloud
+    from survey.errors import ControlPointError
     from survey.report.adjustment import drift_report
 
     traj = Trajectory.read(args.trajectory)
@@ -74,33 +124,35 @@ def cmd_correct(args) -> int:
     m, t, g = seen.xyz[ia], seen.time[ia], world.xyz[ib]
     sw = None if world.sigma is None else world.sigma[ib].mean(axis=1)
     ids = [seen.ids[i] for i in ia]
-    corr = fit_drift(m, t, g, model=args.model, sigma_world=sw, ids=ids)
-    loo = leave_one_out(m, t, g, model=args.model, sigma_world=sw)
+    corr = fit_drift(m, t, g, model=args.model, sigma_world_m=sw, ids=ids)
+    loo = leave_one_out(m, t, g, model=args.model, sigma_world_m=sw)
     out = Path(args.output)
-    n = map_cloud(args.cloud, out, lambda xyz, tt: corr.apply(xyz, tt) if tt is not None
-                  else _no_time(args.cloud))
+
+    def moved(xyz, tt):
+        if tt is None:
+            raise TunnelsimCLIError(f"Expected GPS time per point in '{args.cloud}' to "
+                                    "correct drift, got none.")
+        return corr.apply(xyz, tt)
+
+    n = map_cloud(args.cloud, out, moved)
     fixed = corr.apply_trajectory(traj)
     traj_out = out.with_name(out.stem + "_trajectory.txt")
     fixed.write(traj_out)
     report = out.with_name(out.stem + "_report.md")
-    _write_text(report, drift_report(corr, loo, traj=traj,
-                                     plot_path=out.with_name(out.stem + "_correction.png")))
-    rms = np.sqrt(np.mean(np.sum(loo ** 2, axis=1)))
+    write_text(report, drift_report(corr, loo, traj=traj,
+                                    plot_path=out.with_name(out.stem + "_correction.png")))
+    rms = float(np.sqrt(np.mean(np.sum(loo ** 2, axis=1))))
     if args.json:
-        import json
-
-        _write_text(args.json, json.dumps({
+        write_json(args.json, {
             "model": args.model, "control_points": len(ids), "points": int(n),
-            "check_rms_m": float(rms),
+            "check_rms_m": rms,
             "check_max_m": float(np.max(np.linalg.norm(loo, axis=1))),
             "correction_max_m": float(np.max(np.linalg.norm(
-                fixed.positions - traj.positions, axis=1)))}, indent=2) + "\n")
+                fixed.positions - traj.positions, axis=1)))})
     if not args.quiet:
         print(f"corrected {n:,} points with {len(ids)} control points ({args.model}); "
               f"check-point RMS {rms * 1000:.1f} mm -> {out}, {traj_out.name}, {report.name}")
     return 0
 
 
-def _no_time(path):
-    raise TunnelsimCLIError(f"Expected GPS time per point in '{path}' to correct drift, got "
-                            "none.")
+__all__ = ["cmd_adjust", "cmd_correct", "cmd_transform", "register"]

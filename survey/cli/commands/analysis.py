@@ -5,47 +5,122 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numpy as np
-
+from survey.cli.common import (
+    CommandSet,
+    floats,
+    out_dir,
+    pair,
+    say,
+    write_json,
+    write_text,
+)
 from survey.errors import TunnelsimCLIError
-from survey.cli.main import _parse_window
-from survey.clouds.axis import tunnel_frame
 
 
-def out_dir(path, force=False) -> Path:
-    """An output folder: created when missing; an existing, non-empty one only with
-    ``force`` (files in it are then replaced one by one, atomically)."""
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise TunnelsimCLIError(f"Expected an output folder, got '{p}' which is a file; "
-                                "choose another name.")
-    if p.is_dir() and any(p.iterdir()) and not force:
-        raise TunnelsimCLIError(f"Expected a new or empty output folder, got '{p}' which "
-                                "holds files; pass --force to replace them.")
-    if not p.parent.exists():
-        raise TunnelsimCLIError(f"Expected an existing parent folder for '{p}', got none; "
-                                "create it first.")
-    p.mkdir(exist_ok=True)
-    return p
+def register(commands: CommandSet) -> None:
+    """Add compare, plan and study."""
+    c = commands.add(
+        "compare", cmd_compare,
+        help="cloud-to-cloud or cloud-to-mesh distances, with statistics",
+        description="Distances from one or more clouds to a reference, CloudCompare "
+                    "semantics: exact nearest neighbour (C2C) or signed distance to a mesh "
+                    "(C2M, positive on the side of the triangle normal). The last path is "
+                    "the reference (cloud, or a mesh .ply/.obj/.stl). Writes stats.csv, "
+                    "stats.md (mean, median, std, 95 %, RMS per scan), histogram.png and "
+                    "each cloud as LAZ with the scalar field 'distance'.",
+        epilog="Example: tunnelsim compare station_sim.laz station_real.laz --max-dist 0.5 "
+               "-o compare/")
+    c.option("clouds", nargs="+", metavar="CLOUD", path="in",
+             help="compared cloud(s), then the reference")
+    c.option("-o", "--output", required=True, path="out", help="output folder")
+    c.option("--max-dist", type=float, metavar="M",
+             help="clamp distances at M metres (points farther get M)")
+    c.option("--split", action="store_true",
+             help="also write the X/Y/Z components (compared - nearest reference)")
+    c.option("--model", choices=["plane"],
+             help="local model of the reference: least-squares plane of --k points")
+    c.option("--k", type=int, default=6, help="neighbours for --model (default 6)")
+    c.option("--threads", type=int, help="Numba threads (default: all cores)")
+    c.option("--force", action="store_true", help="write into a non-empty folder")
+    c.option("--quiet", action="store_true", help="print nothing on success")
 
+    c = commands.add(
+        "plan", cmd_plan,
+        help="TLS station planning: coverage of spacings, optimised station set",
+        description="Quality of every lining cell (coverage, point spacing from the "
+                    "preset's angular step and range, incidence, range) for stations on "
+                    "the axis at fixed spacings, and optionally the smallest station set "
+                    "reaching a target coverage (MILP, greedy bound). Writes plan.csv, "
+                    "plan.md, plan.json and coverage.png (unrolled chainage x angle).",
+        epilog="Example: tunnelsim plan --mesh bfo.ply --sensor zf_imager_5016 "
+               "--resolution high --spacing 5,10 --optimize --target 0.99 -o plan/")
+    c.option("--mesh", required=True, path="in",
+             help="tunnel mesh (its .json gives the axis)")
+    c.option("--sensor", default="zf_imager_5016", path="toml",
+             help="TLS sensor name or .toml")
+    c.option("--resolution", help="resolution preset (default: the sensor's)")
+    c.option("--spacing", default="5,10", metavar="M[,M...]",
+             help="station spacings to compare in metres (default 5,10)")
+    c.option("--optimize", action="store_true",
+             help="find the smallest station set for --target")
+    c.option("--target", type=float, default=0.99,
+             help="coverage share to reach with --optimize (default 0.99)")
+    c.option("--candidate-step", type=float, default=2.5, metavar="M",
+             help="candidate stations every M metres (default 2.5)")
+    c.option("--time-limit", type=float, default=60.0, metavar="S",
+             help="MILP time limit in seconds (default 60)")
+    c.option("--spacing-mm", type=float, default=5.0,
+             help="point-spacing threshold in mm (default 5)")
+    c.option("--incidence-deg", type=float, default=70.0,
+             help="incidence threshold in degrees (default 70)")
+    c.option("--range", type=float, default=30.0, metavar="M",
+             help="range threshold in metres (default 30)")
+    c.option("--cell", default="0.25,2", metavar="M,DEG",
+             help="lining cell size along (m) and around (deg) (default 0.25,2)")
+    c.option("--height", type=float, default=1.5, metavar="M",
+             help="instrument height above the floor (default 1.5)")
+    c.option("-o", "--output", required=True, path="out", help="output folder")
+    c.option("--threads", type=int, help="Numba threads (default: all cores)")
+    c.option("--force", action="store_true", help="write into a non-empty folder")
+    c.option("--quiet", action="store_true", help="print nothing on success")
 
-def _floats(text, what):
-    try:
-        vals = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        vals = []
-    if not vals:
-        raise TunnelsimCLIError(f"Expected {what} as comma-separated numbers, got {text!r}.")
-    return vals
-
-
-def _say(args, text):
-    if not getattr(args, "quiet", False):
-        print(text)
+    c = commands.add(
+        "study", cmd_study, seeded=True, help="MLS speed x scan-rate x mounting study",
+        description="Drive a spinning lidar (or profiler) through an evaluation strip at "
+                    "each speed, rate and mounting: density on lining and floor, empty "
+                    "lining share, along-track line spacing, rolling-shutter distortion. "
+                    "Writes study.csv, study.md and study.png (floor rings per speed, "
+                    "density vs speed).",
+        epilog="Example: tunnelsim study --mesh bfo.ply --sensor robosense_airy --speeds "
+               "0,1,3 --rates 10,20 --mounts down -o study/")
+    c.option("--mesh", required=True, path="in",
+             help="tunnel mesh (its .json gives the axis)")
+    c.option("--sensor", default="robosense_airy", path="toml", help="sensor name or .toml")
+    c.option("--speeds", default="0,1,3", metavar="V[,V...]",
+             help="speeds in m/s (default 0,1,3)")
+    c.option("--rates", default="10", metavar="HZ[,HZ...]",
+             help="rotation (profile) rates in Hz (default 10)")
+    c.option("--mounts", default="level,down", metavar="level,down",
+             help="mountings (default level,down)")
+    c.option("--strip", metavar="START,END",
+             help="evaluation strip in chainage (default: 5 m mid-tunnel)")
+    c.option("--lead", type=float, default=5.0, metavar="M",
+             help="drive this far before and after the strip (default 5)")
+    c.option("--height", type=float, default=0.5, metavar="M",
+             help="sensor height above the floor (default 0.5)")
+    c.option("--ideal", action="store_true",
+             help="exact geometry: no noise, every return detected")
+    c.option("--seed", type=int, default=0, help="random seed (default 0)")
+    c.option("-o", "--output", required=True, path="out", help="output folder")
+    c.option("--threads", type=int, help="Numba threads (default: all cores)")
+    c.option("--force", action="store_true", help="write into a non-empty folder")
+    c.option("--quiet", action="store_true", help="print nothing on success")
 
 
 # ---------------------------------------------------------------------------- compare
 def _load_reference(path):
+    import numpy as np
+
     p = Path(path)
     if p.suffix.lower() in (".ply", ".obj", ".stl", ".off"):
         import trimesh
@@ -62,24 +137,21 @@ def _load_reference(path):
         if faces is not None and len(faces):
             from survey.analysis.compare import ReferenceMesh
             return ReferenceMesh(np.asarray(m.vertices), np.asarray(faces)), "mesh"
-    from survey.clouds.cloudio import iter_points
     from survey.analysis.compare import ReferenceCloud
+    from survey.clouds.cloudio import iter_points
     return ReferenceCloud(np.concatenate(list(iter_points(p)))), "cloud"
 
 
 def cmd_compare(args) -> int:
-    from raytrace import set_threads
+    import numpy as np
 
-    from survey.clouds.cloudio import annotate_las, iter_points, write_points_las
     from survey.analysis.compare import distance_stats
+    from survey.clouds.cloudio import annotate_las, iter_points, write_points_las
     from survey.report.compare import plot_histogram, stats_csv, stats_markdown
-    from survey.cli.main import _write_text
 
     if len(args.clouds) < 2:
         raise TunnelsimCLIError("Expected at least two paths (compared cloud(s), then the "
                                 f"reference), got {len(args.clouds)}.")
-    if args.threads:
-        set_threads(args.threads)
     *compared, ref_path = args.clouds
     for c in compared:
         if not Path(c).is_file():
@@ -93,13 +165,13 @@ def cmd_compare(args) -> int:
     rows, hist = {}, {}
     for c in compared:
         name = Path(c).stem
-        got = []
+        got: list = []
 
-        def dist(xyz):
+        def dist(xyz, got=got):
             if kind == "mesh":
-                r = ref.distances(xyz, max_dist=args.max_dist)
+                r = ref.distances(xyz, max_distance_m=args.max_dist)
             else:
-                r = ref.distances(xyz, max_dist=args.max_dist, split=args.split,
+                r = ref.distances(xyz, max_distance_m=args.max_dist, split=args.split,
                                   model=args.model, k=args.k)
             got.append(r.distance)
             extra = {"distance": r.distance.astype(np.float32)}
@@ -118,85 +190,79 @@ def cmd_compare(args) -> int:
         rows[name] = distance_stats(np.concatenate(got))
         hist[name] = np.concatenate(got)
     title = "C2M (signed)" if kind == "mesh" else "C2C"
-    _write_text(out / "stats.csv", stats_csv(rows))
+    write_text(out / "stats.csv", stats_csv(rows))
     md = stats_markdown(rows, title=title)
-    _write_text(out / "stats.md", f"# {title} distances to {Path(ref_path).name}\n\n" + md +
-                ("" if args.max_dist is None else
-                 f"\nDistances beyond {args.max_dist} m are clamped to it.\n"))
+    write_text(out / "stats.md", f"# {title} distances to {Path(ref_path).name}\n\n" + md +
+               ("" if args.max_dist is None else
+                f"\nDistances beyond {args.max_dist} m are clamped to it.\n"))
     plot_histogram(hist, out / "histogram.png",
                    xlabel=f"{title} distance to {Path(ref_path).name} (mm)")
-    _say(args, md.rstrip() + f"\n-> {out}/ (stats.csv, stats.md, histogram.png, "
-                             "*_distance.laz with scalar field 'distance')")
+    say(args, md.rstrip() + f"\n-> {out}/ (stats.csv, stats.md, histogram.png, "
+                            "*_distance.laz with scalar field 'distance')")
     return 0
 
 
 # ---------------------------------------------------------------------------- plan
 def cmd_plan(args) -> int:
-    from raytrace import set_threads
+    import numpy as np
+
     from sensors import load_sensor
-
-    from survey.cli.main import _write_text
-    from survey.report.planning import plan_csv, plan_markdown, plot_coverage
     from survey.analysis.planning import Planner, Thresholds
+    from survey.clouds.axis import tunnel_frame
+    from survey.report.planning import (
+        plan_csv,
+        plan_markdown,
+        plan_summary,
+        plot_coverage,
+    )
 
-    if args.threads:
-        set_threads(args.threads)
     spec = load_sensor(args.sensor)
-    cell_m, cell_deg = _parse_window(args.cell.replace(",", ":"), "--cell as M,DEG", 2)
+    cell_m, cell_deg = pair(args.cell, "--cell as M,DEG")
+    spacings = floats(args.spacing, "--spacing")
     scene, _, al, hc = tunnel_frame(args.mesh)
     th = Thresholds(args.spacing_mm / 1000.0, np.deg2rad(args.incidence_deg), args.range)
     pl = Planner(scene, al, hc, spec, resolution=args.resolution, thresholds=th,
                  cell_m=cell_m, cell_rad=np.deg2rad(cell_deg), height_m=args.height)
     out = out_dir(args.output, args.force)
-    plans = [pl.evaluate(pl.spaced(sp), f"every {sp:g} m")
-             for sp in _floats(args.spacing, "--spacing")]
+    plans = [pl.evaluate(pl.spaced(sp), f"every {sp:g} m") for sp in spacings]
     info = None
     if args.optimize:
         cand = pl.spaced(args.candidate_step)
         best, greedy, info = pl.optimize(cand, target=args.target,
                                          time_limit_s=args.time_limit)
         plans += [best, greedy]
-    _write_text(out / "plan.csv", "".join(
+    write_text(out / "plan.csv", "".join(
         plan_csv(p, pl) if i == 0 else plan_csv(p, pl).split("\n", 1)[1]
         for i, p in enumerate(plans)))
     md = plan_markdown(plans, pl, info)
-    _write_text(out / "plan.md", md)
+    write_text(out / "plan.md", md)
     plot_coverage(plans, pl, out / "coverage.png")
-    import json
-    _write_text(out / "plan.json", json.dumps({
-        "sensor": spec.name, "resolution": pl.resolution,
-        "plans": [{"name": p.name, "stations": len(p.chainages), "coverage": p.coverage,
-                   "gaps": len(p.gaps), "chainages_m": p.chainages.tolist()}
-                  for p in plans],
-        "optimisation": info}, indent=2, default=float) + "\n")
-    _say(args, md.split("\n## Largest")[0].rstrip() +
-         f"\n-> {out}/ (plan.csv, plan.md, plan.json, coverage.png)")
+    write_json(out / "plan.json", plan_summary(plans, pl, info))
+    say(args, md.split("\n## Largest")[0].rstrip() +
+        f"\n-> {out}/ (plan.csv, plan.md, plan.json, coverage.png)")
     return 0
 
 
 # ---------------------------------------------------------------------------- study
 def cmd_study(args) -> int:
-    from raytrace import set_threads
     from sensors import Settings, load_sensor
-
-    from survey.cli.main import _write_text
     from survey.analysis.study import Study
+    from survey.clouds.axis import tunnel_frame
     from survey.report.study import plot_study, study_csv, study_markdown
 
-    if args.threads:
-        set_threads(args.threads)
     spec = load_sensor(args.sensor)
-    scene, refl, al, hc = tunnel_frame(args.mesh)
     strip = None
     if args.strip:
-        strip = _parse_window(args.strip.replace(",", ":"), "--strip as START,END in m", 2)
+        a, b = pair(args.strip, "--strip as START,END in m")
+        strip = (a, b)
+    speeds = floats(args.speeds, "--speeds")
+    rates = floats(args.rates, "--rates")
     mounts = [m.strip() for m in args.mounts.split(",") if m.strip()]
-    st = Study(scene, al, hc, spec, strip=strip, lead_m=args.lead, height_m=args.height,
+    scene, refl, al, hc = tunnel_frame(args.mesh)
+    st = Study(scene, al, hc, spec, strip_m=strip, lead_m=args.lead, height_m=args.height,
                settings=Settings.ideal() if args.ideal else None, seed=args.seed,
                reflectivity=refl if refl is not None else 0.5, keep_points=40_000)
     out = out_dir(args.output, args.force)
-    speeds = _floats(args.speeds, "--speeds")
-    rates = _floats(args.rates, "--rates")
 
     def progress(i, n):
         if not args.quiet and sys.stderr.isatty():
@@ -206,10 +272,13 @@ def cmd_study(args) -> int:
     rows = st.grid(speeds, rates, mounts, progress=progress)
     if not args.quiet and sys.stderr.isatty():
         sys.stderr.write("\n")
-    _write_text(out / "study.csv", study_csv(rows))
-    md = study_markdown(rows, spec.name, st.strip, st.lead)
-    _write_text(out / "study.md", md)
+    write_text(out / "study.csv", study_csv(rows))
+    md = study_markdown(rows, spec.name, st.strip_m, st.lead_m)
+    write_text(out / "study.md", md)
     plot_study(st, rows, out / "study.png", rings_mount="down" if "down" in mounts else None,
                rings_rate=rates[0])
-    _say(args, md.rstrip() + f"\n-> {out}/ (study.csv, study.md, study.png)")
+    say(args, md.rstrip() + f"\n-> {out}/ (study.csv, study.md, study.png)")
     return 0
+
+
+__all__ = ["cmd_compare", "cmd_plan", "cmd_study", "register"]

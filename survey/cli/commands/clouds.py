@@ -2,56 +2,67 @@
 
 from __future__ import annotations
 
-import numpy as np
+from survey.cli.common import CommandSet, pair, write_json
 
-from survey.errors import TunnelsimCLIError
-from survey.cli.main import _parse_window
+#: Cloud formats the readers take.
+CLOUD_INPUTS = ".las/.laz/.ply/.xyz/.npz/.e57"
 
 
-def cmd_preprocess(args) -> int:
-    from survey.clouds.cloudio import cloud_bounds, iter_points, write_points_las
-    from survey.clouds.preprocess import VoxelGrid, radius_outliers, statistical_outliers
+def register(commands: CommandSet) -> None:
+    """Add preprocess and mesh."""
+    c = commands.add(
+        "preprocess", cmd_preprocess,
+        help="voxel-grid downsampling and outlier removal of a cloud",
+        description="Stream a cloud (LAS/LAZ/PLY/XYZ/NPZ/E57) through a voxel grid "
+                    "(centroid per voxel, Open3D semantics), then remove statistical and "
+                    "radius outliers (Open3D semantics) and write LAS/LAZ with the number "
+                    "of points per voxel.",
+        epilog="Example: tunnelsim preprocess mls.laz -o clean.laz --voxel 0.02 --sor 8,2.0 "
+               "--segment")
+    c.option("cloud", path="in", help="input cloud")
+    c.option("-o", "--output", required=True, path="out", help="output cloud (.las/.laz)")
+    c.option("--voxel", type=float, metavar="M", help="voxel size in metres")
+    c.option("--sor", metavar="K,STD_RATIO",
+             help="statistical outlier removal: K neighbours (the point included), "
+                  "threshold mean + STD_RATIO x std")
+    c.option("--ror", metavar="N,RADIUS_M",
+             help="radius outlier removal: at least N other points within RADIUS_M")
+    c.option("--crop", metavar="START,END",
+             help="keep the chainage range START..END in m (axis from --tunnel-json or "
+                  "estimated)")
+    c.option("--segment", action="store_true",
+             help="classify lining (64), floor (2), attachments (65), objects (66), noise "
+                  "(7) as LAS classification")
+    c.option("--tunnel-json", path="in",
+             help="alignment for --segment from a generated tunnel's JSON (default: "
+                  "estimated from the cloud)")
+    c.option("--quiet", action="store_true", help="print nothing on success")
 
-    lo, hi, n_in = cloud_bounds(args.cloud)
-    if args.voxel is not None:
-        grid = VoxelGrid(args.voxel, lo)
-        for xyz in iter_points(args.cloud):
-            grid.add(xyz)
-        pts, counts = grid.result()
-    else:
-        pts = np.concatenate(list(iter_points(args.cloud)))
-        counts = np.ones(len(pts), dtype=np.int64)
-    keep = np.ones(len(pts), dtype=bool)
-    if args.crop:
-        s0, s1 = _parse_window(args.crop.replace(",", ":"), "--crop as START,END in m", 2)
-        al, _ = _tunnel_axis(args.tunnel_json)
-        if al is None:
-            from survey.clouds.axis import estimate_axis
-            al, _ = estimate_axis(pts)
-        s, _, _ = al.to_local(pts)
-        keep &= (s >= s0) & (s <= s1)
-    if args.sor:
-        k, ratio = _parse_window(args.sor.replace(",", ":"), "--sor as K,STD_RATIO", 2)
-        keep &= ~statistical_outliers(pts, int(k), ratio)
-    if args.ror:
-        nb, rad = _parse_window(args.ror.replace(",", ":"), "--ror as N,RADIUS_M", 2)
-        keep &= ~radius_outliers(pts, int(nb), rad)
-    cls = None
-    if args.segment:
-        from survey.clouds.segment import CLASS_NAMES, segment_tunnel
-
-        al, hc = _tunnel_axis(args.tunnel_json)
-        cls = segment_tunnel(pts[keep], alignment=al, centre_height_m=hc)
-    write_points_las(args.output, pts[keep],
-                     {"voxel_count": counts[keep].astype(np.uint32)}, classification=cls)
-    if not args.quiet:
-        print(f"{n_in:,} points -> {len(pts):,} after the voxel grid -> {int(keep.sum()):,} "
-              f"after outlier removal -> {args.output}")
-        if cls is not None:
-            u, c = np.unique(cls, return_counts=True)
-            print("classes: " + ", ".join(f"{CLASS_NAMES[k]} ({k}) {v:,}"
-                                          for k, v in zip(u.tolist(), c.tolist())))
-    return 0
+    c = commands.add(
+        "mesh", cmd_mesh, help="reconstruct a tunnel mesh from a cleaned cloud",
+        description="Tunnel-aware reconstruction: unroll the lining around the centreline "
+                    "(estimated, or from a tunnel JSON), take a median radius per cell, "
+                    "fill gaps (vertex property support = 0), triangulate; open portals.",
+        epilog="Example: tunnelsim mesh clean.laz -o tunnel.ply --cell 0.1,2")
+    c.option("cloud", path="in", help=f"input cloud ({CLOUD_INPUTS})")
+    c.option("-o", "--output", required=True, path="out", help="output mesh (.ply)")
+    c.option("--cell", default="0.1,2", metavar="M,DEG",
+             help="cell size along the axis (m) and around it (deg), default 0.1,2")
+    c.option("--detail", action="store_true",
+             help="add a detail layer: attachments (cables, pipes) as closed tubes "
+                  "(vertex support -1)")
+    c.option("--method", choices=["tunnel", "poisson"], default="tunnel",
+             help="tunnel-aware mesher (default) or Open3D Poisson (optional extra)")
+    c.option("--depth", type=int, default=10, help="Poisson octree depth (default 10)")
+    c.option("--triangles", type=int, metavar="N",
+             help="triangle budget: coarsen the cells until the mesh fits")
+    c.option("--min-points", type=int, default=3,
+             help="cells with fewer points are interpolated (default 3)")
+    c.option("--tunnel-json", path="in", help="use the alignment of a generated tunnel's JSON")
+    c.option("--json", path="out", help="also write the reconstruction quality as JSON")
+    c.option("--figure", metavar="PNG", path="out",
+             help="also write the unrolled support map (points per cell) as PNG")
+    c.option("--quiet", action="store_true", help="print nothing on success")
 
 
 def _tunnel_axis(path):
@@ -63,11 +74,67 @@ def _tunnel_axis(path):
     return read_axis(path)
 
 
-def cmd_mesh(args) -> int:
-    from survey.clouds.cloudio import iter_points
-    from survey.clouds.reconstruct import reconstruct_tunnel
+def cmd_preprocess(args) -> int:
+    import numpy as np
 
-    cell_m, cell_deg = _parse_window(args.cell.replace(",", ":"), "--cell as M,DEG", 2)
+    from survey.clouds.cloudio import cloud_bounds, iter_points, write_points_las
+    from survey.clouds.preprocess import (
+        VoxelGrid,
+        radius_outliers,
+        statistical_outliers,
+    )
+
+    lo, _hi, n_in = cloud_bounds(args.cloud)
+    if args.voxel is not None:
+        grid = VoxelGrid(args.voxel, lo)
+        for xyz in iter_points(args.cloud):
+            grid.add(xyz)
+        pts, counts = grid.result()
+    else:
+        pts = np.concatenate(list(iter_points(args.cloud)))
+        counts = np.ones(len(pts), dtype=np.int64)
+    keep = np.ones(len(pts), dtype=bool)
+    if args.crop:
+        s0, s1 = pair(args.crop, "--crop as START,END in m")
+        al, _ = _tunnel_axis(args.tunnel_json)
+        if al is None:
+            from survey.clouds.axis import estimate_axis
+            al, _ = estimate_axis(pts)
+        s, _, _ = al.to_local(pts)
+        keep &= (s >= s0) & (s <= s1)
+    if args.sor:
+        k, ratio = pair(args.sor, "--sor as K,STD_RATIO")
+        keep &= ~statistical_outliers(pts, k=int(k), std_ratio=ratio)
+    if args.ror:
+        nb, rad = pair(args.ror, "--ror as N,RADIUS_M")
+        keep &= ~radius_outliers(pts, min_neighbours=int(nb), radius_m=rad)
+    cls = None
+    if args.segment:
+        from survey.clouds.segment import segment_tunnel
+
+        al, hc = _tunnel_axis(args.tunnel_json)
+        cls = segment_tunnel(pts[keep], alignment=al, centre_height_m=hc)
+    write_points_las(args.output, pts[keep],
+                     {"voxel_count": counts[keep].astype(np.uint32)}, classification=cls)
+    if not args.quiet:
+        print(f"{n_in:,} points -> {len(pts):,} after the voxel grid -> {int(keep.sum()):,} "
+              f"after outlier removal -> {args.output}")
+        if cls is not None:
+            from survey.clouds.segment import CLASS_NAMES
+
+            u, c = np.unique(cls, return_counts=True)
+            print("classes: " + ", ".join(f"{CLASS_NAMES[k]} ({k}) {v:,}"
+                                          for k, v in zip(u.tolist(), c.tolist())))
+    return 0
+
+
+def cmd_mesh(args) -> int:
+    import numpy as np
+
+    from survey.clouds.cloudio import iter_points
+    from survey.clouds.reconstruct import reconstruct_within_budget
+
+    cell_m, cell_deg = pair(args.cell, "--cell as M,DEG")
     pts = np.concatenate(list(iter_points(args.cloud)))
     al, hc = _tunnel_axis(args.tunnel_json)
     if args.method == "poisson":
@@ -80,50 +147,37 @@ def cmd_mesh(args) -> int:
             print(f"{len(pts):,} points -> {len(f):,} triangles (Poisson, depth "
                   f"{args.depth}, trimmed) -> {args.output}")
         return 0
-    rec = reconstruct_tunnel(pts, alignment=al, centre_height_m=hc, cell_m=cell_m,
-                             cell_rad=np.deg2rad(cell_deg), min_points=args.min_points)
-    f = 1.0
-    while args.triangles and len(rec.faces) > args.triangles:
-        # A triangle budget: the same reconstruction on proportionally larger cells
-        # (both directions scaled alike; cell counts round, so step until it fits),
-        # which keeps the grid regular and the support meaningful.
-        f *= max(1.02, np.sqrt(len(rec.faces) / args.triangles))
-        rec = reconstruct_tunnel(pts, alignment=rec.alignment,
-                                 centre_height_m=rec.centre_height_m, cell_m=cell_m * f,
-                                 cell_rad=min(np.deg2rad(cell_deg) * f, np.pi / 4 - 1e-9),
-                                 min_points=args.min_points)
-        if f > 1e3:
-            raise TunnelsimCLIError(f"Expected a reachable triangle budget, got "
-                                    f"{args.triangles}; ask for more triangles.")
-    if args.detail:
-        from survey.clouds.detail import attachment_tubes
-        from survey.clouds.segment import ATTACHMENT, segment_tunnel
-        from survey.world.mesh import write_ply
+    if args.triangles is None:
+        from survey.clouds.reconstruct import reconstruct_tunnel
 
-        cls = segment_tunnel(pts, alignment=rec.alignment,
-                             centre_height_m=rec.centre_height_m)
-        tv, tf = attachment_tubes(pts[cls == ATTACHMENT], rec.alignment)
-        # Detail-layer vertices carry support -1.
-        write_ply(args.output, np.concatenate([rec.vertices, tv]),
-                  np.concatenate([rec.faces, tf + len(rec.vertices)]),
-                  vertex_fields={"support": np.concatenate(
-                      [rec.support.astype(np.float64), np.full(len(tv), -1.0)])})
+        rec = reconstruct_tunnel(pts, alignment=al, centre_height_m=hc, cell_m=cell_m,
+                                 cell_rad=np.deg2rad(cell_deg), min_points=args.min_points)
+    else:
+        rec = reconstruct_within_budget(pts, args.triangles, alignment=al, centre_height_m=hc,
+                                        cell_m=cell_m, cell_rad=np.deg2rad(cell_deg),
+                                        min_points=args.min_points)
+    if args.detail:
+        from survey.clouds.detail import with_detail_layer
+
+        mesh = with_detail_layer(rec, pts)
+        mesh.write(args.output)
         if not args.quiet:
-            print(f"detail layer: {len(tf):,} triangles of attachment tubes")
+            print(f"detail layer: {mesh.detail_faces:,} triangles of attachment tubes")
     else:
         rec.write(args.output)
     if args.figure:
         from survey.report.reconstruct import plot_support
-        plot_support(rec, args.figure)
-    if args.json:
-        import json
 
-        from survey.cli.main import _write_text
-        _write_text(args.json, json.dumps(rec.quality, indent=2) + "\n")
+        plot_support(rec, args.figure)
+    q: dict = rec.quality or {}
+    if args.json:
+        write_json(args.json, q)
     if not args.quiet:
-        q = rec.quality
         print(f"{q['points']:,} points -> {q['triangles']:,} triangles -> {args.output}; "
               f"point-to-surface mean {q['mean_m'] * 1000:.1f} mm, median "
               f"{q['median_m'] * 1000:.1f} mm, 95 % {q['p95_m'] * 1000:.1f} mm, max "
               f"{q['max_m'] * 1000:.1f} mm; extrapolated {100 * q['extrapolated_share']:.1f} %")
     return 0
+
+
+__all__ = ["CLOUD_INPUTS", "cmd_mesh", "cmd_preprocess", "register"]

@@ -2,16 +2,55 @@
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
 
+from survey.cli.common import CommandSet, write_json, write_text
 from survey.errors import TunnelsimCLIError
-from survey.cli.main import _write_text
 
 
-def _run(args, text, source, intro_fn=None):
+def register(commands: CommandSet) -> None:
+    """Add demo and run."""
+    c = commands.add(
+        "demo", cmd_demo, seeded=True,
+        help="the whole seed workflow on a generated tunnel, with a report",
+        description="Run the shipped demo pipeline (print it with --print-config): "
+                    "generate the BFO-like tunnel, simulate and correct a drifting MLS run, "
+                    "preprocess and reconstruct, compare TLS stations on the reconstruction "
+                    "with the truth (Table 1), plan stations (Figure 6), study MLS speeds "
+                    "(Figure 7), export to Gazebo; writes report.md and summary.json.",
+        epilog="Example: tunnelsim demo -o tunnelsim-demo")
+    c.option("-o", "--output", default="tunnelsim-demo", path="out",
+             help="output folder (default ./tunnelsim-demo)")
+    c.option("--quick", action="store_true",
+             help="smaller numbers throughout (under a minute; what the tests run)")
+    c.option("--print-config", action="store_true",
+             help="print the demo pipeline (TOML for 'tunnelsim run') and exit")
+    c.option("--seed", type=int,
+             help="random seed for every step (default: the pipeline's, 0)")
+    c.option("--threads", type=int, help="Numba threads (default: all cores)")
+    c.option("--force", action="store_true", help="write into a non-empty folder")
+    c.option("--quiet", action="store_true", help="no progress lines")
+
+    c = commands.add(
+        "run", cmd_run, seeded=True,
+        help="run a pipeline TOML file (a sequence of tunnelsim steps)",
+        description="Run the steps of a pipeline TOML file in order, inside one output "
+                    "folder, and write report.md. Each step is a tunnelsim command with its "
+                    "options; see 'tunnelsim demo --print-config' for an example.",
+        epilog="Example: tunnelsim run demo.toml -o my-demo --quick  (after 'tunnelsim demo "
+               "--print-config > demo.toml')")
+    c.option("pipeline", path="in", help="pipeline TOML file")
+    c.option("-o", "--output", required=True, path="out", help="output folder")
+    c.option("--quick", action="store_true", help="apply the steps' [quick] options")
+    c.option("--seed", type=int, help="random seed for every step that takes one")
+    c.option("--threads", type=int, help="Numba threads (default: all cores)")
+    c.option("--force", action="store_true", help="write into a non-empty folder")
+    c.option("--quiet", action="store_true", help="no progress lines")
+
+
+def _run(args, text, source, intro_fn=None) -> int:
     from survey.cli.pipeline import load_pipeline, pipeline_report, run_pipeline
 
     pipe = load_pipeline(text, source)
@@ -21,7 +60,7 @@ def _run(args, text, source, intro_fn=None):
     total = time.perf_counter() - t0
     out = Path(args.output)
     intro = intro_fn(out) if intro_fn else ""
-    _write_text(out / "report.md", pipeline_report(pipe, done, out, intro=intro))
+    write_text(out / "report.md", pipeline_report(pipe, done, out, intro=intro))
     if not args.quiet:
         print(f"{len(done)} steps in {total:.0f} s -> {out}/report.md")
     return 0
@@ -32,12 +71,17 @@ def cmd_run(args) -> int:
     if not p.is_file():
         raise TunnelsimCLIError(f"Expected a pipeline TOML file, got '{p}' which does not "
                                 "exist.")
-    return _run(args, p.read_text(), str(p))
+    try:
+        text = p.read_text()
+    except UnicodeDecodeError as exc:
+        raise TunnelsimCLIError(f"Expected a TOML text file, got '{p}' which is not text "
+                                f"({exc}).") from exc
+    return _run(args, text, str(p))
 
 
 def cmd_demo(args) -> int:
-    from survey.report.demo import demo_summary, summary_markdown
     from survey.cli.pipeline import demo_text
+    from survey.report.demo import demo_summary, summary_markdown
 
     if args.print_config:
         sys.stdout.write(demo_text())
@@ -45,7 +89,7 @@ def cmd_demo(args) -> int:
 
     def intro(out):
         s = demo_summary(out)
-        _write_text(out / "summary.json", json.dumps(s, indent=2) + "\n")
+        write_json(out / "summary.json", s)
         mode = "quick mode (smaller numbers, for CI)" if args.quick else "full demo"
         return ("What tunnelsim does, on a generated copy of the seed study's gallery: "
                 f"{mode}. Every figure below was made by the step under which it "
@@ -53,3 +97,6 @@ def cmd_demo(args) -> int:
                 summary_markdown(s))
 
     return _run(args, demo_text(), "the shipped demo pipeline", intro)
+
+
+__all__ = ["cmd_demo", "cmd_run", "register"]

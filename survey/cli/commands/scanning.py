@@ -2,43 +2,80 @@
 
 from __future__ import annotations
 
-import sys
-
-import numpy as np
-
-from survey.errors import TunnelsimCLIError
-from survey.cli.main import _parse_window, _xyz
+from survey.cli.common import CommandSet, Progress, pair, physics_options, xyz
+from survey.errors import TunnelFileError, TunnelsimCLIError
 
 
-class Progress:
-    """A one-line progress bar on stderr (only on a terminal)."""
+def register(commands: CommandSet) -> None:
+    """Add scan and drive."""
+    c = commands.add(
+        "scan", cmd_scan, seeded=True, help="simulate a TLS station on a mesh",
+        description="Simulate a terrestrial laser scanner station on a mesh and stream the "
+                    "points to a file (LAS/LAZ, PLY, NPZ, E57).",
+        epilog="Example: tunnelsim scan --mesh bfo.ply --sensor zf_imager_5016 "
+               "--resolution superhigh --at 150,2,1.5 -o station.laz")
+    c.option("--mesh", required=True, path="in",
+             help="mesh file (PLY with reflectivity, OBJ, ...)")
+    c.option("--sensor", default="zf_imager_5016", path="toml",
+             help="sensor name ('tunnelsim sensors' lists them) or a .toml file")
+    g = c.exclusive(required=True)
+    c.option("--at", group=g, metavar="X,Y,Z", help="station position (m)")
+    c.option("--chainage", group=g, type=float, metavar="M",
+             help="station on the tunnel axis at this chainage, --height above the floor "
+                  "(axis from --tunnel-json or the mesh's .json)")
+    c.option("--height", type=float, default=1.5, metavar="M",
+             help="instrument height above the floor with --chainage (default 1.5)")
+    c.option("--tunnel-json", path="in",
+             help="axis for --chainage (default: the mesh's .json)")
+    c.option("--resolution", help="resolution preset of the sensor (e.g. superhigh)")
+    c.option("--step-deg", type=float, metavar="DEG",
+             help="angular step in degrees instead of a preset")
+    c.option("--heading-deg", type=float, default=0.0, metavar="DEG",
+             help="station heading, degrees counter-clockwise from +x")
+    physics_options(c)
 
-    def __init__(self, quiet):
-        import time
-
-        self.on = not quiet and sys.stderr.isatty()
-        self.t0 = time.perf_counter()
-
-    def __call__(self, done, total):
-        import time
-
-        if not self.on:
-            return
-        dt = time.perf_counter() - self.t0
-        frac = done / max(total, 1)
-        eta = dt / frac - dt if frac > 0 else 0.0
-        bar = "#" * int(30 * frac)
-        sys.stderr.write(f"\r[{bar:<30}] {100 * frac:5.1f} %  {done / 1e6:.1f}M/"
-                         f"{total / 1e6:.1f}M rays  {done / max(dt, 1e-9) / 1e6:.2f} "
-                         f"Mrays/s  ETA {eta:.0f} s ")
-        sys.stderr.flush()
-
-    def close(self):
-        if self.on:
-            sys.stderr.write("\n")
+    c = commands.add(
+        "drive", cmd_drive, seeded=True,
+        help="simulate a moving lidar or profiler along a trajectory",
+        description="Simulate a sensor on a moving platform: each pulse is cast from the "
+                    "pose at its own time (rolling shutter).",
+        epilog="Example: tunnelsim drive --mesh bfo.ply --sensor robosense_airy --along "
+               "centreline --speed 1 --mount down --lever 0,0,0.5 -o drive.laz")
+    c.option("--mesh", required=True, path="in", help="mesh file")
+    c.option("--sensor", default="robosense_airy", path="toml",
+             help="sensor name or a .toml file")
+    c.option("--trajectory", path="in",
+             help="TUM text (t x y z qx qy qz qw) or CSV trajectory")
+    c.option("--along", choices=["centreline"],
+             help="drive along the tunnel centreline (needs the mesh's .json)")
+    c.option("--speed", type=float, metavar="M_S", help="speed along the centreline")
+    c.option("--height", type=float, default=0.5, metavar="M",
+             help="platform height above the centreline (default 0.5)")
+    c.option("--offset", type=float, default=0.0, metavar="M",
+             help="platform offset left of the centreline (default 0)")
+    c.option("--margin", type=float, default=1.0, metavar="M",
+             help="distance kept from the portals (default 1)")
+    c.option("--mount", choices=["level", "down"], default="level",
+             help="sensor z up (level) or pointing down (default level)")
+    c.option("--lever", default="0,0,0", metavar="X,Y,Z",
+             help="lever arm platform -> sensor in metres (default 0,0,0)")
+    c.option("--duration", type=float, metavar="S", help="simulate only the first S seconds")
+    c.option("--chainage", metavar="START,END",
+             help="with --along: drive only this chainage range in m")
+    c.option("--rate", type=float, metavar="HZ",
+             help="rotation (profile) rate in Hz instead of the spec's; the firing rate "
+                  "stays, so points per turn (per profile) change")
+    c.option("--slam-drift", action="store_true",
+             help="with --along: write the cloud in a drifting SLAM frame, with the SLAM "
+                  "and true trajectories (_trajectory.txt, _true_trajectory.txt) and the "
+                  "control points (_cp_world.csv, _cp_observed.csv) for 'tunnelsim "
+                  "correct'")
+    physics_options(c)
 
 
 def _settings(args):
+    from dataclasses import replace
+
     from sensors import Settings
 
     if args.ideal:
@@ -46,17 +83,11 @@ def _settings(args):
     else:
         base = Settings(range_noise=not args.no_noise, angle_jitter=not args.no_noise,
                         detection=not args.no_detection)
-    from dataclasses import replace
-
     return replace(base, beam_subrays=args.beam_subrays, mixed=args.mixed,
                    attenuation_per_m=args.attenuation, particle_rate_per_m=args.particles)
 
 
-def _finish_run(args, run, label):
-    from raytrace import set_threads
-
-    if args.threads:
-        set_threads(args.threads)
+def _finish_run(args, run, label) -> int:
     prog = Progress(args.quiet)
     try:
         stats = run.write(args.output, progress=prog, fields=args.fields)
@@ -70,6 +101,7 @@ def _finish_run(args, run, label):
 
 
 def cmd_scan(args) -> int:
+    import numpy as np
     from scipy.spatial.transform import Rotation
 
     from sensors import load_sensor, simulate_station
@@ -77,17 +109,15 @@ def cmd_scan(args) -> int:
 
     spec = load_sensor(args.sensor)
     scene, refl = load_mesh(args.mesh)
-    if args.chainage is not None:
-        at = _station_on_axis(args, scene)
-    else:
-        at = _xyz(args.at, "--at")
+    at = _station_on_axis(args, scene) if args.chainage is not None else xyz(args.at, "--at")
     run = simulate_station(scene, spec, at,
                            attitude=Rotation.from_euler("z", args.heading_deg, degrees=True),
                            resolution=args.resolution,
                            step_rad=None if args.step_deg is None else np.deg2rad(args.step_deg),
                            settings=_settings(args), seed=args.seed,
                            reflectivity=refl if refl is not None else args.reflectivity)
-    return _finish_run(args, run, f"{spec.name} {run.scan.resolution or 'custom step'}")
+    resolution = getattr(run.scan, "resolution", None) or "custom step"
+    return _finish_run(args, run, f"{spec.name} {resolution}")
 
 
 def _station_on_axis(args, scene):
@@ -108,124 +138,106 @@ def _station_on_axis(args, scene):
     return axis_stations(scene, al, hc, [args.chainage], height_m=args.height)[0]
 
 
+def _tunnel_meta(mesh) -> dict:
+    """The JSON beside a generated tunnel's mesh (alignment, control points)."""
+    import json
+
+    from survey.world.mesh import sidecar
+
+    js = sidecar(mesh)
+    if not js.is_file():
+        raise TunnelFileError(f"Expected the tunnel metadata '{js}' for --along centreline "
+                              "(made by 'tunnelsim tunnel'), got none; pass --trajectory "
+                              "instead.")
+    try:
+        meta = json.loads(js.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise TunnelFileError(f"Expected JSON in '{js}', got unreadable text ({exc}).") \
+            from exc
+    if not isinstance(meta, dict) or "alignment" not in meta:
+        raise TunnelFileError(f"Expected an 'alignment' in '{js}' (a JSON written by "
+                              "'tunnelsim tunnel'), got none.")
+    return meta
+
+
+def _centreline(args, meta):
+    import numpy as np
+
+    from sensors import Trajectory
+    from survey.world.alignment import Alignment
+
+    al = Alignment.from_dict(meta["alignment"])
+    c0, c1 = al.chainage_range
+    a, b = c0 + args.margin, c1 - args.margin
+    if args.chainage:
+        a, b = pair(args.chainage, "--chainage as START,END in m")
+        if not (c0 <= a < b <= c1):
+            raise TunnelsimCLIError(f"Expected --chainage within [{c0:g}, {c1:g}] m with "
+                                    f"START < END, got {args.chainage!r}.")
+    s = np.append(np.arange(a, b, 0.5), b)
+    return Trajectory.along_polyline(al.to_world(s, args.offset, args.height), args.speed)
+
+
 def cmd_drive(args) -> int:
     from sensors import Mount, Trajectory, load_sensor, simulate_drive
     from sensors.meshes import load_mesh
 
+    if args.slam_drift and not args.along:
+        raise TunnelsimCLIError("Expected --along centreline with --slam-drift (the control "
+                                "points come from the tunnel's JSON), got a trajectory "
+                                "file.")
+    lx, ly, lz = xyz(args.lever, "--lever")
+    lever = (lx, ly, lz)
     spec = load_sensor(args.sensor)
     if args.rate is not None:
         from sensors.spec import with_rate
 
         spec = with_rate(spec, args.rate)
     scene, refl = load_mesh(args.mesh)
+    meta = None
     if args.trajectory:
         traj = Trajectory.read(args.trajectory)
     else:
         if args.along != "centreline" or args.speed is None:
             raise TunnelsimCLIError("Expected --trajectory FILE, or --along centreline with "
                                     "--speed V, got neither.")
-        from survey.errors import TunnelFileError
-        from survey.world.mesh import sidecar
-        from survey.world.alignment import Alignment
-        import json
-
-        js = sidecar(args.mesh)
-        if not js.is_file():
-            raise TunnelFileError(f"Expected the tunnel metadata '{js}' for --along "
-                                  "centreline (made by 'tunnelsim tunnel'), got none; pass "
-                                  "--trajectory instead.")
-        meta = json.loads(js.read_text())
-        al = Alignment.from_dict(meta["alignment"])
-        c0, c1 = al.chainage_range
-        a, b = c0 + args.margin, c1 - args.margin
-        if args.chainage:
-            a, b = _parse_window(args.chainage.replace(",", ":"),
-                                 "--chainage as START,END in m", 2)
-            if not (c0 <= a < b <= c1):
-                raise TunnelsimCLIError(f"Expected --chainage within [{c0:g}, {c1:g}] m with "
-                                        f"START < END, got {args.chainage!r}.")
-        s = np.append(np.arange(a, b, 0.5), b)
-        pts = al.to_world(s, args.offset, args.height)
-        traj = Trajectory.along_polyline(pts, args.speed)
-    if args.mount == "down":
-        mount = Mount.pointing_down(_xyz(args.lever, "--lever"))
-    else:
-        mount = Mount(_xyz(args.lever, "--lever"))
+        meta = _tunnel_meta(args.mesh)
+        traj = _centreline(args, meta)
+    mount = Mount.pointing_down(lever) if args.mount == "down" else Mount(lever)
     t_end = None if args.duration is None else traj.start_s + args.duration
     run = simulate_drive(scene, spec, traj, mount, settings=_settings(args), seed=args.seed,
                          reflectivity=refl if refl is not None else args.reflectivity,
                          t_end=t_end)
     if args.slam_drift:
-        if not args.along:
-            raise TunnelsimCLIError("Expected --along centreline with --slam-drift (the "
-                                    "control points come from the tunnel's JSON), got a "
-                                    "trajectory file.")
-        run = _slam_run(args, run, traj, meta)
+        run = _slam_files(args, run, traj, meta)
     return _finish_run(args, run, f"{spec.name} drive {run.duration_s:.1f} s")
 
 
-#: Prism centres picked from an MLS cloud, per axis (m): ASSUMED, typical of fitting a
-#: sphere/prism target in a dense profiler cloud.
-PRISM_SIGMA_MLS_M = 0.003
-#: Total-station control points, per axis (m): ASSUMED (a monitoring network).
-CONTROL_SIGMA_M = 0.0015
-
-
-class _MappedRun:
-    """A Run whose point chunks pass through ``fn`` (e.g. into a SLAM map frame)."""
-
-    def __init__(self, run, fn):
-        self._run, self._fn = run, fn
-
-    def __getattr__(self, name):
-        return getattr(self._run, name)
-
-    def __iter__(self):
-        for pts in self._run:
-            yield self._fn(pts)
-
-
-def _slam_run(args, run, traj, meta):
-    """Drifting SLAM: the cloud in the SLAM map frame, plus the SLAM and true
-    trajectories and the control points (world, and observed in the MLS frame)."""
+def _slam_files(args, run, traj, meta):
+    """Observe the drive through a drifting SLAM (``survey.adjust.slam``) and write what
+    a surveyor would have besides the cloud: the SLAM and true trajectories and the
+    control points (world, and observed in the MLS frame). Returns the drifted run."""
     from pathlib import Path
 
-    from survey.adjust.controlpoints import ControlPoints
-    from survey.adjust.slam import slam_trajectory, to_slam_frame
+    import numpy as np
 
-    slam = slam_trajectory(traj, seed=args.seed + 1)
+    from survey.adjust.slam import observe_slam
+
+    cps = meta.get("control_points", [])
+    obs = observe_slam(run, traj, [c["id"] for c in cps],
+                       np.array([c["xyz"] for c in cps], dtype=np.float64).reshape(-1, 3),
+                       seed=args.seed)
     out = Path(args.output)
     stem = out.with_name(out.stem)
-    slam.write(f"{stem}_trajectory.txt")
-    traj.write(f"{stem}_true_trajectory.txt")
-    cps = meta.get("control_points", [])
-    g = np.array([c["xyz"] for c in cps]).reshape(-1, 3)
-    ids = [c["id"] for c in cps]
-    # Observation time: when the platform is nearest to the point.
-    t = traj.times
-    near = np.argmin(np.linalg.norm(traj.positions[None, :, :2] - g[:, None, :2], axis=2),
-                     axis=1) if len(g) else np.zeros(0, dtype=int)
-    tau = t[near]
-    inside = (tau > t[0]) & (tau < t[-1])
-    rng = np.random.default_rng(args.seed + 2)
-    m = to_slam_frame(traj, slam, g[inside], tau[inside]) + \
-        rng.normal(0, PRISM_SIGMA_MLS_M, (int(inside.sum()), 3))
-    sel = [i for i, k in zip(ids, inside) if k]
-    ControlPoints(sel, m, time=tau[inside]).write(f"{stem}_cp_observed.csv")
-    gw = g + rng.normal(0, CONTROL_SIGMA_M, g.shape)
-    ControlPoints(ids, gw, sigma=np.full(g.shape, CONTROL_SIGMA_M)).write(
-        f"{stem}_cp_world.csv")
-
-    def to_map(pts):
-        if len(pts):
-            xyz = to_slam_frame(traj, slam, np.stack([pts["x"], pts["y"], pts["z"]], 1),
-                                pts["time"])
-            pts = pts.copy()
-            pts["x"], pts["y"], pts["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-        return pts
-
+    obs.slam.write(f"{stem}_trajectory.txt")
+    obs.true.write(f"{stem}_true_trajectory.txt")
+    obs.observed.write(f"{stem}_cp_observed.csv")
+    obs.world.write(f"{stem}_cp_world.csv")
     if not args.quiet:
-        print(f"SLAM drift: {len(sel)} control points observed; wrote {stem.name}_trajectory"
-              f".txt, {stem.name}_true_trajectory.txt, {stem.name}_cp_observed.csv, "
-              f"{stem.name}_cp_world.csv")
-    return _MappedRun(run, to_map)
+        print(f"SLAM drift: {len(obs.observed)} control points observed; wrote "
+              f"{stem.name}_trajectory.txt, {stem.name}_true_trajectory.txt, "
+              f"{stem.name}_cp_observed.csv, {stem.name}_cp_world.csv")
+    return obs.run
+
+
+__all__ = ["cmd_drive", "cmd_scan", "register"]

@@ -1,21 +1,87 @@
-"""Commands about the world and the tool: info, sensors, tunnel."""
+"""Commands about the world and the tool: info, sensors, tunnel, gazebo."""
 
 from __future__ import annotations
 
-import platform
 import sys
-from importlib import metadata
 
-import numpy as np
-
+from survey.cli.common import CommandSet, numbers, parse_window, version
 from survey.errors import TunnelsimCLIError
-from survey.cli.main import _parse_window, _version
+
+
+def register(commands: CommandSet) -> None:
+    """Add info, sensors, tunnel and gazebo."""
+    commands.add("info", cmd_info, printing=True,
+                 help="versions, Numba threading layer and thread count",
+                 description="Print versions of tunnelsim and its dependencies, the Numba "
+                             "threading layer and thread count.",
+                 epilog="Example: tunnelsim info")
+
+    c = commands.add(
+        "tunnel", cmd_tunnel, seeded=True, help="generate a tunnel mesh (PLY + JSON metadata)",
+        description="Generate a labelled tunnel mesh from a preset: binary PLY with face "
+                    "labels and reflectivity, and a JSON file beside it with the alignment, "
+                    "profile, features and control points. Optionally a second, deformed "
+                    "epoch with the displacement per vertex.",
+        epilog="Example: tunnelsim tunnel -o bfo.ply --preset bfo --edge-length 0.08 "
+               "--epoch2 bfo_epoch2.ply --convergence 120:160:5")
+    c.option("-o", "--output", required=True, path="out", help="output mesh (.ply)")
+    c.option("--preset", default="bfo", choices=["bfo", "tbm"],
+             help="which tunnel (default: bfo, the seed study's gallery)")
+    g = c.exclusive()
+    c.option("--edge-length", group=g, type=float, default=0.1, metavar="M",
+             help="target edge length of the lining in metres (default 0.1)")
+    c.option("--triangles", group=g, type=int, metavar="N",
+             help="target number of lining triangles instead of an edge length")
+    c.option("--roughness-mm", type=float, metavar="MM",
+             help="lining roughness, standard deviation in mm (preset default)")
+    c.option("--closed-ends", action="store_true", help="cap both portals (watertight mesh)")
+    c.option("--origin", metavar="E,N,H",
+             help="coordinates of the first portal's centreline point, e.g. UTM")
+    c.option("--heading-deg", type=float, default=0.0, metavar="DEG",
+             help="initial direction, degrees counter-clockwise from east")
+    c.option("--epoch2", metavar="PATH", path="out",
+             help="also write a deformed second epoch (.ply + .json)")
+    c.option("--convergence", action="append", default=[], metavar="START:END:MM",
+             help="radial convergence in mm between two chainages (repeatable; default "
+                  "for --epoch2: the preset's)")
+    c.option("--bulge", action="append", default=[], metavar="CHAINAGE:ANGLE_DEG:RADIUS_M:MM",
+             help="local inward bulge at a chainage and angle from the crown")
+    c.option("--seed", type=int, default=0, help="roughness seed (default 0)")
+    c.option("--quiet", action="store_true", help="print nothing on success")
+
+    c = commands.add(
+        "gazebo", cmd_gazebo,
+        help="export the tunnel and a lidar robot as a Gazebo world (SDF 1.9)",
+        description="Write a Gazebo world folder: world.sdf (underground lighting, the "
+                    "tunnel as a static model, a LIMO-sized differential-drive robot "
+                    "carrying the lidar as a gpu_lidar sensor), the tunnel model (OBJ "
+                    "visual, decimated STL collision) in local coordinates, and a README. "
+                    "What SDF cannot express about the sensor is listed.",
+        epilog="Example: tunnelsim gazebo --mesh bfo.ply --sensor robosense_airy -o world/")
+    c.option("--mesh", required=True, path="in",
+             help="tunnel mesh (its .json gives the axis)")
+    c.option("--sensor", default="robosense_airy", path="toml",
+             help="spinning lidar or profiler, name or .toml (default robosense_airy)")
+    c.option("--mount", choices=["level", "down"], default="level",
+             help="lidar z up (level) or pointing down (default level)")
+    c.option("--chainage", type=float, metavar="M",
+             help="robot start chainage (default: first chainage + 1 m)")
+    c.option("-o", "--output", required=True, path="out", help="output world folder (new)")
+    c.option("--force", action="store_true", help="replace an existing folder")
+    c.option("--quiet", action="store_true", help="print nothing on success")
+
+    commands.add("sensors", cmd_sensors, printing=True, help="list the sensor models",
+                 description="List the shipped sensor models with kind and source file.",
+                 epilog="Example: tunnelsim sensors")
 
 
 def cmd_info(args) -> int:
+    import platform
+    from importlib import metadata
+
     from raytrace.config import threading_info
 
-    lines = [f"tunnelsim {_version()}",
+    lines = [f"tunnelsim {version()}",
              f"python {platform.python_version()} ({platform.machine()}, {platform.system()})"]
     for pkg in ("numpy", "numba", "scipy", "trimesh", "laspy", "lazrs", "pyproj", "pye57",
                 "embreex", "open3d"):
@@ -44,9 +110,11 @@ def cmd_tunnel(args) -> int:
     import time
     from pathlib import Path
 
+    import numpy as np
+
     from survey.world.deformation import Bulge, Convergence
-    from survey.world.presets import PRESETS, preset
     from survey.world.generator import edge_length_for
+    from survey.world.presets import PRESETS, preset
 
     out = Path(args.output)
     if out.suffix.lower() != ".ply":
@@ -55,28 +123,28 @@ def cmd_tunnel(args) -> int:
         raise TunnelsimCLIError(f"Expected an existing output folder, got '{out.parent}'; "
                                 "create it first.")
     origin = (0.0, 0.0, 0.0) if args.origin is None else \
-        _parse_window(args.origin.replace(",", ":"), "--origin as E,N,H in metres", 3)
+        numbers(args.origin, "--origin as E,N,H in metres", 3)
     edge = args.edge_length
     if args.triangles is not None:
         al, prof, _, _ = PRESETS[args.preset](origin, 0.0)
         edge = edge_length_for(args.triangles, prof, al.length_m)
     t0 = time.perf_counter()
+    deformations: list = []
+    for c in args.convergence:
+        a, b, mm = parse_window(c, "--convergence START:END:MM", 3)
+        deformations.append(Convergence(a, b, mm / 1000.0))
+    for c in args.bulge:
+        s, ang, r, mm = parse_window(c, "--bulge CHAINAGE:ANGLE_DEG:RADIUS_M:MM", 4)
+        deformations.append(Bulge(s, np.deg2rad(ang), r, mm / 1000.0))
     tun, default_def = preset(args.preset, edge_length_m=edge, seed=args.seed,
                               closed_ends=args.closed_ends,
                               roughness_rms_m=None if args.roughness_mm is None
                               else args.roughness_mm / 1000.0, origin=origin,
                               heading_rad=np.deg2rad(args.heading_deg))
-    deformations = [Convergence(*_parse_window(c, "--convergence START:END:MM", 3)[:2],
-                                _parse_window(c, "", 3)[2] / 1000.0)
-                    for c in args.convergence]
-    deformations += [Bulge(a, np.deg2rad(b), r, mm / 1000.0) for a, b, r, mm in
-                     (_parse_window(c, "--bulge CHAINAGE:ANGLE_DEG:RADIUS_M:MM", 4)
-                      for c in args.bulge)]
     written = list(tun.write(out))
     if args.epoch2:
-        ep2 = Path(args.epoch2)
         epoch = tun.deformed(deformations or default_def)
-        written += list(epoch.write(ep2))
+        written += list(epoch.write(Path(args.epoch2)))
     dt = time.perf_counter() - t0
     if not args.quiet:
         counts = ", ".join(f"{k} {v:,}" for k, v in tun.metadata["face_counts"].items())
@@ -92,7 +160,6 @@ def cmd_gazebo(args) -> int:
     import warnings
 
     from sensors import load_sensor
-
     from survey.export.gazebo import export_gazebo
 
     spec = load_sensor(args.sensor)
@@ -113,3 +180,6 @@ def cmd_gazebo(args) -> int:
             print(f"  - {x}")
         print(f"run: cd {info['path']} && GZ_SIM_RESOURCE_PATH=$PWD/models gz sim world.sdf")
     return 0
+
+
+__all__ = ["cmd_gazebo", "cmd_info", "cmd_sensors", "cmd_tunnel", "register"]
