@@ -31,9 +31,10 @@ _EXPORTS = {
 
 
 if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
-    from raytrace.config import max_threads, set_threads, threading_info, threads
-    from raytrace.errors import ConfigError, MeshError, RayError, SceneFileError, TunnelsimError
-    from raytrace.hits import Hits
     from raytrace.scene import Scene
+    from raytrace.hits import Hits
+    from raytrace.errors import (TunnelsimError, ConfigError, MeshError, RayError,
+        SceneFileError)
+    from raytrace.config import max_threads, set_threads, threading_info, threads
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

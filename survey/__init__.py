@@ -36,7 +36,8 @@ _EXPORTS = {
     "survey.adjust.helmert": ("HelmertResult", "fit_helmert", "from_parameters"),
     "survey.adjust.controlpoints": ("ControlPoints", "match", "read_control_points"),
     "survey.adjust.drift": ("DriftCorrection", "fit_drift", "leave_one_out"),
-    "survey.adjust.slam": ("slam_trajectory", "to_slam_frame"),
+    "survey.adjust.slam": ("slam_trajectory", "to_slam_frame", "DriftedRun", "SlamObservation",
+                           "observe_slam"),
     "survey.clouds.cloudio": ("annotate_las", "cloud_bounds", "iter_points", "map_cloud",
                               "write_points_las"),
     "survey.clouds.preprocess": ("VoxelGrid", "radius_outliers", "statistical_outliers",
@@ -44,8 +45,8 @@ _EXPORTS = {
     "survey.clouds.axis": ("estimate_axis", "tunnel_frame", "unroll"),
     "survey.clouds.segment": ("CLASS_NAMES", "segment_tunnel"),
     "survey.clouds.reconstruct": ("ReconstructedTunnel", "poisson_tunnel",
-                                  "reconstruct_tunnel"),
-    "survey.clouds.detail": ("attachment_tubes",),
+                                  "reconstruct_tunnel", "reconstruct_within_budget"),
+    "survey.clouds.detail": ("attachment_tubes", "DetailedMesh", "with_detail_layer"),
     "survey.analysis.compare": ("Distances", "ReferenceCloud", "ReferenceMesh",
                                 "cloud_to_cloud", "cloud_to_mesh", "distance_stats"),
     "survey.analysis.planning": ("Plan", "Planner", "Thresholds", "axis_stations",
@@ -53,7 +54,7 @@ _EXPORTS = {
     "survey.analysis.study": ("Study", "StudyRow"),
     "survey.report.adjustment": ("drift_report", "helmert_report"),
     "survey.report.compare": ("plot_histogram", "stats_csv", "stats_markdown"),
-    "survey.report.planning": ("plan_csv", "plan_markdown", "plot_coverage"),
+    "survey.report.planning": ("plan_csv", "plan_markdown", "plot_coverage", "plan_summary"),
     "survey.report.study": ("plot_study", "study_csv", "study_markdown"),
     "survey.report.reconstruct": ("plot_support",),
     "survey.report.demo": ("demo_summary", "summary_markdown"),
@@ -79,7 +80,8 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.adjust.helmert import HelmertResult, fit_helmert, from_parameters
     from survey.adjust.controlpoints import ControlPoints, match, read_control_points
     from survey.adjust.drift import DriftCorrection, fit_drift, leave_one_out
-    from survey.adjust.slam import slam_trajectory, to_slam_frame
+    from survey.adjust.slam import (slam_trajectory, to_slam_frame, DriftedRun,
+        SlamObservation, observe_slam)
     from survey.clouds.cloudio import (annotate_las, cloud_bounds, iter_points, map_cloud,
         write_points_las)
     from survey.clouds.preprocess import (VoxelGrid, radius_outliers, statistical_outliers,
@@ -87,8 +89,8 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.clouds.axis import estimate_axis, tunnel_frame, unroll
     from survey.clouds.segment import CLASS_NAMES, segment_tunnel
     from survey.clouds.reconstruct import (ReconstructedTunnel, poisson_tunnel,
-        reconstruct_tunnel)
-    from survey.clouds.detail import attachment_tubes
+        reconstruct_tunnel, reconstruct_within_budget)
+    from survey.clouds.detail import attachment_tubes, DetailedMesh, with_detail_layer
     from survey.analysis.compare import (Distances, ReferenceCloud, ReferenceMesh,
         cloud_to_cloud, cloud_to_mesh, distance_stats)
     from survey.analysis.planning import (Plan, Planner, Thresholds, axis_stations,
@@ -96,7 +98,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.analysis.study import Study, StudyRow
     from survey.report.adjustment import drift_report, helmert_report
     from survey.report.compare import plot_histogram, stats_csv, stats_markdown
-    from survey.report.planning import plan_csv, plan_markdown, plot_coverage
+    from survey.report.planning import plan_csv, plan_markdown, plot_coverage, plan_summary
     from survey.report.study import plot_study, study_csv, study_markdown
     from survey.report.reconstruct import plot_support
     from survey.report.demo import demo_summary, summary_markdown

@@ -2,12 +2,12 @@
 
 from .adjustment import drift_report, helmert_report
 from .compare import plot_histogram, stats_csv, stats_markdown
-from .planning import plan_csv, plan_markdown, plot_coverage
+from .planning import plan_csv, plan_markdown, plot_coverage, plan_summary
 from .study import plot_study, study_csv, study_markdown
 from .reconstruct import plot_support
 from .demo import demo_summary, summary_markdown
 
-__all__ = ["drift_report", "helmert_report", "plot_histogram", "stats_csv",
+__all__ = ["plan_summary", "drift_report", "helmert_report", "plot_histogram", "stats_csv",
            "stats_markdown", "plan_csv", "plan_markdown", "plot_coverage", "plot_study",
            "study_csv", "study_markdown", "plot_support", "demo_summary",
            "summary_markdown"]
