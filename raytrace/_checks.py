@@ -14,7 +14,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import MeshError, RayError
 
-__all__ = ["as_xyz", "first_rows", "prepare_rays", "shape_text", "validate_mesh"]
+__all__ = ["as_points", "as_xyz", "first_rows", "prepare_rays", "shape_text",
+           "validate_mesh"]
 
 
 def shape_text(a: Any) -> str:
@@ -43,8 +44,39 @@ def as_xyz(a: ArrayLike, name: str, error: type[ValueError]) -> NDArray[np.float
     try:
         return np.asarray(a, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise error(f"Expected numeric `{name}`, got {type(a).__name__} that NumPy cannot "
-                    f"convert to float64 ({exc}); pass an array of numbers.") from None
+        raise error(f"Expected `{name}` as numbers, got {type(a).__name__} that NumPy "
+                    f"cannot convert to float64 ({exc}); pass an array of numbers.") from None
+
+
+def as_points(a: ArrayLike, name: str, error: type[ValueError], *, finite: bool = True,
+              min_points: int = 0) -> tuple[NDArray[np.float64], bool]:
+    """``a`` as (n, 3) float64 coordinates, and whether it was a single (3,) point: the
+    one rule for every public function of the three packages that takes points.
+    Results follow one rule too: a function that *maps* points keeps the caller's shape
+    ((3,) in, (3,) out: ``HelmertResult.apply``); one that *measures* points returns one
+    value per point, so a single point gives (1,)-shaped results (``cloud_to_mesh``,
+    ``Scene.cast``).
+
+    Accepts an (n, 3) array-like of numbers, a single (3,) point, or a structured array
+    with fields x, y, z (``sensors.POINT_DTYPE``, a PLY vertex element). ``finite``
+    refuses NaN and inf; ``min_points`` refuses fewer points. Errors are ``error``.
+    """
+    p = as_xyz(a, name, error)
+    single = p.shape == (3,)
+    if single:
+        p = p[None, :]
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise error(f"Expected `{name}` to have shape (n, 3) or (3,), got {shape_text(p)}; "
+                    "pass one row of x, y, z per point.")
+    if len(p) < min_points:
+        raise error(f"Expected at least {min_points} point(s) in `{name}`, got {len(p)}.")
+    if finite:
+        bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
+        if bad.size:
+            raise error(f"Expected finite coordinates in `{name}`, got NaN or inf in "
+                        f"{bad.size} point(s) (first at row {int(bad[0])}); drop those "
+                        "points first.")
+    return p, single
 
 
 def validate_mesh(vertices: ArrayLike, faces: ArrayLike

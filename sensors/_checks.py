@@ -13,7 +13,7 @@ import numbers
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from raytrace._checks import as_xyz
+from raytrace._checks import as_points as points_and_flag
 
 __all__ = ["as_number", "as_points", "as_whole"]
 
@@ -48,15 +48,6 @@ def as_whole(value: object, name: str, error: type[ValueError], *, lo: int) -> i
 
 
 def as_points(a: ArrayLike, name: str, error: type[ValueError]) -> NDArray[np.float64]:
-    """(n, 3) float64 from (n, 3), one (3,) row, or x, y, z records; finite."""
-    p = as_xyz(a, name, error)
-    if p.shape == (3,):
-        p = p[None, :]
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise error(f"Expected `{name}` of shape (n, 3) or (3,), got {p.shape}; pass one "
-                    "row of x, y, z per point.")
-    bad = np.flatnonzero(~np.isfinite(p).all(axis=1))
-    if bad.size:
-        raise error(f"Expected finite `{name}`, got NaN or inf in row {int(bad[0])} "
-                    f"({bad.size} rows in all).")
-    return p
+    """(n, 3) float64 from (n, 3), one (3,) row, or x, y, z records; finite (the rule of
+    ``raytrace._checks.as_points``, without its single-point flag)."""
+    return points_and_flag(a, name, error)[0]

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from survey._checks import as_points
+from raytrace._checks import as_points
 from survey.errors import AlignmentError, ReconstructionError
 from survey.world.alignment import Alignment
 from survey.world.mesh import read_axis, sidecar

@@ -119,8 +119,8 @@ def test_rows_of_three_and_n_by_three_alike(sphere):
     (np.zeros((3, 3)), np.ones((2, 3)), r"`origins` to have shape \(2, 3\) or \(3,\), "
                                         r"got \(3, 3\)"),
     (np.zeros(3), np.ones(2), r"`directions` to have shape \(n, 3\), got \(2,\)"),
-    ("here", np.ones((2, 3)), r"numeric `origins`, got str"),
-    (np.zeros(3), [[0, 0, "up"]], r"numeric `directions`"),
+    ("here", np.ones((2, 3)), r"`origins` as numbers, got str"),
+    (np.zeros(3), [[0, 0, "up"]], r"`directions` as numbers"),
     (np.zeros(3), np.zeros(3), r"zero length at row\(s\) 0"),
 ])
 def test_bad_rays_are_named(planes, origins, directions, match):
