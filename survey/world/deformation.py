@@ -27,6 +27,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from survey.errors import DeformationError
+from survey.world.records import from_record
 
 if TYPE_CHECKING:
     from survey.world.profiles import Profile
@@ -152,14 +153,5 @@ def to_dict(d: Deformation) -> dict[str, Any]:
 
 def from_dict(d: Mapping[str, Any]) -> Deformation:
     """The deformation of a ``to_dict`` dictionary."""
-    d = dict(d)
-    kind = d.pop("kind", None)
-    if kind not in KINDS:
-        raise DeformationError(f"Expected a deformation kind in {sorted(KINDS)}, got "
-                               f"{kind!r}.")
-    try:
-        deformation: Deformation = KINDS[kind](**d)
-        return deformation
-    except TypeError as exc:
-        raise DeformationError(f"Expected the fields of a {kind} deformation, got "
-                               f"{sorted(d)} ({exc}).") from exc
+    obj: Deformation = from_record(d, KINDS, DeformationError, "deformation")
+    return obj

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from survey.errors import FeatureError
+from survey.world.records import from_record
 
 __all__ = ["KINDS", "Bolts", "Cable", "Drainage", "Feature", "Niche", "Prisms", "WetFloor",
            "from_dict", "to_dict"]
@@ -171,13 +172,5 @@ def to_dict(f: Feature) -> dict[str, Any]:
 
 def from_dict(d: Mapping[str, Any]) -> Feature:
     """The feature of a ``to_dict`` dictionary."""
-    d = dict(d)
-    kind = d.pop("kind", None)
-    if kind not in KINDS:
-        raise FeatureError(f"Expected a feature kind in {sorted(KINDS)}, got {kind!r}.")
-    try:
-        feature: Feature = KINDS[kind](**d)
-        return feature
-    except TypeError as exc:
-        raise FeatureError(f"Expected the fields of a {kind} feature, got {sorted(d)} "
-                           f"({exc}).") from exc
+    obj: Feature = from_record(d, KINDS, FeatureError, "feature")
+    return obj
