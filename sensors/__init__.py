@@ -23,7 +23,9 @@ _EXPORTS = {
     "sensors.errors": ("TunnelsimError", "PointFileError", "SensorSpecError", "SimulationError", "TrajectoryError"),
     "sensors.patterns": ("ProfileScan", "Pulses", "SpinningScan", "TLSScan", "scan_for"),
     "sensors.physics": ("Settings",),
-    "sensors.simulate": ("POINT_DTYPE", "Run", "simulate_drive", "simulate_station"),
+    "sensors.fields": ("POINT_DTYPE",),
+    "sensors.simulate": ("Run", "simulate_drive", "simulate_station"),
+    "sensors.writers": ("PointWriter", "open_writer"),
     "sensors.spec": ("SensorSpec", "list_sensors", "load_sensor"),
     "sensors.trajectory": ("Mount", "Trajectory"),
     "sensors.meshes": ("load_mesh",),
@@ -31,10 +33,13 @@ _EXPORTS = {
 
 
 if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
-    from sensors.errors import TunnelsimError, PointFileError, SensorSpecError, SimulationError, TrajectoryError
+    from sensors.errors import (TunnelsimError, PointFileError, SensorSpecError,
+        SimulationError, TrajectoryError)
     from sensors.patterns import ProfileScan, Pulses, SpinningScan, TLSScan, scan_for
     from sensors.physics import Settings
-    from sensors.simulate import POINT_DTYPE, Run, simulate_drive, simulate_station
+    from sensors.fields import POINT_DTYPE
+    from sensors.simulate import Run, simulate_drive, simulate_station
+    from sensors.writers import PointWriter, open_writer
     from sensors.spec import SensorSpec, list_sensors, load_sensor
     from sensors.trajectory import Mount, Trajectory
     from sensors.meshes import load_mesh

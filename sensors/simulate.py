@@ -15,8 +15,9 @@ Output fields (SI, radians):
   along the nominal beam direction), not corrected for the platform's motion during
   the sweep: transforming one whole frame with a single pose shows the rolling-shutter
   distortion.
-- ``range, azimuth, elevation``: measured range and the nominal beam angles in the
-  sensor frame (azimuth counter-clockwise from +x, elevation from the x-y plane).
+- ``range, azimuth, elevation``: measured range (m) and the nominal beam angles in the
+  sensor frame, in radians (azimuth counter-clockwise from +x, elevation from the x-y
+  plane).
 - ``time``: pulse time (s, trajectory time base); ``channel, column, frame`` from the
   pattern; ``intensity`` in [0, 1]; ``incidence`` angle at the surface (rad);
   ``triangle`` input face index (-1 for particles); ``flag`` 1 surface, 2 particle,
@@ -25,99 +26,177 @@ Output fields (SI, radians):
 
 from __future__ import annotations
 
+import os
 import time as _time
 import warnings
+from collections.abc import Callable, Iterable, Iterator
+from typing import Final
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from raytrace import Scene
 
 from . import physics as ph
-from ._kernels.pulses import detect_and_noise, fill_points, surface_returns, world_directions
+from ._checks import as_number, as_points, as_whole
+from ._kernels.pulses import (
+    detect_and_noise,
+    fill_points,
+    surface_returns,
+    world_directions,
+)
 from .errors import SimulationError
-from .patterns import CHUNK_PULSES, scan_for
+from .fields import POINT_DTYPE
+from .patterns import CHUNK_PULSES, Pulses, Scan, TLSScan, chunk_size, scan_for
 from .spec import SensorSpec, load_sensor
 from .trajectory import Mount, Trajectory
 
+__all__ = ["RANDOM_BLOCK", "Run", "simulate_drive", "simulate_station"]
+
 #: Pulses per block of random numbers (see ``_Streams``).
-RANDOM_BLOCK = 1 << 16
+RANDOM_BLOCK: Final = 1 << 16
 
-POINT_DTYPE = np.dtype([
-    ("x", "f8"), ("y", "f8"), ("z", "f8"), ("sx", "f8"), ("sy", "f8"), ("sz", "f8"),
-    ("range", "f8"), ("azimuth", "f4"), ("elevation", "f4"), ("time", "f8"),
-    ("channel", "i4"), ("column", "i4"), ("frame", "i4"), ("intensity", "f4"),
-    ("incidence", "f4"), ("triangle", "i4"), ("flag", "u1")])
+#: poses(times (n,)) -> (positions (1 or n, 3), sensor-to-world matrices (1 or n, 3, 3)).
+PoseFn = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
+#: Per pulse: range (m), power, cosine of incidence, flag, triangle.
+_Returns = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                 NDArray[np.uint8], NDArray[np.int32]]
 
 
-def _reflectivity(scene, reflectivity):
+def _reflectivity(scene: Scene, reflectivity: ArrayLike | None, settings: ph.Settings
+                  ) -> tuple[NDArray[np.float64], float]:
+    """(per-face reflectivity (m,) or an empty array, the value used without one)."""
     if reflectivity is None:
-        return None
-    r = np.asarray(reflectivity, dtype=np.float64)
+        return np.empty(0), settings.reflectivity
+    try:
+        r = np.asarray(reflectivity, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise SimulationError(f"Expected `reflectivity` as a number within [0, 1] or one "
+                              f"per mesh face, got {type(reflectivity).__name__}.") from None
     if r.ndim == 0:
-        return r
-    n = getattr(scene, "_n_input_faces", None)
-    if r.ndim != 1 or (n is not None and len(r) != n) or not np.isfinite(r).all() or \
-            (r < 0).any() or (r > 1).any():
+        return np.empty(0), as_number(float(r), "reflectivity", SimulationError,
+                                      unit="a fraction, not a percentage", lo=0, hi=1)
+    n = len(scene.faces)
+    if r.shape != (n,):
         raise SimulationError(f"Expected `reflectivity` as one value or one per mesh face "
-                              f"({n}) in [0, 1], got shape {r.shape}.")
-    return r
+                              f"({n},), got shape {r.shape}; pass a number or the mesh's "
+                              "face property.")
+    bad = np.flatnonzero(~(np.isfinite(r) & (r >= 0.0) & (r <= 1.0)))
+    if bad.size:
+        raise SimulationError(f"Expected every face's `reflectivity` within [0, 1], got "
+                              f"{float(r[bad[0]])!r} at face {int(bad[0])} ({bad.size} "
+                              "outside).")
+    return r, settings.reflectivity
 
 
 class Run:
-    """A configured simulation; iterate for point chunks, or ``write`` to a file.
+    """A configured simulation: iterate it for point chunks, or ``write`` it to a file.
 
-    Attributes: ``n_pulses``, ``duration_s``, ``sensor``, ``stats`` (after a full
-    pass: pulses, points, hit ratio, seconds, rays per second).
+    Built by ``simulate_station`` and ``simulate_drive``. Every pass over a run gives
+    the same points (the random streams depend on the seed and the pulse index only).
+
+    Attributes
+    ----------
+    scene : raytrace.Scene
+    sensor : SensorSpec
+    scan : TLSScan, SpinningScan or ProfileScan
+        The pattern; ``n_pulses`` and ``duration_s`` are its.
+    settings : Settings
+    seed : int
+    station : (position (3,) float64, scipy Rotation) or None
+        The pose of a TLS station; None on a moving platform.
+    t0 : float
+        Trajectory time of the scan's start (s).
+    stats : dict
+        Statistics of the last *complete* pass: ``pulses``, ``points``, ``hit_ratio``,
+        ``seconds``, ``rays_per_s``; empty before one. A pass stopped early leaves it
+        as it was.
+    pass_stats : dict
+        The same for the pass under way (or the last one, complete or not), updated
+        after every chunk: ``pulses``, ``points``, ``hit_ratio``, ``seconds``.
     """
 
-    def __init__(self, scene, sensor, scan, poses, *, settings, seed, reflectivity,
-                 chunk_pulses, station=None, t0=0.0):
+    def __init__(self, scene: Scene, sensor: SensorSpec, scan: Scan, poses: PoseFn, *,
+                 settings: ph.Settings, seed: int, reflectivity: ArrayLike | None,
+                 chunk_pulses: int, station: tuple[NDArray[np.float64], Rotation] | None
+                 = None, t0: float = 0.0) -> None:
         self.scene, self.sensor, self.scan = scene, sensor, scan
-        self._poses = poses          # callable(times) -> (positions, matrices (k, 3, 3))
-        self.settings, self.seed = settings, int(seed)
-        self._rho = _reflectivity(scene, reflectivity)
-        self.chunk_pulses = int(chunk_pulses)
-        self.station = station       # (position, Rotation) for a TLS station
+        self._poses = poses
+        self.settings, self.seed = settings, _seed(seed)
+        self._rho_faces, self._rho_default = _reflectivity(scene, reflectivity, settings)
+        self.chunk_pulses = chunk_size(chunk_pulses)
+        self.station = station
         self.t0 = float(t0)
-        self.stats = {}
+        self.stats: dict[str, float] = {}
+        self.pass_stats: dict[str, float] = {}
 
     @property
     def n_pulses(self) -> int:
+        """Pulses of the whole run (a windowed TLS station counts them once, lazily)."""
         return self.scan.n_pulses
 
     @property
     def duration_s(self) -> float:
+        """Duration of the scan pattern (s)."""
         return self.scan.duration_s
 
-    def __iter__(self):
+    def __repr__(self) -> str:
+        if self.station is not None:
+            where = "station at (" + ", ".join(f"{c:.6g}" for c in self.station[0]) + ")"
+        else:
+            where = f"drive from t = {self.t0:.6g} s"
+        windowed = isinstance(self.scan, TLSScan) and self.scan.window is not None
+        pulses = "windowed" if windowed else f"{self.scan.n_pulses:,} pulses"
+        done = (f"{int(self.stats['points']):,} points in the last pass" if self.stats
+                else "not run yet")
+        return (f"Run({self.sensor.name} {where}, {pulses}, {self.duration_s:.6g} s, "
+                f"seed {self.seed}; {done})")
+
+    def __iter__(self) -> Iterator[NDArray[np.void]]:
+        """Point chunks (structured arrays of ``POINT_DTYPE``), in pulse order."""
         t_start = _time.perf_counter()
         n_pulses = n_points = n_hits = 0
+        self.pass_stats = {}
         for pulses in self.scan.chunks(self.chunk_pulses):
             pts, hits = self._chunk(n_pulses, pulses)
             n_pulses += len(pulses)
             n_points += len(pts)
             n_hits += hits
-            self.stats = {"pulses": n_pulses, "points": n_points,
-                          "hit_ratio": n_hits / max(n_pulses, 1),
-                          "seconds": _time.perf_counter() - t_start}
+            self.pass_stats = {"pulses": n_pulses, "points": n_points,
+                               "hit_ratio": n_hits / max(n_pulses, 1),
+                               "seconds": _time.perf_counter() - t_start}
             yield pts
-        s = self.stats.get("seconds", 0.0)
-        self.stats["rays_per_s"] = n_pulses * self.settings.beam_subrays / s if s else 0.0
+        s = self.pass_stats.get("seconds", 0.0)
+        # DECISION: ``stats`` changes only here, at the end of a complete pass: a
+        # consumer that stops early (a preview, a ``break``) must not leave the counts
+        # of a partial pass where a complete one's were.
+        self.stats = {"pulses": n_pulses, "points": n_points,
+                      "hit_ratio": n_hits / max(n_pulses, 1), "seconds": s,
+                      "rays_per_s": n_pulses * self.settings.beam_subrays / s if s else 0.0}
 
-    def write(self, path, *, fmt: str | None = None, progress=None, fields=None):
+    def write(self, path, *, fmt: str | None = None, progress=None, fields=None,
+              points: Iterable[NDArray[np.void]] | None = None):
         """Stream every chunk into ``path`` (format from the suffix or ``fmt``:
         las, laz, ply, npz, e57); atomic. ``progress(done_pulses, total)`` is called
         after each chunk; ``fields`` picks the LAS extra bytes (see
-        ``sensors.writers``). Returns ``stats``."""
-        from .writers import write_points
+        ``sensors.writers``). ``points``: chunks to write instead of the run's own, made
+        from them while it runs (e.g. moved into a drifting SLAM frame). Returns
+        ``stats`` plus the path."""
+        from .writers import open_writer
 
-        return write_points(self, path, fmt=fmt, progress=progress, fields=fields)
+        with open_writer(path, sensor=self.sensor.name, seed=self.seed, pose=self.station,
+                         fields=fields, fmt=fmt, expected_points=self.n_pulses) as w:
+            for chunk in (self if points is None else points):
+                w.write_points(chunk)
+                if progress is not None:
+                    progress(self.pass_stats["pulses"], self.n_pulses)
+        return dict(self.stats, path=str(path))
 
     # ------------------------------------------------------------------ one chunk
-    def _chunk(self, first, pulses):
+    def _chunk(self, first: int, pulses: Pulses) -> tuple[NDArray[np.void], int]:
         """Simulate one chunk of pulses (``first``: index of its first pulse in the
-        run); returns (points, number of pulses that hit)."""
+        run); returns (points, number of pulses that hit a surface)."""
         st, phys = self.settings, self.sensor.physics
         n = len(pulses)
         rng = _Streams(self.seed, first, n)
@@ -138,52 +217,58 @@ class Run:
         z = rng.normal(4, 1)
         dw = np.empty((n, 3))
         world_directions(pulses.direction, jit, mats, dw)
-        origin = pos[0] if single else pos
-        rho_faces = np.empty(0) if self._rho is None or self._rho.ndim == 0 else self._rho
-        rho_default = float(self._rho) if self._rho is not None and self._rho.ndim == 0 \
-            else st.reflectivity
-        method = "cubemap" if single else "auto"
-        # A surface nearer than the minimum range blocks the beam without a return.
-        if st.beam_subrays == 1:
-            hits = self.scene.cast(origin, dw, t_min=0.0, t_max=phys.range_max_m,
-                                   method=method)
-            r = np.empty(n)
-            p = np.empty(n)
-            cos = np.empty(n)
-            flag = np.empty(n, dtype=np.uint8)
-            surface_returns(hits.t, hits.triangle, hits.normals, dw, rho_faces, rho_default,
-                            phys.range_min_m, st.attenuation_per_m, r, p, cos, flag)
-            tri = hits.triangle.astype(np.int32)
-        else:
-            r, p, cos, flag, tri = self._subrays(origin, dw, method, rho_faces, rho_default)
-        n_hit = int(np.count_nonzero(flag))
-        if dpart is not None:
-            cand = dpart < np.minimum(r, phys.range_max_m)
-            pp = ph.power(st.particle_reflectivity, 1.0, dpart, st.attenuation_per_m)
-            won = cand & (u_part < ph.detection_probability(pp, phys)) if st.detection \
-                else cand
-            r = np.where(won, dpart, r)
-            p = np.where(won, pp, p)
-            tri = np.where(won, -1, tri).astype(np.int32)
-            cos = np.where(won, 1.0, cos)
-            flag = np.where(won, ph.FLAG_PARTICLE, flag).astype(np.uint8)
-        p_min = phys.detection_reflectivity / phys.detection_range_m ** 2
-        p_ref = phys.reference_reflectivity / phys.reference_range_m ** 2
+        ret = self._surface(pos[0] if single else pos, dw, "cubemap" if single else "auto")
+        n_hit = int(np.count_nonzero(ret[3]))
+        if dpart is not None and u_part is not None:
+            ret = self._particles(dpart, u_part, *ret)
+        r, p, cos, flag, tri = ret
+        p_min, log_span = ph.intensity_constants(phys)
+        floor2, ref2 = ph.noise_constants(phys)
         returned = np.empty(n, dtype=np.bool_)
         detect_and_noise(r, p, flag, u_det, z, st.detection, p_min,
-                         1.0 / phys.detection_softness, st.range_noise,
-                         phys.range_sigma_floor_m ** 2, phys.range_sigma_m ** 2 * p_ref,
+                         1.0 / phys.detection_softness, st.range_noise, floor2, ref2,
                          returned)
         idx = np.flatnonzero(returned)
         out = np.empty(len(idx), dtype=POINT_DTYPE)
-        p_sat = 1.0 / max(phys.range_min_m, 0.1) ** 2
-        f = [out[name] for name in POINT_DTYPE.names]
+        f = [out[name] for name in out.dtype.names or ()]
         fill_points(idx, r, p, flag, tri, cos, pulses.direction, t_abs, pulses.channel,
-                    pulses.column, pulses.frame, pos, mats, p_min, np.log10(p_sat / p_min),
-                    *f)
+                    pulses.column, pulses.frame, pos, mats, p_min, log_span, *f)
         return out, n_hit
 
-    def _subrays(self, origin, dw, method, rho_faces, rho_default):
+    def _surface(self, origin: NDArray[np.float64], dw: NDArray[np.float64], method: str
+                 ) -> _Returns:
+        """Surface returns of a chunk's beams ``dw`` (n, 3) (world frame): range (inf
+        for none), power, cosine of incidence, flag, triangle."""
+        st, phys = self.settings, self.sensor.physics
+        if st.beam_subrays > 1:
+            return self._subrays(origin, dw, method)
+        n = len(dw)
+        # A surface nearer than the minimum range blocks the beam without a return.
+        hits = self.scene.cast(origin, dw, t_min=0.0, t_max=phys.range_max_m,
+                               method=method)  # type: ignore[arg-type]
+        r, p, cos = np.empty(n), np.empty(n), np.empty(n)
+        flag = np.empty(n, dtype=np.uint8)
+        surface_returns(hits.t, hits.triangle, hits.normals, dw, self._rho_faces,
+                        self._rho_default, phys.range_min_m, st.attenuation_per_m, r, p, cos,
+                        flag)
+        return r, p, cos, flag, hits.triangle.astype(np.int32)
+
+    def _particles(self, dpart: NDArray[np.float64], u_part: NDArray[np.float64],
+                   r: NDArray[np.float64], p: NDArray[np.float64], cos: NDArray[np.float64],
+                   flag: NDArray[np.uint8], tri: NDArray[np.int32]) -> _Returns:
+        """Airborne particles: a particle return at ``dpart`` replaces the surface's
+        where it comes first and is detected (``u_part`` < its detection probability)."""
+        st, phys = self.settings, self.sensor.physics
+        cand = dpart < np.minimum(r, phys.range_max_m)
+        pp = ph.power(st.particle_reflectivity, 1.0, dpart, st.attenuation_per_m)
+        won = cand & (u_part < ph.detection_probability(pp, phys)) if st.detection \
+            else cand
+        return (np.where(won, dpart, r), np.where(won, pp, p), np.where(won, 1.0, cos),
+                np.where(won, ph.FLAG_PARTICLE, flag).astype(np.uint8),
+                np.where(won, -1, tri).astype(np.int32))
+
+    def _subrays(self, origin: NDArray[np.float64], dw: NDArray[np.float64], method: str
+                 ) -> _Returns:
         """Beam divergence: cast the footprint's sub-rays and combine them (NumPy)."""
         st, phys = self.settings, self.sensor.physics
         n = len(dw)
@@ -195,12 +280,14 @@ class Run:
                                       off[None, :, 1:] * v[:, None, :])).reshape(-1, 3)
         rays /= np.linalg.norm(rays, axis=1, keepdims=True)
         org = origin if origin.ndim == 1 else np.repeat(origin, m, axis=0)
-        hits = self.scene.cast(org, rays, t_min=0.0, t_max=phys.range_max_m, method=method)
+        hits = self.scene.cast(org, rays, t_min=0.0, t_max=phys.range_max_m,
+                               method=method)  # type: ignore[arg-type]
         t = hits.t.reshape(n, m)
         tri = hits.triangle.reshape(n, m)
         hit = (tri >= 0) & (t >= phys.range_min_m)
         cos = np.abs(np.einsum("ij,ij->i", hits.normals, rays)).reshape(n, m)
-        rho = rho_faces[np.maximum(tri, 0)] if len(rho_faces) else np.full((n, m), rho_default)
+        rho = self._rho_faces[np.maximum(tri, 0)] if len(self._rho_faces) else \
+            np.full((n, m), self._rho_default)
         e = np.where(hit, ph.power(rho, cos, np.where(hit, t, 1.0), st.attenuation_per_m),
                      0.0)
         any_hit = hit.any(axis=1)
@@ -228,10 +315,12 @@ class _Streams:
     run is chunked: stream s of block b (``RANDOM_BLOCK`` pulses) comes from
     ``default_rng([seed, s, b])``, and a chunk takes the slices it covers."""
 
-    def __init__(self, seed, first, n):
+    def __init__(self, seed: int, first: int, n: int) -> None:
         self.seed, self.first, self.n = seed, first, n
 
-    def _take(self, stream, draw, width):
+    def _take(self, stream: int, draw: Callable[[np.random.Generator, tuple[int, int]],
+                                                NDArray[np.float64]],
+              width: int) -> NDArray[np.float64]:
         b0 = self.first // RANDOM_BLOCK
         b1 = (self.first + max(self.n, 1) - 1) // RANDOM_BLOCK
         parts = [draw(np.random.default_rng([self.seed, stream, b]), (RANDOM_BLOCK, width))
@@ -240,48 +329,131 @@ class _Streams:
         out = np.concatenate(parts)[off:off + self.n]
         return out[:, 0] if width == 1 else out
 
-    def normal(self, stream, width=2):
+    def normal(self, stream: int, width: int = 2) -> NDArray[np.float64]:
         return self._take(stream, lambda g, s: g.standard_normal(s), width)
 
-    def uniform(self, stream):
+    def uniform(self, stream: int) -> NDArray[np.float64]:
         return self._take(stream, lambda g, s: g.random(s), 1)
 
-    def exponential(self, stream):
+    def exponential(self, stream: int) -> NDArray[np.float64]:
         return self._take(stream, lambda g, s: g.standard_exponential(s), 1)
 
 
-def _as_sensor(sensor) -> SensorSpec:
+# ---------------------------------------------------------------------- checks at the call
+def _seed(seed: object) -> int:
+    return as_whole(seed, "seed", SimulationError, lo=0)
+
+
+def _as_sensor(sensor: str | os.PathLike[str] | SensorSpec) -> SensorSpec:
     return sensor if isinstance(sensor, SensorSpec) else load_sensor(sensor)
 
 
-def _check_scene(scene):
+def _check_scene(scene: object) -> None:
     if not isinstance(scene, Scene):
         raise SimulationError(f"Expected a raytrace.Scene, got {type(scene).__name__}; "
                               "build one with Scene.from_file(path).")
 
 
-def simulate_station(scene, sensor, position, *, attitude: Rotation | None = None,
-                     resolution: str | None = None, step_rad: float | None = None,
-                     window_rad=None, settings: ph.Settings | None = None, seed: int = 0,
-                     reflectivity=None, chunk_pulses: int = CHUNK_PULSES) -> Run:
-    """A TLS station at ``position`` (3,) world, level unless ``attitude`` is given.
+def _settings(settings: ph.Settings | None) -> ph.Settings:
+    if settings is None:
+        return ph.Settings()
+    if not isinstance(settings, ph.Settings):
+        raise SimulationError(f"Expected `settings` as a sensors.Settings, got "
+                              f"{type(settings).__name__}; build one with Settings(...).")
+    return settings
 
-    ``resolution`` names a preset of the sensor (e.g. "superhigh"), or ``step_rad``
-    gives the angular step; ``window_rad`` (az_min, az_max, el_min, el_max) limits the
-    scan to a section, as the instrument allows. ``reflectivity``: one value or one per input face (e.g.
-    the PLY face property); else ``settings.reflectivity``. A position outside the
-    mesh's bounding box gives a warning (the station sees the mesh from outside).
+
+def _station_position(position: ArrayLike) -> NDArray[np.float64]:
+    rows = as_points(position, "position", SimulationError)
+    if len(rows) != 1:
+        raise SimulationError(f"Expected one station `position` (3,) or (1, 3), got "
+                              f"{len(rows)} rows; simulate one station per call.")
+    return rows[0]
+
+
+def _drive_window(trajectory: Trajectory, t_start: float | None, t_end: float | None
+                  ) -> tuple[float, float]:
+    """[a, b], the part of the trajectory to scan, checked against its time span (a
+    static trajectory has none: any window is fine, but t_end must be given)."""
+    a = trajectory.start_s if t_start is None else \
+        as_number(t_start, "t_start", SimulationError, unit="s")
+    b = trajectory.end_s if t_end is None else \
+        as_number(t_end, "t_end", SimulationError, unit="s")
+    if not b > a:
+        raise SimulationError(f"Expected a time window with end > start, got [{a:g}, {b:g}] "
+                              "s (a static trajectory needs t_end).")
+    lo, hi = trajectory.start_s, trajectory.end_s
+    eps = 1e-9 * max(1.0, abs(hi))
+    if len(trajectory) > 1 and (a < lo - eps or b > hi + eps):
+        raise SimulationError(f"Expected `t_start` and `t_end` within the trajectory's "
+                              f"[{lo:g}, {hi:g}] s, got [{a:g}, {b:g}] s; shorten the window "
+                              "or extend the trajectory.")
+    return a, b
+
+
+# ---------------------------------------------------------------------- public API
+def simulate_station(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
+                     position: ArrayLike, *, attitude: Rotation | None = None,
+                     resolution: str | None = None, step_rad: float | None = None,
+                     window_rad: ArrayLike | None = None,
+                     settings: ph.Settings | None = None, seed: int = 0,
+                     reflectivity: ArrayLike | None = None,
+                     chunk_pulses: int = CHUNK_PULSES) -> Run:
+    """A TLS station at ``position``, level unless ``attitude`` is given.
+
+    Parameters
+    ----------
+    scene : raytrace.Scene
+    sensor : str, path or SensorSpec
+        A TLS sensor: a name from ``list_sensors()``, a TOML file, or a loaded spec.
+    position : (3,) or (1, 3) array_like of float, or a record with fields x, y, z
+        Station position in world coordinates (m).
+    attitude : scipy Rotation, optional, keyword-only (as are all that follow)
+        Sensor-to-world rotation; level (identity) by default.
+    resolution : str, optional
+        A resolution preset of the sensor (e.g. "superhigh"); its default if neither
+        this nor ``step_rad`` is given.
+    step_rad : float, optional
+        Angular step (rad) instead of a preset.
+    window_rad : (4,) array_like of float, optional
+        (az_min, az_max, el_min, el_max) in radians, sensor frame: scan only this
+        section, as the instrument allows.
+    settings : Settings, optional
+        Physics switches; ``Settings()`` by default.
+    seed : int >= 0
+        Seed of every random stream.
+    reflectivity : float in [0, 1] or (n_faces,) array_like, optional
+        One value, or one per input face (e.g. the PLY face property); else
+        ``settings.reflectivity``.
+    chunk_pulses : int >= 1
+        Pulses simulated at a time (memory, not results, depends on it).
+
+    Returns
+    -------
+    Run
+
+    Raises
+    ------
+    SimulationError, SensorSpecError
+        For an argument that is out of range or of the wrong kind.
+
+    Warns
+    -----
+    UserWarning
+        For a position outside the mesh's bounding box (the station sees the mesh
+        from outside).
     """
     _check_scene(scene)
     spec = _as_sensor(sensor)
     if spec.kind != "tls":
         raise SimulationError(f"Expected a TLS sensor for a station, got {spec.name} "
                               f"({spec.kind}); use simulate_drive with a static trajectory.")
+    pos = _station_position(position)
+    if attitude is not None and not (isinstance(attitude, Rotation) and attitude.single):
+        raise SimulationError(f"Expected `attitude` as one scipy Rotation, got "
+                              f"{type(attitude).__name__}; use Rotation.from_euler(...).")
+    st = _settings(settings)
     scan = scan_for(spec, resolution=resolution, step_rad=step_rad, window_rad=window_rad)
-    pos = np.asarray(position, dtype=np.float64)
-    if pos.shape != (3,) or not np.isfinite(pos).all():
-        raise SimulationError(f"Expected a station position of 3 finite coordinates, got "
-                              f"{np.shape(position)}.")
     lo, hi = scene.bounds
     if ((pos < lo) | (pos > hi)).any():
         warnings.warn(f"Station {pos.tolist()} lies outside the mesh bounds "
@@ -290,33 +462,66 @@ def simulate_station(scene, sensor, position, *, attitude: Rotation | None = Non
     rot = Rotation.identity() if attitude is None else attitude
     mat = rot.as_matrix()[None]
 
-    def poses(t):
+    def poses(t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         return pos[None, :], mat
 
-    return Run(scene, spec, scan, poses, settings=settings or ph.Settings(), seed=seed,
-               reflectivity=reflectivity, chunk_pulses=chunk_pulses, station=(pos, rot))
+    return Run(scene, spec, scan, poses, settings=st, seed=seed, reflectivity=reflectivity,
+               chunk_pulses=chunk_pulses, station=(pos, rot))
 
 
-def simulate_drive(scene, sensor, trajectory: Trajectory, mount: Mount | None = None, *,
-                   settings: ph.Settings | None = None, seed: int = 0, reflectivity=None,
-                   chunk_pulses: int = CHUNK_PULSES, t_start: float | None = None,
-                   t_end: float | None = None) -> Run:
+def simulate_drive(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
+                   trajectory: Trajectory, mount: Mount | None = None, *,
+                   settings: ph.Settings | None = None, seed: int = 0,
+                   reflectivity: ArrayLike | None = None, chunk_pulses: int = CHUNK_PULSES,
+                   t_start: float | None = None, t_end: float | None = None) -> Run:
     """Any sensor on a platform following ``trajectory``; each pulse is cast from the
-    sensor pose at its own time. A TLS sensor scans one full station pattern."""
+    sensor pose at its own time. A TLS sensor scans one full station pattern.
+
+    Parameters
+    ----------
+    scene : raytrace.Scene
+    sensor : str, path or SensorSpec
+    trajectory : Trajectory
+        Platform poses; one pose is a static platform (then ``t_end`` is needed).
+    mount : Mount, optional
+        Lever arm and boresight from the platform to the sensor; none by default.
+    settings, seed, reflectivity, chunk_pulses : keyword-only
+        As for ``simulate_station``.
+    t_start, t_end : float, optional, keyword-only
+        The part of the trajectory to scan (s, trajectory time base); the whole of it
+        by default. Checked here against the trajectory's span.
+
+    Returns
+    -------
+    Run
+
+    Raises
+    ------
+    SimulationError, SensorSpecError
+        For an argument out of range, a window outside the trajectory, or a TLS
+        station pattern longer than the trajectory.
+    """
     _check_scene(scene)
     spec = _as_sensor(sensor)
     if not isinstance(trajectory, Trajectory):
-        raise SimulationError(f"Expected a Trajectory, got {type(trajectory).__name__}.")
-    mount = mount or Mount()
-    a = trajectory.start_s if t_start is None else float(t_start)
-    b = trajectory.end_s if t_end is None else float(t_end)
-    if not b > a:
-        raise SimulationError(f"Expected a time window with end > start, got [{a}, {b}] s "
-                              "(a static trajectory needs t_end).")
+        raise SimulationError(f"Expected a Trajectory, got {type(trajectory).__name__}; "
+                              "build one with Trajectory(...) or Trajectory.read(path).")
+    mnt = Mount() if mount is None else mount
+    if not isinstance(mnt, Mount):
+        raise SimulationError(f"Expected `mount` as a sensors.Mount, got "
+                              f"{type(mnt).__name__}; e.g. Mount(lever_arm_m=(0, 0, 0.3)).")
+    st = _settings(settings)
+    a, b = _drive_window(trajectory, t_start, t_end)
     scan = scan_for(spec, duration_s=b - a)
+    if len(trajectory) > 1 and a + scan.duration_s > trajectory.end_s + 1e-9 * max(
+            1.0, abs(trajectory.end_s)):
+        raise SimulationError(f"Expected the trajectory to last the {spec.name} station "
+                              f"pattern's {scan.duration_s:g} s from t = {a:g} s, got it "
+                              f"ending at {trajectory.end_s:g} s; use a longer trajectory "
+                              "or a static one.")
 
-    def poses(t):
-        return trajectory.sensor_matrices(t, mount)
+    def poses(t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        return trajectory.sensor_matrices(t, mnt)
 
-    return Run(scene, spec, scan, poses, settings=settings or ph.Settings(), seed=seed,
-               reflectivity=reflectivity, chunk_pulses=chunk_pulses, t0=a)
+    return Run(scene, spec, scan, poses, settings=st, seed=seed, reflectivity=reflectivity,
+               chunk_pulses=chunk_pulses, t0=a)

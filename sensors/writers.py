@@ -1,65 +1,77 @@
-"""Streaming point-cloud writers: LAS 1.4 / LAZ, PLY, NPZ and E57.
+"""Point-cloud writers as streams, in laspy's shape::
 
-Each writer takes chunks of ``POINT_DTYPE`` records one at a time, so memory stays
-bounded by one chunk (E57 excepted, see below), and writes under a temporary name that
-is renamed into place only after the last chunk: an interrupted run leaves no file that
-looks complete.
+    with open_writer("scan.laz", sensor="zf_imager_5016", seed=7, pose=(position, rot)) as w:
+        for chunk in run:            # POINT_DTYPE records
+            w.write_points(chunk)
 
-- **LAS 1.4 / LAZ** (laspy; LAZ through lazrs): point format 6 with GPS time (the pulse
-  time), intensity (``intensity`` x 65535), return 1 of 1, scan angle (the beam's
-  elevation in the sensor frame, in the format's 0.006 deg units), user data
-  (channel mod 256), point source ID (frame mod 65536) and classification 7 (noise)
-  for particle returns, else 0. The other fields go into extra bytes: all of them
-  ("full": sensor_x, sensor_y, sensor_z, range, azimuth, elevation, channel, column,
-  frame, incidence, triangle, flag; the default for moving platforms) or the four a
-  station cannot recompute ("compact": channel, column, triangle, flag; the default
-  for TLS stations, 3x faster to compress). A VLR (user "tunnelsim", record 1) holds
-  the sensor, seed and station pose as JSON. Coordinates: scale 0.1 mm, offset = the
-  first point rounded to a kilometre, so UTM coordinates keep 0.1 mm.
-- **PLY** (binary little endian): every field as a vertex property; the vertex count in
-  the header is patched at the end.
+A writer is given what it stores (the sensor's name, the seed, a TLS station's pose),
+not the object that produces the points; ``Run.write`` is a loop over a run's chunks
+into one. Memory stays bounded by one chunk (E57 excepted, see below), and the file is
+written under a temporary name renamed into place on a clean close: an interrupted run
+(an exception, Ctrl-C) leaves no file that looks complete.
+
+- **LAS 1.4 / LAZ** (``sensors.las``): point format 6 with GPS time (the pulse time),
+  intensity (``intensity`` x 65535), return 1 of 1, scan angle (the beam's elevation in
+  the sensor frame, in the format's 0.006 deg units), user data (channel mod 256),
+  point source ID (frame mod 65536) and classification 7 (noise) for particle returns,
+  else 0. The other fields go into extra bytes: all of them (``fields="full"``:
+  sensor_x, sensor_y, sensor_z, range, azimuth, elevation, channel, column, frame,
+  incidence, triangle, flag; the default for moving platforms) or the four a station
+  cannot recompute (``"compact"``: channel, column, triangle, flag; the default for TLS
+  stations, 3x faster to compress). A VLR (user "tunnelsim", record 1) holds the
+  sensor, seed and station pose as JSON. Coordinates: scale 0.1 mm, offset = the first
+  point rounded to a kilometre, so UTM coordinates keep 0.1 mm.
+- **PLY** (``sensors.ply``, binary little endian): every field as a vertex property;
+  the vertex count in the header is patched at the end.
 - **NPZ**: one array per field, as ``numpy.load`` returns them; chunks go to temporary
   raw files and are zipped at the end.
-- **E57** (pye57, TLS stations only): one structured scan with row/column indices
-  (channel = row along the vertical sweep, column = line), sensor-frame Cartesian
-  coordinates and the station pose (rotation, translation). pye57 writes a scan in one
-  call, so the scan is gathered in memory first; ``E57_MAX_POINTS`` guards the machine.
+- **E57** (``sensors.e57``, TLS stations only): one structured scan with row/column
+  indices (channel = row along the vertical sweep, column = line), sensor-frame
+  Cartesian coordinates and the station pose. pye57 writes a scan in one call, so the
+  scan is gathered in memory first; ``E57_MAX_POINTS`` guards the machine.
 """
 
 from __future__ import annotations
 
-import contextlib
+import json
 import os
+import shutil
 import tempfile
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from raytrace.fileio import atomic_writer
 
+from .e57 import E57_MAX_POINTS, write_e57_scan
 from .errors import PointFileError
+from .fields import FIELD_NAMES, POINT_DTYPE
+from .las import LAS_SCALE, LasWriter, offsets_near, point_records
+from .ply import PlyWriter
+from .stream import Stream
+
+__all__ = ["E57_MAX_POINTS", "FORMATS", "LAS_SCALE", "PointWriter", "format_of",
+           "open_writer"]
 
 FORMATS = ("las", "laz", "ply", "npz", "e57")
-#: LAS coordinate scale (m): 0.1 mm.
-LAS_SCALE = 1e-4
-#: Largest scan the E57 writer gathers in memory (about 36 bytes a point).
-E57_MAX_POINTS = 50_000_000
 
-#: Extra bytes of the "compact" LAS layout (the default for TLS stations, whose
-#: sensor-frame coordinates, range and angles follow from the world point and the
-#: station pose stored in the tunnelsim VLR).
-_COMPACT = ("channel", "column", "triangle", "flag")
-
+#: LAS extra bytes: (LAS name, POINT_DTYPE field, stored type).
 _EXTRA = [("sensor_x", "sx", "f8"), ("sensor_y", "sy", "f8"), ("sensor_z", "sz", "f8"),
           ("range", "range", "f8"), ("azimuth", "azimuth", "f4"),
           ("elevation", "elevation", "f4"), ("channel", "channel", "u4"),
           ("column", "column", "u4"), ("frame", "frame", "u4"),
           ("incidence", "incidence", "f4"), ("triangle", "triangle", "i4"),
           ("flag", "flag", "u1")]
+#: Extra bytes of the "compact" LAS layout (the default for TLS stations, whose
+#: sensor-frame coordinates, range and angles follow from the world point and the
+#: station pose stored in the tunnelsim VLR).
+_COMPACT = ("channel", "column", "triangle", "flag")
 
 
-def format_of(path, fmt=None) -> str:
+def format_of(path: str | os.PathLike[str], fmt: str | None = None) -> str:
+    """The output format: ``fmt``, else the path's suffix; one of ``FORMATS``."""
     f = (fmt or Path(path).suffix.lstrip(".")).lower()
     if f not in FORMATS:
         raise PointFileError(f"Expected an output format in {FORMATS} (from the suffix or "
@@ -67,205 +79,241 @@ def format_of(path, fmt=None) -> str:
     return f
 
 
-def write_points(run, path, *, fmt=None, progress=None, fields=None):
-    """Stream a ``Run`` into ``path``; returns the run's stats plus the path.
+def _quaternion(rotation: Any) -> np.ndarray:
+    q = rotation.as_quat() if hasattr(rotation, "as_quat") else rotation
+    q = np.asarray(q, dtype=np.float64)
+    if q.shape != (4,) or not np.isfinite(q).all():
+        raise PointFileError(f"Expected a station rotation (scipy Rotation or quaternion "
+                             f"x, y, z, w), got shape {q.shape}.")
+    return q
 
-    ``fields`` (LAS/LAZ): "full" (every output field as extra bytes) or "compact"
-    (channel, column, triangle, flag); default compact for TLS stations, full for
-    moving platforms.
+
+class PointWriter(Stream):
+    """A stream of ``POINT_DTYPE`` chunks into one file (made by ``open_writer``).
+
+    Attributes: ``path``, ``sensor`` (name), ``seed``, ``position`` (3,) and
+    ``quaternion_xyzw`` (4,) of a TLS station (None for a moving platform),
+    ``n_points`` written so far.
+    """
+
+    def __init__(self, path: Path, *, sensor: str, seed: int, pose: Any) -> None:
+        self.path, self.sensor, self.seed = path, str(sensor), int(seed)
+        self.position = self.quaternion_xyzw = None
+        if pose is not None:
+            pos, rot = pose
+            self.position = np.asarray(pos, dtype=np.float64).reshape(3)
+            self.quaternion_xyzw = _quaternion(rot)
+        self.n_points = 0
+        self._open = True
+
+    def info(self) -> dict[str, Any]:
+        """What the file records about its origin (JSON-ready)."""
+        out: dict[str, Any] = {"sensor": self.sensor, "seed": self.seed}
+        if self.position is not None and self.quaternion_xyzw is not None:
+            out["station_position"] = self.position.tolist()
+            out["station_quaternion_xyzw"] = self.quaternion_xyzw.tolist()
+        return out
+
+    def write_points(self, points: np.ndarray) -> None:
+        """Append a chunk of ``POINT_DTYPE`` records (n,)."""
+        if not self._open:
+            raise PointFileError(f"Expected an open writer for '{self.path}', got a "
+                                 "closed one.")
+        pts = np.asarray(points)
+        missing = [n for n in FIELD_NAMES if n not in (pts.dtype.names or ())]
+        if pts.ndim != 1 or missing:
+            raise PointFileError(f"Expected (n,) records with the fields of POINT_DTYPE, "
+                                 f"got shape {pts.shape} without {missing}.")
+        self._write(pts)
+        self.n_points += len(pts)
+
+    def __repr__(self) -> str:
+        return (f"{type(self).__name__}('{self.path}', sensor={self.sensor!r}, "
+                f"{self.n_points:,} points{'' if self._open else ', closed'})")
+
+    def _write(self, pts: np.ndarray) -> None:   # one per format, as _finish, _discard
+        raise NotImplementedError
+
+
+class _LasPoints(PointWriter):
+    def __init__(self, path, *, compress: bool, fields: str, **kw) -> None:
+        super().__init__(path, **kw)
+        self._compress = compress
+        self._extra = _EXTRA if fields == "full" else [e for e in _EXTRA if e[0] in _COMPACT]
+        self._w: LasWriter | None = None
+
+    def _header(self, first_xyz):
+        import laspy
+
+        header = laspy.LasHeader(point_format=6, version="1.4")
+        header.scales = np.full(3, LAS_SCALE)
+        header.offsets = offsets_near(first_xyz)
+        header.add_extra_dims([laspy.ExtraBytesParams(name=n, type=np.dtype(t))
+                               for n, _, t in self._extra])
+        header.system_identifier = f"tunnelsim {self.sensor}"[:32]
+        header.generating_software = "tunnelsim"
+        header.vlrs.append(laspy.VLR(user_id="tunnelsim", record_id=1,
+                                     description="simulation info (JSON)",
+                                     record_data=json.dumps(self.info()).encode()))
+        return header
+
+    def _write(self, c):
+        xyz = np.stack([c["x"], c["y"], c["z"]], 1)
+        if self._w is None:
+            if not len(c):
+                return
+            self._w = LasWriter(self.path, self._header(xyz), compress=self._compress)
+        # Records filled straight into laspy's structured array (its per-field setters
+        # cost more than the compression).
+        fields = {"gps_time": c["time"], "intensity": np.round(c["intensity"] * 65535),
+                  "bit_fields": 0x11,                    # return 1 of 1 (4 + 4 bits)
+                  "scan_angle": np.round(np.rad2deg(c["elevation"]) / 0.006),
+                  "user_data": c["channel"] % 256, "point_source_id": c["frame"] % 65536,
+                  "classification": np.where(c["flag"] == 2, 7, 0)}
+        fields.update({name: c[field] for name, field, _ in self._extra})
+        self._w.write_points(point_records(self._w.header, xyz, fields))
+
+    def _finish(self):
+        if self._w is None:   # an empty run still gives a valid, empty file
+            self._w = LasWriter(self.path, self._header(np.zeros((0, 3))),
+                                compress=self._compress)
+        self._w.close()
+
+    def _discard(self, exc):
+        if self._w is not None:
+            self._w.abort()
+
+
+class _PlyPoints(PointWriter):
+    def __init__(self, path, **kw) -> None:
+        super().__init__(path, **kw)
+        self._w = PlyWriter(path, [("vertex", POINT_DTYPE, None)],
+                            comments=[f"tunnelsim {self.sensor}",
+                                      "tunnelsim " + json.dumps(self.info())])
+
+    def _write(self, c):
+        self._w.write("vertex", c)
+
+    def _finish(self):
+        self._w.close()
+
+    def _discard(self, exc):
+        self._w.abort()
+
+
+class _NpzPoints(PointWriter):
+    """Chunks go to one raw file per field in a temporary folder beside the target,
+    zipped (stored, not compressed) into ``numpy.load``'s layout on close."""
+
+    def __init__(self, path, **kw) -> None:
+        super().__init__(path, **kw)
+        self._tmp = tempfile.mkdtemp(dir=path.parent, prefix="." + path.name + ".")
+        # Open across write_points calls; closed by _finish or _discard.
+        self._files = {n: open(os.path.join(self._tmp, n), "wb")  # noqa: SIM115
+                       for n in FIELD_NAMES}
+
+    def _write(self, c):
+        for name, fh in self._files.items():
+            fh.write(np.ascontiguousarray(c[name], dtype=POINT_DTYPE[name]).tobytes())
+
+    def _finish(self):
+        for fh in self._files.values():
+            fh.close()
+        try:
+            with atomic_writer(self.path) as out, zipfile.ZipFile(
+                    out, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+                for name in FIELD_NAMES:
+                    dt = POINT_DTYPE[name]
+                    with zf.open(name + ".npy", "w", force_zip64=True) as member:
+                        np.lib.format.write_array_header_1_0(
+                            member, {"descr": np.lib.format.dtype_to_descr(dt),
+                                     "fortran_order": False, "shape": (self.n_points,)})
+                        with open(os.path.join(self._tmp, name), "rb") as src:
+                            shutil.copyfileobj(src, member, 1 << 24)
+        finally:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def _discard(self, exc):
+        for fh in self._files.values():
+            fh.close()
+        shutil.rmtree(self._tmp, ignore_errors=True)
+
+
+#: What the E57 writer gathers of each point.
+_E57_PART = np.dtype([("sx", "f8"), ("sy", "f8"), ("sz", "f8"), ("intensity", "f4"),
+                      ("channel", "i4"), ("column", "i4")])
+
+
+class _E57Points(PointWriter):
+    def __init__(self, path, *, expected_points: int | None, **kw) -> None:
+        super().__init__(path, **kw)
+        if self.position is None:
+            raise PointFileError("Expected a TLS station for E57 output (a structured scan "
+                                 "with one pose), got a moving platform; write LAS/LAZ "
+                                 "instead.")
+        if expected_points is not None and expected_points > E57_MAX_POINTS:
+            raise PointFileError(f"Expected at most {E57_MAX_POINTS:,} pulses for E57 "
+                                 f"(pye57 writes a scan from memory), got "
+                                 f"{expected_points:,}; use a coarser resolution or LAZ.")
+        self._parts: list[np.ndarray] = []
+
+    def _write(self, c):
+        if self.n_points + len(c) > E57_MAX_POINTS:
+            raise PointFileError(f"Expected at most {E57_MAX_POINTS:,} points for E57, got "
+                                 "more; use a coarser resolution or LAZ.")
+        part = np.empty(len(c), dtype=_E57_PART)
+        for name in _E57_PART.names:
+            part[name] = c[name]
+        self._parts.append(part)
+
+    def _finish(self):
+        c = np.concatenate(self._parts) if self._parts else np.empty(0, _E57_PART)
+        self._parts = []
+        write_e57_scan(self.path, np.stack([c["sx"], c["sy"], c["sz"]], 1),
+                       rotation_xyzw=self.quaternion_xyzw, translation=self.position,
+                       name=f"tunnelsim {self.sensor}", intensity=c["intensity"],
+                       row=c["channel"], column=c["column"])
+
+    def _discard(self, exc):
+        self._parts = []
+
+
+def open_writer(path: str | os.PathLike[str], *, sensor: str, seed: int = 0,
+                pose: Any = None, fields: str | None = None, fmt: str | None = None,
+                expected_points: int | None = None) -> PointWriter:
+    """A ``PointWriter`` for ``path`` (format from the suffix or ``fmt``: las, laz,
+    ply, npz, e57).
+
+    Parameters
+    ----------
+    sensor : str
+        The sensor's name, recorded in the file.
+    seed : int
+        The simulation seed, recorded in LAS/LAZ and PLY.
+    pose : (position (3,), rotation) or None
+        A TLS station's pose (rotation: scipy ``Rotation`` or quaternion x, y, z, w);
+        None for a moving platform. E57 needs one.
+    fields : "full", "compact" or None
+        LAS/LAZ extra bytes (see the module notes); default compact with a pose, full
+        without.
+    expected_points : int, optional
+        The most points the stream may bring (E57 refuses a scan too large to gather
+        before any is simulated).
     """
     path = Path(path)
     f = format_of(path, fmt)
     if not path.parent.exists():
         raise PointFileError(f"Expected an existing output folder, got '{path.parent}'; "
                              "create it first.")
-    writer = {"las": _write_las, "laz": _write_las, "ply": _write_ply, "npz": _write_npz,
-              "e57": _write_e57}[f]
-    done = [0]
-
-    def chunks():
-        for c in run:
-            yield c
-            done[0] = run.stats["pulses"]
-            if progress is not None:
-                progress(done[0], run.n_pulses)
-
     if fields is None:
-        fields = "compact" if run.station is not None else "full"
+        fields = "compact" if pose is not None else "full"
     if fields not in ("full", "compact"):
         raise PointFileError(f"Expected fields 'full' or 'compact', got {fields!r}.")
+    kw: dict[str, Any] = {"sensor": sensor, "seed": seed, "pose": pose}
     if f in ("las", "laz"):
-        _write_las(run, chunks(), path, compress=(f == "laz"), fields=fields)
-    else:
-        writer(run, chunks(), path)
-    return dict(run.stats, path=str(path))
-
-
-# ---------------------------------------------------------------------- LAS / LAZ
-def _las_header(run, extra):
-    import json
-
-    import laspy
-
-    header = laspy.LasHeader(point_format=6, version="1.4")
-    header.scales = np.full(3, LAS_SCALE)
-    header.add_extra_dims([laspy.ExtraBytesParams(name=n, type=np.dtype(t))
-                           for n, _, t in extra])
-    header.system_identifier = f"tunnelsim {run.sensor.name}"[:32]
-    header.generating_software = "tunnelsim"
-    info = {"sensor": run.sensor.name, "seed": run.seed}
-    if run.station is not None:
-        pos, rot = run.station
-        info["station_position"] = [float(v) for v in pos]
-        info["station_quaternion_xyzw"] = [float(v) for v in rot.as_quat()]
-    header.vlrs.append(laspy.VLR(user_id="tunnelsim", record_id=1,
-                                 description="simulation info (JSON)",
-                                 record_data=json.dumps(info).encode()))
-    return header
-
-
-def _write_las(run, chunks, path, compress=False, fields="full"):
-    import laspy
-
-    extra = _EXTRA if fields == "full" else [e for e in _EXTRA if e[0] in _COMPACT]
-    header = None
-    with atomic_writer(path) as fh:
-        writer = None
-        try:
-            for c in chunks:
-                if writer is None:
-                    header = _las_header(run, extra)
-                    first = np.array([c["x"][0], c["y"][0], c["z"][0]]) if len(c) else \
-                        np.zeros(3)
-                    header.offsets = np.round(first / 1000.0) * 1000.0
-                    writer = laspy.open(fh, mode="w", header=header, closefd=False,
-                                        do_compress=compress)
-                writer.write_points(_las_record(c, header, extra))
-            if writer is None:  # an empty run still gives a valid, empty file
-                writer = laspy.open(fh, mode="w", header=_las_header(run, extra),
-                                    closefd=False, do_compress=compress)
-        finally:
-            if writer is not None:
-                writer.close()
-
-
-def _las_record(c, header, extra):
-    """Point records filled straight into laspy's structured array (its per-field
-    setters cost more than the compression)."""
-    import laspy
-
-    rec = laspy.ScaleAwarePointRecord.zeros(len(c), header=header)
-    a = rec.array
-    lo = header.offsets
-    for axis, name in enumerate("xyz"):
-        q = np.round((c[name] - lo[axis]) / LAS_SCALE)
-        if len(q) and (np.abs(q).max() >= 2**31 - 1):
-            raise PointFileError(f"Expected coordinates within 214 km of the LAS offset "
-                                 f"{lo.tolist()}, got {name} up to {np.abs(c[name]).max()}; "
-                                 "split the output.")
-        a[name.upper()] = q
-    a["gps_time"] = c["time"]
-    a["intensity"] = np.round(c["intensity"] * 65535)
-    a["bit_fields"] = 0x11                      # return 1 of 1 (4 + 4 bits)
-    a["scan_angle"] = np.round(np.rad2deg(c["elevation"]) / 0.006)
-    a["user_data"] = c["channel"] % 256
-    a["point_source_id"] = c["frame"] % 65536
-    a["classification"] = np.where(c["flag"] == 2, 7, 0)
-    for name, field, _ in extra:
-        a[name] = c[field]
-    return rec
-
-
-# ---------------------------------------------------------------------- PLY
-_PLY_TYPE = {"f8": "double", "f4": "float", "i4": "int", "u1": "uchar", "u4": "uint"}
-
-
-def _write_ply(run, chunks, path):
-    from .simulate import POINT_DTYPE
-
-    props = [f"property {_PLY_TYPE[POINT_DTYPE[n].str[1:]]} {n}" for n in POINT_DTYPE.names]
-    count_field = " " * 20
-    head = "\n".join(["ply", "format binary_little_endian 1.0",
-                      f"comment tunnelsim {run.sensor.name}",
-                      f"element vertex {count_field}", *props, "end_header"]) + "\n"
-    n = 0
-    with atomic_writer(path) as fh:
-        fh.write(head.encode("ascii"))
-        for c in chunks:
-            fh.write(np.ascontiguousarray(c).astype(POINT_DTYPE.newbyteorder("<")).tobytes())
-            n += len(c)
-        fh.seek(head.index("element vertex ") + len("element vertex "))
-        fh.write(str(n).ljust(20).encode("ascii"))
-
-
-# ---------------------------------------------------------------------- NPZ
-def _write_npz(run, chunks, path):
-    from .simulate import POINT_DTYPE
-
-    with tempfile.TemporaryDirectory(dir=path.parent, prefix="." + path.name + ".") as tmp:
-        files = {name: open(os.path.join(tmp, name), "wb") for name in POINT_DTYPE.names}
-        n = 0
-        try:
-            for c in chunks:
-                for name, fh in files.items():
-                    fh.write(np.ascontiguousarray(c[name]).tobytes())
-                n += len(c)
-        finally:
-            for fh in files.values():
-                fh.close()
-        with atomic_writer(path) as out, zipfile.ZipFile(out, "w", zipfile.ZIP_STORED,
-                                                         allowZip64=True) as zf:
-            for name in POINT_DTYPE.names:
-                dt = POINT_DTYPE[name]
-                with zf.open(name + ".npy", "w", force_zip64=True) as member:
-                    np.lib.format.write_array_header_1_0(
-                        member, {"descr": np.lib.format.dtype_to_descr(dt),
-                                 "fortran_order": False, "shape": (n,)})
-                    with open(os.path.join(tmp, name), "rb") as src:
-                        while True:
-                            block = src.read(1 << 24)
-                            if not block:
-                                break
-                            member.write(block)
-
-
-# ---------------------------------------------------------------------- E57
-def _write_e57(run, chunks, path):
-    if run.station is None:
-        raise PointFileError("Expected a TLS station for E57 output (a structured scan "
-                             "with one pose), got a moving platform; write LAS/LAZ instead.")
-    if run.n_pulses > E57_MAX_POINTS:
-        raise PointFileError(f"Expected at most {E57_MAX_POINTS:,} pulses for E57 (pye57 "
-                             f"writes a scan from memory), got {run.n_pulses:,}; use a "
-                             "coarser resolution or LAZ.")
-    try:
-        import pye57
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise PointFileError("Expected the optional package pye57 for E57 output; install "
-                             "it with: pip install pye57") from exc
-    from .simulate import POINT_DTYPE
-
-    parts = list(chunks)
-    c = np.concatenate(parts) if parts else np.empty(0, dtype=POINT_DTYPE)
-    pos, rot = run.station
-    q = rot.as_quat()  # x, y, z, w
-    data = {"cartesianX": c["sx"].astype(np.float64), "cartesianY": c["sy"].astype(np.float64),
-            "cartesianZ": c["sz"].astype(np.float64),
-            "intensity": c["intensity"].astype(np.float32),
-            "rowIndex": c["channel"].astype(np.int32),
-            "columnIndex": c["column"].astype(np.int32)}
-    # pye57 writes to a path: write beside the target and rename when complete.
-    tmp = path.with_name("." + path.name + ".part")
-    try:
-        e57 = pye57.E57(str(tmp), mode="w")
-        try:
-            e57.write_scan_raw(data, name=f"tunnelsim {run.sensor.name}",
-                               rotation=np.array([q[3], q[0], q[1], q[2]]),
-                               translation=np.asarray(pos, dtype=np.float64))
-        finally:
-            e57.close()
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
+        return _LasPoints(path, compress=f == "laz", fields=fields, **kw)
+    if f == "ply":
+        return _PlyPoints(path, **kw)
+    if f == "npz":
+        return _NpzPoints(path, **kw)
+    return _E57Points(path, expected_points=expected_points, **kw)

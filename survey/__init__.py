@@ -39,6 +39,7 @@ _EXPORTS = {
     "survey.adjust.slam": ("slam_trajectory", "to_slam_frame", "DriftedRun", "SlamObservation",
                            "observe_slam"),
     "survey.clouds.cloudio": ("annotate_las", "cloud_bounds", "iter_points", "map_cloud",
+                              "read_points", "read_reference",
                               "write_points_las"),
     "survey.clouds.preprocess": ("VoxelGrid", "radius_outliers", "statistical_outliers",
                                  "voxel_down_sample"),
@@ -82,8 +83,8 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.adjust.drift import DriftCorrection, fit_drift, leave_one_out
     from survey.adjust.slam import (slam_trajectory, to_slam_frame, DriftedRun,
         SlamObservation, observe_slam)
-    from survey.clouds.cloudio import (annotate_las, cloud_bounds, iter_points, map_cloud,
-        write_points_las)
+    from survey.clouds.cloudio import (read_points, read_reference, annotate_las,
+        cloud_bounds, iter_points, map_cloud, write_points_las)
     from survey.clouds.preprocess import (VoxelGrid, radius_outliers, statistical_outliers,
         voxel_down_sample)
     from survey.clouds.axis import estimate_axis, tunnel_frame, unroll

@@ -61,9 +61,13 @@ def read_control_points(path: str | Path) -> ControlPoints:
     if not path.is_file():
         raise ControlPointError(f"Expected a control-point CSV, got '{path}' which does not "
                                 "exist.")
-    with open(path, newline="") as fh:
-        rows = list(csv.reader(line for line in fh if line.strip() and
-                               not line.lstrip().startswith("#")))
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(line for line in fh if line.strip() and
+                                   not line.lstrip().startswith("#")))
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise ControlPointError(f"Expected a UTF-8 text CSV in '{path}', got a file that "
+                                f"does not decode ({exc}); save it as CSV text.") from None
     if not rows:
         raise ControlPointError(f"Expected a header 'id,x,y,z[,sigma|sx,sy,sz][,time]' in "
                                 f"'{path}', got an empty file.")

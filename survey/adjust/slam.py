@@ -118,16 +118,7 @@ class DriftedRun:
         """Stream the drifted chunks into ``path``, as ``Run.write`` does for the true
         ones (same formats and options: ``sensors.writers.open_writer``); returns the
         run's stats plus the path."""
-        from sensors.writers import open_writer
-
-        run = self.run
-        with open_writer(path, sensor=run.sensor.name, seed=run.seed, pose=run.station,
-                         fields=fields, fmt=fmt, expected_points=run.n_pulses) as w:
-            for chunk in self:
-                w.write_points(chunk)
-                if progress is not None:
-                    progress(run.pass_stats["pulses"], run.n_pulses)
-        return dict(run.stats, path=str(path))
+        return self.run.write(path, fmt=fmt, progress=progress, fields=fields, points=self)
 
 
 @dataclass(frozen=True, repr=False)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 
 from survey.cli import registry
 from survey.cli.commands import runner
@@ -35,6 +36,19 @@ def main(argv: list[str] | None = None) -> int:
     status (0, 2 for an error a user can fix, 130 after Ctrl-C)."""
     argv = sys.argv[1:] if argv is None else list(argv)
     debug = "--debug" in argv
+    with warnings.catch_warnings():
+        if not debug:
+            warnings.showwarning = _one_line_warning
+        return _main(argv, debug)
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as the command prints it: one line, no source path."""
+    text = " ".join(str(message).split())
+    print(f"tunnelsim: warning: {text}", file=sys.stderr if file is None else file)
+
+
+def _main(argv: list[str], debug: bool) -> int:
     parser, commands = build_parser()
     try:
         args, extra = parser.parse_known_args(argv)

@@ -1,14 +1,14 @@
 """Point clouds: chunked file I/O, filters, segmentation, the tunnel axis and unrolling,
 reconstruction of the lining and of attachments."""
 
-from .cloudio import annotate_las, cloud_bounds, iter_points, map_cloud, write_points_las
+from .cloudio import annotate_las, cloud_bounds, iter_points, map_cloud, write_points_las, read_points, read_reference
 from .preprocess import VoxelGrid, radius_outliers, statistical_outliers, voxel_down_sample
 from .axis import estimate_axis, tunnel_frame, unroll
 from .segment import CLASS_NAMES, segment_tunnel
 from .reconstruct import ReconstructedTunnel, poisson_tunnel, reconstruct_tunnel, reconstruct_within_budget
 from .detail import attachment_tubes, DetailedMesh, with_detail_layer
 
-__all__ = ["DetailedMesh", "with_detail_layer", "reconstruct_within_budget", "annotate_las", "cloud_bounds", "iter_points", "map_cloud", "write_points_las",
+__all__ = ["read_points", "read_reference", "DetailedMesh", "with_detail_layer", "reconstruct_within_budget", "annotate_las", "cloud_bounds", "iter_points", "map_cloud", "write_points_las",
            "VoxelGrid", "radius_outliers", "statistical_outliers", "voxel_down_sample",
            "estimate_axis", "tunnel_frame", "unroll", "CLASS_NAMES", "segment_tunnel",
            "ReconstructedTunnel", "poisson_tunnel", "reconstruct_tunnel",

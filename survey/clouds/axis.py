@@ -6,7 +6,6 @@ Angles are radians: ``phi`` from the crown, positive to the left.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -16,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from raytrace._checks import as_points
 from survey.errors import AlignmentError, ReconstructionError
 from survey.world.alignment import Alignment
-from survey.world.mesh import read_axis, sidecar
+from survey.world.mesh import read_axis, read_meta, sidecar
 
 if TYPE_CHECKING:
     from raytrace import Scene
@@ -159,7 +158,7 @@ def tunnel_frame(mesh_path: str | Path, scene: Scene | None = None
     sc, refl = load_mesh(mesh_path) if scene is None else (scene, None)
     js = sidecar(mesh_path)
     if js.is_file():
-        meta = json.loads(js.read_text())
+        meta = read_meta(js)
         if "alignment" in meta and "profile" in meta:
             al, hc = read_axis(js)
             return sc, refl, al, hc

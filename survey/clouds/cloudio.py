@@ -1,139 +1,73 @@
-"""Rewriting point clouds chunk by chunk with new coordinates (Helmert transforms,
-drift corrections): LAS/LAZ through laspy's chunk reader and writer, binary PLY
-through a memory map. Every other field is kept; output is written atomically."""
+"""Point clouds in and out, chunk by chunk, for the survey commands.
+
+Reading: ``iter_points`` (LAS/LAZ, binary PLY, XYZ/TXT/CSV text, NPZ, E57) and
+``cloud_bounds``; rewriting with new coordinates (``map_cloud``: Helmert transforms,
+drift corrections) or new fields (``annotate_las``: distances); writing
+(``write_points_las``). The file formats themselves live in ``sensors.las``,
+``sensors.ply`` and ``sensors.e57``, shared with the simulation's writers.
+
+Every problem with a file is a ``CloudFileError`` naming the file and the problem: an
+empty or corrupt file, a file shorter than its header promises (with the points
+promised and read), a valid file without points, a NaN or infinite coordinate (with the
+point's index). A rewrite keeps every field, VLR and EVLR of its input, and is written
+atomically: a failure leaves no output file.
+"""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
-from raytrace.fileio import atomic_writer
-from survey.errors import CloudFileError
+from sensors.e57 import read_e57
+from sensors.errors import PointFileError
+from sensors.las import (
+    LAS_SCALE,
+    LasSource,
+    LasWriter,
+    offsets_near,
+    output_header,
+    quantize,
+    write_las,
+)
+from sensors.ply import PlyWriter, ply_element, read_ply_header
+from survey.errors import CloudFileError, TunnelsimError
+
+__all__ = ["CHUNK", "LAS_SCALE", "MAX_LAS_SCALE", "annotate_las", "cloud_bounds",
+           "iter_points", "map_cloud", "read_points", "read_reference", "write_points_las"]
 
 CHUNK = 1 << 20
-LAS_SCALE = 1e-4
-
-
-def map_cloud(src, dst, fn, *, chunk: int = CHUNK) -> int:
-    """Write ``dst`` = ``src`` with x, y, z replaced by ``fn(xyz (n, 3), time (n,) or
-    None)``. LAS/LAZ (by suffix) or binary little-endian PLY. Returns the point count."""
-    src, dst = Path(src), Path(dst)
-    if not src.is_file():
-        raise CloudFileError(f"Expected a point cloud, got '{src}' which does not exist.")
-    if not dst.parent.exists():
-        raise CloudFileError(f"Expected an existing output folder, got '{dst.parent}'.")
-    kind = src.suffix.lower()
-    if kind in (".las", ".laz"):
-        if dst.suffix.lower() not in (".las", ".laz"):
-            raise CloudFileError(f"Expected a .las/.laz output for '{src}', got '{dst}'.")
-        return _map_las(src, dst, fn, chunk)
-    if kind == ".ply":
-        if dst.suffix.lower() != ".ply":
-            raise CloudFileError(f"Expected a .ply output for '{src}', got '{dst}'.")
-        return _map_ply(src, dst, fn, chunk)
-    raise CloudFileError(f"Expected a .las, .laz or .ply cloud, got '{src}'.")
-
-
-def _map_las(src, dst, fn, chunk):
-    import laspy
-
-    n = 0
-    with laspy.open(src) as reader:
-        head = reader.header
-        has_time = "gps_time" in head.point_format.dimension_names
-        writer = None
-        with atomic_writer(dst) as fh:
-            try:
-                for pts in reader.chunk_iterator(chunk):
-                    xyz = np.stack([np.asarray(pts.x), np.asarray(pts.y),
-                                    np.asarray(pts.z)], 1)
-                    new = np.asarray(fn(xyz, np.asarray(pts.gps_time) if has_time else None),
-                                     dtype=np.float64)
-                    if writer is None:
-                        out_head = laspy.LasHeader(point_format=head.point_format,
-                                                   version=head.version)
-                        out_head.vlrs.extend(v for v in head.vlrs
-                                             if not isinstance(v, laspy.vlrs.known.ExtraBytesVlr))
-                        out_head.scales = np.full(3, min(LAS_SCALE, float(head.scales[0])))
-                        first = new[0] if len(new) else np.zeros(3)
-                        out_head.offsets = np.round(first / 1000.0) * 1000.0
-                        writer = laspy.open(fh, mode="w", header=out_head, closefd=False,
-                                            do_compress=dst.suffix.lower() == ".laz")
-                    rec = laspy.ScaleAwarePointRecord(pts.array.copy(), head.point_format,
-                                                      writer.header.scales,
-                                                      writer.header.offsets)
-                    for k, name in enumerate("XYZ"):
-                        rec.array[name] = np.round((new[:, k] - writer.header.offsets[k]) /
-                                                   writer.header.scales[k])
-                    writer.write_points(rec)
-                    n += len(new)
-                if writer is None:
-                    writer = laspy.open(fh, mode="w", header=laspy.LasHeader(
-                        point_format=head.point_format, version=head.version), closefd=False,
-                        do_compress=dst.suffix.lower() == ".laz")
-            finally:
-                if writer is not None:
-                    writer.close()
-    return n
-
-
-_PLY = {"double": "<f8", "float": "<f4", "float64": "<f8", "float32": "<f4", "int": "<i4",
-        "uint": "<u4", "uchar": "u1", "char": "i1", "short": "<i2", "ushort": "<u2",
-        "int32": "<i4", "uint32": "<u4", "uint8": "u1", "int8": "i1", "int16": "<i2",
-        "uint16": "<u2"}
-
-
-def _map_ply(src, dst, fn, chunk):
-    data, head = _ply_memmap(src)
-    text = [h.decode("ascii", "replace").split() for h in head]
-    if len([t for t in text if t and t[0] == "element"]) != 1:
-        raise CloudFileError(f"Expected a point-cloud PLY (vertex element only), got "
-                             f"'{src}'; transform meshes with their own tools.")
-    n = len(data)
-    dt = data.dtype
-    has_time = "time" in dt.names
-    with atomic_writer(dst) as out:
-        out.write(b"".join(head))
-        for i in range(0, n, chunk):
-            c = np.array(data[i:i + chunk])
-            xyz = np.stack([c["x"], c["y"], c["z"]], 1).astype(np.float64)
-            new = np.asarray(fn(xyz, c["time"] if has_time else None), dtype=np.float64)
-            c["x"], c["y"], c["z"] = new.T
-            out.write(c.tobytes())
-    del data
-    return n
-
-
-def cloud_bounds(path, *, chunk: int = CHUNK):
-    """(min (3,), max (3,), count) of a cloud; from the LAS header when it has one."""
-    path = Path(path)
-    if not path.is_file():
-        raise CloudFileError(f"Expected a point cloud, got '{path}' which does not exist.")
-    if path.suffix.lower() in (".las", ".laz"):
-        import laspy
-
-        with laspy.open(path) as r:
-            h = r.header
-            _check_las_scale(h, path)
-            if h.point_count == 0:
-                raise CloudFileError(f"Expected points in '{path}', got an empty cloud.")
-            return np.asarray(h.mins, float), np.asarray(h.maxs, float), int(h.point_count)
-    lo, hi, n = np.full(3, np.inf), np.full(3, -np.inf), 0
-    for xyz in iter_points(path, chunk=chunk):
-        lo = np.minimum(lo, xyz.min(axis=0))
-        hi = np.maximum(hi, xyz.max(axis=0))
-        n += len(xyz)
-    if n == 0:
-        raise CloudFileError(f"Expected points in '{path}', got an empty cloud.")
-    return lo, hi, n
-
-
 #: Coarsest LAS coordinate scale accepted for tunnel work (m).
 MAX_LAS_SCALE = 0.01
+#: Suffixes ``iter_points`` reads.
+SUFFIXES = (".las", ".laz", ".ply", ".xyz", ".txt", ".csv", ".npz", ".e57")
+
+PathLike = str | os.PathLike[str]
 
 
-def _check_las_scale(header, path):
+@contextlib.contextmanager
+def _cloud_errors() -> Iterator[None]:
+    """File-format errors of ``sensors`` as this package's ``CloudFileError``."""
+    try:
+        yield
+    except PointFileError as exc:
+        raise CloudFileError(str(exc)) from exc
+
+
+def _existing(path: PathLike) -> Path:
+    p = Path(path)
+    if not p.is_file():
+        raise CloudFileError(f"Expected a point cloud, got '{p}' which does not exist.")
+    return p
+
+
+def _check_las_scale(header: Any, path: Path) -> None:
     sc = np.asarray(header.scales, dtype=np.float64)
     if not (np.isfinite(sc).all() and (sc > 0).all() and (sc <= MAX_LAS_SCALE).all()):
         raise CloudFileError(f"Expected LAS coordinate scales between 0 and "
@@ -142,164 +76,353 @@ def _check_las_scale(header, path):
                              "re-export with a scale of 0.001 m or finer.")
 
 
-def iter_points(path, *, chunk: int = CHUNK):
-    """Coordinates (n, 3) float64 of a cloud, chunk by chunk: LAS/LAZ (laspy chunks),
-    binary PLY (memory map), XYZ/TXT/CSV text (x y z in the first three columns),
-    NPZ (tunnelsim's fields x, y, z) and E57 (pye57, whole scans: not chunked)."""
-    path = Path(path)
-    if not path.is_file():
-        raise CloudFileError(f"Expected a point cloud, got '{path}' which does not exist.")
-    kind = path.suffix.lower()
-    if kind in (".las", ".laz"):
-        import laspy
+def _check_finite(xyz: NDArray[np.float64], path: Path, first: int) -> None:
+    """Name the first NaN or infinite coordinate (``first``: index of the chunk's first
+    point in the file)."""
+    bad = ~np.isfinite(xyz).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        what = "a NaN" if np.isnan(xyz[i]).any() else "an infinite"
+        raise CloudFileError(f"Expected finite coordinates in '{path}', got point "
+                             f"{first + i:,} with {what} coordinate "
+                             f"({', '.join(f'{v:g}' for v in xyz[i])}); remove it or "
+                             "export the cloud again.")
 
-        with laspy.open(path) as r:
-            _check_las_scale(r.header, path)
-            for pts in r.chunk_iterator(chunk):
-                yield np.stack([np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z)], 1)
+
+def _las_xyz(rec: Any) -> NDArray[np.float64]:
+    return np.stack([np.asarray(rec.x), np.asarray(rec.y), np.asarray(rec.z)], 1)
+
+
+def _ply_xyz(rec: np.ndarray) -> NDArray[np.float64]:
+    return np.stack([rec["x"], rec["y"], rec["z"]], 1).astype(np.float64)
+
+
+def _ply_points(path: Path) -> np.ndarray:
+    """The vertex records of a point-cloud PLY (memory map)."""
+    head = read_ply_header(path)
+    v = head.element("vertex")
+    if not {"x", "y", "z"} <= set(v.dtype.names or ()):
+        raise CloudFileError(f"Expected vertex properties x, y, z in '{path}', got "
+                             f"{list(v.dtype.names or ())}.")
+    return ply_element(path, "vertex", head)
+
+
+def _raw_chunks(path: Path, kind: str, chunk: int) -> Iterator[NDArray[np.float64]]:
+    if kind in (".las", ".laz"):
+        with LasSource(path) as src:
+            _check_las_scale(src.header, path)
+            for rec in src.chunks(chunk):
+                yield _las_xyz(rec)
     elif kind == ".ply":
-        data, _ = _ply_memmap(path)
+        data = _ply_points(path)
         for i in range(0, len(data), chunk):
-            c = data[i:i + chunk]
-            yield np.stack([c["x"], c["y"], c["z"]], 1).astype(np.float64)
+            yield _ply_xyz(data[i:i + chunk])
     elif kind in (".xyz", ".txt", ".csv"):
-        delim = "," if kind == ".csv" else None
-        with open(path) as fh:
-            while True:
-                try:
+        yield from _text_chunks(path, "," if kind == ".csv" else None, chunk)
+    elif kind == ".npz":
+        yield from _npz_chunks(path, chunk)
+    else:
+        yield from read_e57(path)
+
+
+def _text_chunks(path: Path, delim: str | None, chunk: int) -> Iterator[NDArray[np.float64]]:
+    with open(path, errors="replace") as fh:
+        while True:
+            try:
+                with warnings.catch_warnings():
+                    # The read after the last row finds no data: the loop's end, not news.
+                    warnings.filterwarnings("ignore", "loadtxt: input contained no data")
                     a = np.loadtxt(fh, delimiter=delim, max_rows=chunk, ndmin=2,
                                    usecols=(0, 1, 2), comments="#")
-                except ValueError as exc:
-                    raise CloudFileError(f"Expected numeric x y z columns in '{path}', got "
-                                         f"unreadable text ({exc}).") from exc
-                if len(a) == 0:
-                    break
-                yield a
-    elif kind == ".npz":
-        d = np.load(path)
-        for i in range(0, len(d["x"]), chunk):
-            yield np.stack([d["x"][i:i + chunk], d["y"][i:i + chunk],
-                            d["z"][i:i + chunk]], 1)
-    elif kind == ".e57":
-        import pye57
-
-        e = pye57.E57(str(path))
-        for s_ in range(e.scan_count):
-            d = e.read_scan(s_, ignore_missing_fields=True)   # world frame (pose applied)
-            yield np.stack([d["cartesianX"], d["cartesianY"], d["cartesianZ"]], 1)
-    else:
-        raise CloudFileError(f"Expected a .las, .laz, .ply, .xyz, .txt, .csv, .npz or .e57 "
-                             f"cloud, got '{path}'.")
-
-
-def _ply_memmap(src):
-    with open(src, "rb") as fh:
-        head = []
-        while True:
-            line = fh.readline()
-            if not line:
-                raise CloudFileError(f"Expected a PLY header in '{src}'.")
-            head.append(line)
-            if line.strip() == b"end_header":
+            except (ValueError, IndexError) as exc:
+                raise CloudFileError(f"Expected numeric x y z columns in '{path}', got "
+                                     f"unreadable text ({exc}).") from exc
+            if len(a) == 0:
                 break
-        start = fh.tell()
-    text = [h.decode("ascii", "replace").split() for h in head]
-    if ["format", "binary_little_endian", "1.0"] not in text:
-        raise CloudFileError(f"Expected a binary little-endian PLY, got '{src}'.")
-    elems = [t for t in text if t and t[0] == "element"]
-    if not elems or elems[0][1] != "vertex":
-        raise CloudFileError(f"Expected a PLY whose first element is 'vertex', got '{src}'.")
-    n = int(elems[0][2])
-    fields = []
-    for t in text:
-        if t and t[0] == "element" and t[1] != "vertex":
-            break
-        if t and t[0] == "property":
-            if t[1] == "list":
-                raise CloudFileError(f"Expected scalar vertex properties in '{src}'.")
-            fields.append((t[2], _PLY[t[1]]))
-    return np.memmap(src, dtype=np.dtype(fields), mode="r", offset=start, shape=(n,)), head
+            yield a
 
 
-def write_points_las(path, xyz, extra=None, classification=None):
+def _npz_chunks(path: Path, chunk: int) -> Iterator[NDArray[np.float64]]:
+    try:
+        d = np.load(path, allow_pickle=False)
+        cols = [np.asarray(d[k]).reshape(-1) for k in "xyz"]
+    except KeyError as exc:
+        raise CloudFileError(f"Expected arrays x, y, z in '{path}', got "
+                             f"{sorted(getattr(d, 'files', []))}.") from exc
+    except Exception as exc:   # zipfile, pickle and format errors of numpy.load
+        raise CloudFileError(f"Expected an NPZ file numpy can read, got '{path}' which "
+                             f"fails with: {exc}.") from exc
+    if not len(cols[0]) == len(cols[1]) == len(cols[2]):
+        raise CloudFileError(f"Expected arrays x, y, z of one length in '{path}', got "
+                             f"{[len(c) for c in cols]}.")
+    for i in range(0, len(cols[0]), chunk):
+        yield np.stack([c[i:i + chunk] for c in cols], 1).astype(np.float64)
+
+
+def iter_points(path: PathLike, *, chunk: int = CHUNK, allow_empty: bool = False
+                ) -> Iterator[NDArray[np.float64]]:
+    """Coordinates (n, 3) float64 of a cloud, chunk by chunk: LAS/LAZ (laspy chunks),
+    binary PLY (memory map), XYZ/TXT/CSV text (x y z in the first three columns),
+    NPZ (tunnelsim's fields x, y, z) and E57 (pye57, whole scans: not chunked).
+
+    Raises ``CloudFileError`` for an unreadable, corrupt or cut-short file, a NaN or
+    infinite coordinate, and (unless ``allow_empty``) a file without points.
+    """
+    path = _existing(path)
+    kind = path.suffix.lower()
+    if kind not in SUFFIXES:
+        raise CloudFileError(f"Expected a {', '.join(SUFFIXES)} cloud, got '{path}'.")
+    n = 0
+    with _cloud_errors():
+        for xyz in _raw_chunks(path, kind, chunk):
+            _check_finite(xyz, path, n)
+            n += len(xyz)
+            yield xyz
+    if n == 0 and not allow_empty:
+        raise CloudFileError(f"Expected points in '{path}', got a valid file with 0 "
+                             "points.")
+
+
+def read_points(path: PathLike, *, allow_empty: bool = False) -> NDArray[np.float64]:
+    """All coordinates (n, 3) float64 of a cloud (see ``iter_points``)."""
+    parts = list(iter_points(path, allow_empty=allow_empty))
+    return np.concatenate(parts) if parts else np.empty((0, 3))
+
+
+#: Mesh formats ``read_reference`` reads through trimesh.
+TRIMESH_SUFFIXES = (".obj", ".stl", ".off")
+
+
+def read_reference(path: PathLike
+                   ) -> tuple[NDArray[np.float64], NDArray[np.int64] | None]:
+    """A comparison reference: (vertices (n, 3), faces (m, 3) int64) of a mesh, or
+    (points (n, 3), None) of a cloud.
+
+    A PLY with faces is a mesh (read by ``sensors.ply``), a PLY without is a cloud;
+    OBJ, STL and OFF are meshes (trimesh); every other suffix is a cloud
+    (``iter_points``). Raises ``CloudFileError`` for an unreadable, cut-short or empty
+    file and for a NaN coordinate.
+    """
+    from survey.world.mesh import read_ply
+
+    path = _existing(path)
+    kind = path.suffix.lower()
+    if kind == ".ply":
+        with _cloud_errors():
+            head = read_ply_header(path)
+        if any(e.name == "face" and e.count > 0 for e in head.elements):
+            try:
+                mesh = read_ply(path)
+            except TunnelsimError as exc:
+                raise CloudFileError(str(exc)) from exc
+            _check_finite(mesh["vertices"], path, 0)
+            return mesh["vertices"], mesh["faces"]
+    elif kind in TRIMESH_SUFFIXES:
+        import trimesh
+
+        try:
+            m: Any = trimesh.load(str(path), force="mesh", process=False)
+            v, f = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, np.int64)
+        except Exception as exc:   # trimesh raises many types for unreadable files
+            raise CloudFileError(f"Expected a mesh trimesh can read, got '{path}' which "
+                                 f"fails with: {exc}") from exc
+        if len(f) == 0:
+            raise CloudFileError(f"Expected triangles in '{path}', got none.")
+        _check_finite(v, path, 0)
+        return v, f
+    return read_points(path), None
+
+
+def cloud_bounds(path: PathLike, *, chunk: int = CHUNK
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+    """(min (3,), max (3,), count) of a cloud's points.
+
+    DECISION: computed from the points, one pass over the file, never taken from a
+    LAS header alone: real writers store bounds wrong (by 1000x, or stale after an
+    edit), and a grid built on them refuses the points. The pass over a LAZ file
+    decompresses x, y, z only. When a LAS header disagrees with its points by more
+    than two scale steps, a one-line warning says so.
+    """
+    path = _existing(path)
+    if path.suffix.lower() not in (".las", ".laz"):
+        return _bounds(iter_points(path, chunk=chunk))
+    with _cloud_errors(), LasSource(path, xyz_only=True) as src:
+        _check_las_scale(src.header, path)
+        lo, hi, n = _bounds(_las_xyz(rec) for rec in src.chunks(chunk))
+        h_lo, h_hi = src.header_bounds()
+        tol = 2.0 * np.abs(np.asarray(src.header.scales, dtype=np.float64))
+    if n == 0:
+        raise _no_points(path)
+    if not (np.all(np.abs(h_lo - lo) <= tol) and np.all(np.abs(h_hi - hi) <= tol)):
+        warnings.warn(f"'{path}' states bounds {h_lo.tolist()} - {h_hi.tolist()} in its "
+                      f"header, but its points span {lo.tolist()} - {hi.tolist()}; using "
+                      "the points' bounds.", UserWarning, stacklevel=2)
+    return lo, hi, n
+
+
+def _bounds(chunks: Iterable[NDArray[np.float64]]
+            ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+    lo, hi, n = np.full(3, np.inf), np.full(3, -np.inf), 0
+    for xyz in chunks:
+        if len(xyz):
+            lo = np.minimum(lo, xyz.min(axis=0))
+            hi = np.maximum(hi, xyz.max(axis=0))
+            n += len(xyz)
+    return lo, hi, n
+
+
+# ---------------------------------------------------------------------- rewriting
+XyzFn = Callable[[NDArray[np.float64], "NDArray[np.float64] | None"], Any]
+
+
+def _new_xyz(fn: XyzFn, xyz: NDArray[np.float64], t: NDArray[np.float64] | None,
+             src: Path) -> NDArray[np.float64]:
+    new = np.asarray(fn(xyz, t), dtype=np.float64)
+    if new.shape != xyz.shape:
+        raise CloudFileError(f"Expected new coordinates of shape {xyz.shape} for '{src}', "
+                             f"got {new.shape}.")
+    return new
+
+
+def map_cloud(src: PathLike, dst: PathLike, fn: XyzFn, *, chunk: int = CHUNK) -> int:
+    """Write ``dst`` = ``src`` with x, y, z replaced by ``fn(xyz (n, 3), time (n,) or
+    None)``; every other field, VLR and EVLR is kept (a COPC file becomes a plain LAZ).
+    LAS/LAZ (by suffix) or binary PLY. Atomic. Returns the point count."""
+    src, dst = _existing(src), Path(dst)
+    if not dst.parent.exists():
+        raise CloudFileError(f"Expected an existing output folder, got '{dst.parent}'.")
+    kind = src.suffix.lower()
+    with _cloud_errors():
+        if kind in (".las", ".laz"):
+            if dst.suffix.lower() not in (".las", ".laz"):
+                raise CloudFileError(f"Expected a .las/.laz output for '{src}', got '{dst}'.")
+            n = _map_las(src, dst, fn, chunk)
+        elif kind == ".ply":
+            if dst.suffix.lower() != ".ply":
+                raise CloudFileError(f"Expected a .ply output for '{src}', got '{dst}'.")
+            n = _map_ply(src, dst, fn, chunk)
+        else:
+            raise CloudFileError(f"Expected a .las, .laz or .ply cloud, got '{src}'.")
+    return n
+
+
+def _no_points(src: Path) -> CloudFileError:
+    return CloudFileError(f"Expected points in '{src}', got a valid file with 0 points.")
+
+
+#: step(records, index of their first point) -> (``output_header`` options, a function
+#: from the output header to the records to write).
+LasStep = Callable[[Any, int], tuple[dict[str, Any], Callable[[Any], Any]]]
+
+
+def _rewrite_las(source: LasSource, dst: Path, chunk: int, step: LasStep) -> int:
+    """Write ``dst`` from ``source`` chunk by chunk through ``step``; the options it
+    gives for the first chunk make the output header (they may depend on the data:
+    offsets near the new coordinates, dtypes of new fields). Every VLR and EVLR is
+    carried; a failure leaves no ``dst``. Returns the point count."""
+    if source.point_count == 0:
+        raise _no_points(source.path)
+    n = 0
+    with contextlib.ExitStack() as stack:     # closes the writer, or drops its file
+        w: LasWriter | None = None
+        for rec in source.chunks(chunk):
+            options, records = step(rec, n)
+            if w is None:
+                w = stack.enter_context(LasWriter(dst, output_header(source, **options),
+                                                  evlrs=source.evlrs()))
+            w.write_points(records(w.header))
+            n += len(rec)
+    return n
+
+
+def _map_las(src: Path, dst: Path, fn: XyzFn, chunk: int) -> int:
+    import laspy
+
+    with LasSource(src) as source:
+        has_time = "gps_time" in source.header.point_format.dimension_names
+        # A finer scale never loses what the input held; 0.1 mm at most.
+        scales = np.minimum(LAS_SCALE, np.asarray(source.header.scales, dtype=np.float64))
+
+        def step(rec: Any, first: int) -> tuple[dict[str, Any], Callable[[Any], Any]]:
+            new = _new_xyz(fn, _las_xyz(rec), np.asarray(rec.gps_time) if has_time else None,
+                           src)
+            _check_finite(new, dst, first)
+
+            def records(head: Any) -> Any:
+                out = laspy.ScaleAwarePointRecord(rec.array.copy(), head.point_format,
+                                                  head.scales, head.offsets)
+                q = quantize(new, head.scales, head.offsets)
+                out.array["X"], out.array["Y"], out.array["Z"] = q.T
+                return out
+            return {"scales": scales, "offsets": offsets_near(new)}, records
+
+        return _rewrite_las(source, dst, chunk, step)
+
+
+def _map_ply(src: Path, dst: Path, fn: XyzFn, chunk: int) -> int:
+    head = read_ply_header(src)
+    if [e.name for e in head.elements] != ["vertex"]:
+        raise CloudFileError(f"Expected a point-cloud PLY (vertex element only), got "
+                             f"'{src}'; transform meshes with their own tools.")
+    data = _ply_points(src)
+    n = len(data)
+    if n == 0:
+        raise _no_points(src)
+    names = [f for f in data.dtype.names or () if not f.startswith("__n_")]
+    native = np.dtype([(f, data.dtype[f].base.newbyteorder("="), data.dtype[f].shape)
+                       for f in names])
+    with PlyWriter(dst, [("vertex", native, n)], comments=head.comments) as w:
+        for i in range(0, n, chunk):
+            c = np.array(data[i:i + chunk]).astype(native)
+            xyz = _ply_xyz(c)
+            _check_finite(xyz, src, i)
+            new = _new_xyz(fn, xyz, c["time"] if "time" in names else None, src)
+            _check_finite(new, dst, i)
+            c["x"], c["y"], c["z"] = new.T
+            w.write("vertex", c)
+    del data
+    return n
+
+
+def write_points_las(path: PathLike, xyz: NDArray[np.float64],
+                     extra: Mapping[str, np.ndarray] | None = None,
+                     classification: np.ndarray | None = None) -> Path:
     """Write points (n, 3) as LAS/LAZ 1.4 (format 6, 0.1 mm scale, offset near the data)
     with optional extra dimensions {name: (n,) array} and classification codes (n,);
     atomic."""
+    fields = {} if classification is None else {"classification": classification}
+    with _cloud_errors():
+        return write_las(path, xyz, fields=fields, extra=extra)
+
+
+def annotate_las(src: PathLike, dst: PathLike,
+                 fn: Callable[[NDArray[np.float64]], Mapping[str, np.ndarray]], *,
+                 chunk: int = CHUNK) -> int:
+    """Write ``dst`` = LAS/LAZ ``src`` with every point record kept (coordinates,
+    intensity, GPS time, classification, extra bytes), every VLR and EVLR, plus the
+    extra dimensions that ``fn(xyz (n, 3))`` returns as {name: (n,) array}, chunk by
+    chunk; an input extra dimension of the same name is replaced. Atomic. Returns the
+    point count."""
     import laspy
 
-    path = Path(path)
-    xyz = np.asarray(xyz, dtype=np.float64)
-    head = laspy.LasHeader(point_format=6, version="1.4")
-    head.scales = np.full(3, LAS_SCALE)
-    head.offsets = np.round((xyz[0] if len(xyz) else np.zeros(3)) / 1000.0) * 1000.0
-    extra = extra or {}
-    head.add_extra_dims([laspy.ExtraBytesParams(name=k, type=np.asarray(v).dtype)
-                         for k, v in extra.items()])
-    with atomic_writer(path) as fh:
-        with laspy.open(fh, mode="w", header=head, closefd=False,
-                        do_compress=path.suffix.lower() == ".laz") as w:
-            for i in range(0, max(len(xyz), 1), CHUNK):
-                rec = laspy.ScaleAwarePointRecord.zeros(len(xyz[i:i + CHUNK]), header=head)
-                for k, name in enumerate("XYZ"):
-                    rec.array[name] = np.round((xyz[i:i + CHUNK, k] - head.offsets[k]) /
-                                               LAS_SCALE)
-                rec.array["bit_fields"] = 0x11
-                if classification is not None:
-                    rec.array["classification"] = np.asarray(classification)[i:i + CHUNK]
-                for k, v in extra.items():
-                    rec.array[k] = np.asarray(v)[i:i + CHUNK]
-                w.write_points(rec)
-    return path
-
-
-def annotate_las(src, dst, fn, *, chunk: int = CHUNK) -> int:
-    """Write ``dst`` = LAS/LAZ ``src`` with every point record kept (coordinates, intensity,
-    GPS time, classification, extra bytes, VLRs) plus the extra dimensions that
-    ``fn(xyz (n, 3))`` returns as {name: (n,) array}, chunk by chunk; an input extra
-    dimension of the same name is replaced. Atomic. Returns the point count."""
-    import laspy
-
-    src, dst = Path(src), Path(dst)
+    src, dst = _existing(src), Path(dst)
     if src.suffix.lower() not in (".las", ".laz") or dst.suffix.lower() not in (".las",
                                                                                  ".laz"):
         raise CloudFileError(f"Expected .las/.laz input and output, got '{src}' -> '{dst}'.")
-    n = 0
-    with laspy.open(src) as reader:
-        head = reader.header
-        _check_las_scale(head, src)
-        writer = None
-        with atomic_writer(dst) as fh:
-            try:
-                for pts in reader.chunk_iterator(chunk):
-                    xyz = np.stack([np.asarray(pts.x), np.asarray(pts.y),
-                                    np.asarray(pts.z)], 1)
-                    extra = {k: np.asarray(v) for k, v in fn(xyz).items()}
-                    if writer is None:
-                        keep = [e for e in head.point_format.extra_dimension_names
-                                if e not in extra]
-                        fmt = laspy.PointFormat(head.point_format.id)
-                        out_head = laspy.LasHeader(point_format=fmt, version=head.version)
-                        out_head.vlrs.extend(v for v in head.vlrs if not isinstance(
-                            v, laspy.vlrs.known.ExtraBytesVlr))
-                        out_head.scales, out_head.offsets = head.scales, head.offsets
-                        dims = [laspy.ExtraBytesParams(name=e, type=pts.array.dtype[e])
-                                for e in keep]
-                        dims += [laspy.ExtraBytesParams(name=k, type=v.dtype)
-                                 for k, v in extra.items()]
-                        out_head.add_extra_dims(dims)
-                        writer = laspy.open(fh, mode="w", header=out_head, closefd=False,
-                                            do_compress=dst.suffix.lower() == ".laz")
-                    rec = laspy.ScaleAwarePointRecord.zeros(len(xyz), header=writer.header)
-                    for name in rec.array.dtype.names:
-                        if name in extra:
-                            rec.array[name] = extra[name]
-                        elif name in pts.array.dtype.names:
-                            rec.array[name] = pts.array[name]
-                    writer.write_points(rec)
-                    n += len(xyz)
-                if writer is None:
-                    raise CloudFileError(f"Expected points in '{src}', got none.")
-            finally:
-                if writer is not None:
-                    writer.close()
-    return n
+    with _cloud_errors(), LasSource(src) as source:
+        _check_las_scale(source.header, src)
+
+        def step(rec: Any, first: int) -> tuple[dict[str, Any], Callable[[Any], Any]]:
+            extra = {k: np.asarray(v) for k, v in fn(_las_xyz(rec)).items()}
+
+            def records(head: Any) -> Any:
+                out = laspy.ScaleAwarePointRecord.zeros(len(rec), header=head)
+                for name in out.array.dtype.names or ():
+                    if name in extra:
+                        out.array[name] = extra[name]
+                    elif name in (rec.array.dtype.names or ()):
+                        out.array[name] = rec.array[name]
+                return out
+            return {"extra": {k: v.dtype for k, v in extra.items()}}, records
+
+        return _rewrite_las(source, dst, chunk, step)

@@ -24,12 +24,22 @@ from pathlib import Path
 
 import numpy as np
 
-from raytrace.fileio import atomic_writer
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from survey.errors import TunnelError, TunnelFileError
+from typing import Any
+
+from numpy.typing import NDArray
+
+from raytrace.fileio import write_json
+from sensors import ply as _ply
+from sensors.errors import PointFileError
+from survey.errors import TunnelError, TunnelFileError, TunnelsimError
 from survey.world import deformation as _deform
 from survey.world.alignment import Alignment
 from survey.world.profiles import Profile
+
+__all__ = ["FORMAT", "LABEL", "LABELS", "REFLECTIVITY", "TunnelMesh", "read_axis",
+           "read_meta", "read_ply", "read_tunnel", "sidecar", "write_ply", "write_tunnel"]
 
 FORMAT = "tunnelsim-tunnel/1"
 
@@ -52,7 +62,7 @@ REFLECTIVITY = {"lining": 0.4, "floor": 0.3, "wet_floor": 0.1, "drainage": 0.15,
                 "niche": 0.4, "cable": 0.06, "bolt": 0.5, "prism": 0.9, "end_cap": 0.3}
 
 
-@dataclass
+@dataclass(repr=False)
 class TunnelMesh:
     """A generated tunnel: triangle mesh, per-face labels and the data behind them.
 
@@ -68,26 +78,36 @@ class TunnelMesh:
     alignment, profile : the geometry it was built from
     metadata : dict, JSON-ready description (parameters, features, counts, control
         points, deformations)
-    displacement : (n, 3) float64 or None, displacement from the undeformed epoch
+    displacement : (n, 3) float64 or None, displacement from the undeformed epoch (m)
+
+    Coordinates, chainages and profile parameters are metres. ``repr`` is one line.
     """
 
-    vertices: np.ndarray
-    faces: np.ndarray
-    labels: np.ndarray
-    vertex_chainage: np.ndarray
-    vertex_param: np.ndarray
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int64]
+    labels: NDArray[np.uint8]
+    vertex_chainage: NDArray[np.float64]
+    vertex_param: NDArray[np.float64]
     alignment: Alignment
     profile: Profile
-    metadata: dict = field(default_factory=dict)
-    displacement: np.ndarray | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+    displacement: NDArray[np.float64] | None = None
+
+    def __repr__(self) -> str:
+        name = self.metadata.get("name")
+        labels = len(np.unique(self.labels))
+        return (f"TunnelMesh({name + ': ' if name else ''}{len(self.faces):,} triangles, "
+                f"{len(self.vertices):,} vertices, {self.alignment.length_m:.1f} m, "
+                f"{self.profile.name}, {labels} label{'s' if labels != 1 else ''}"
+                + (", deformed" if self.displacement is not None else "") + ")")
 
     @property
-    def reflectivity(self) -> np.ndarray:
+    def reflectivity(self) -> NDArray[np.float32]:
         """(m,) float32 reflectivity of each face from the metadata's label table."""
         table = self.metadata.get("reflectivity", REFLECTIVITY)
         return np.array([table[n] for n in LABELS], dtype=np.float32)[self.labels]
 
-    def lining_normals(self) -> np.ndarray:
+    def lining_normals(self) -> NDArray[np.float64]:
         """(n, 3) outward (into the rock) unit normal of the lining point each vertex
         belongs or is attached to; zero where it has none."""
         ok = np.isfinite(self.vertex_param)
@@ -100,7 +120,7 @@ class TunnelMesh:
             out[ok, 2] = n2[:, 1]
         return out
 
-    def deformed(self, deformations) -> "TunnelMesh":
+    def deformed(self, deformations: Iterable[_deform.Deformation]) -> TunnelMesh:
         """A second epoch: every vertex moved by the sum of the deformation fields
         along the inward lining normal of its (attachment) point. The displacement is
         kept in ``displacement`` and the fields in ``metadata['deformation']``."""
@@ -121,15 +141,15 @@ class TunnelMesh:
                           self.vertex_chainage, self.vertex_param, self.alignment,
                           self.profile, meta, disp)
 
-    def write(self, path):
+    def write(self, path: str | Path) -> tuple[Path, Path]:
         """Write ``path`` (binary PLY with face labels and reflectivity) and the
         metadata beside it (same name, .json); both atomically. Returns the paths."""
-        from survey.world.mesh import write_tunnel
-
         return write_tunnel(self, path)
 
 
-def _moved_control_points(points, deformations, profile):
+def _moved_control_points(points: Sequence[Mapping[str, Any]],
+                          deformations: Sequence[_deform.Deformation], profile: Profile
+                          ) -> list[dict[str, Any]]:
     out = []
     for p in points:
         q = dict(p)
@@ -141,16 +161,12 @@ def _moved_control_points(points, deformations, profile):
     return out
 
 
-def _face_dtype():
-    return np.dtype([("n", "u1"), ("v", "<i4", (3,)), ("label", "u1"),
-                     ("reflectivity", "<f4")])
-
-
 def write_ply(path, vertices, faces, labels=None, reflectivity=None, displacement=None,
               vertex_fields=None):
     """Binary little-endian PLY with float64 vertices, optional per-face ``label``
     (uint8) and ``reflectivity`` (float32), per-vertex displacement ``dx dy dz`` and
-    other per-vertex scalars ``vertex_fields`` {name: (n,) float64 array}."""
+    other per-vertex scalars ``vertex_fields`` {name: (n,) float64 array}; written
+    atomically by ``sensors.ply``."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
@@ -171,104 +187,67 @@ def write_ply(path, vertices, faces, labels=None, reflectivity=None, displacemen
         vrec["dx"], vrec["dy"], vrec["dz"] = d.T
     for name, arr in vertex_fields.items():
         vrec[name] = arr
-    ffields = [("n", "u1"), ("v", "<i4", (3,))]
+    ffields: list[tuple[Any, ...]] = [("vertex_indices", "<i4", (3,))]
     if labels is not None:
         ffields.append(("label", "u1"))
     if reflectivity is not None:
         ffields.append(("reflectivity", "<f4"))
     frec = np.empty(len(f), dtype=ffields)
-    frec["n"] = 3
-    frec["v"] = f
+    frec["vertex_indices"] = f
     if labels is not None:
         frec["label"] = labels
     if reflectivity is not None:
         frec["reflectivity"] = reflectivity
-    names = {"<f8": "double", "<f4": "float", "u1": "uchar"}
-    head = ["ply", "format binary_little_endian 1.0", "comment written by tunnelsim",
-            f"element vertex {len(v)}"]
-    head += [f"property {names[t]} {n}" for n, t in vfields]
-    head += [f"element face {len(f)}", "property list uchar int vertex_indices"]
-    head += [f"property {names[t]} {n}" for n, t, *_ in ffields[2:]]
-    head.append("end_header")
-    with atomic_writer(path) as fh:
-        fh.write(("\n".join(head) + "\n").encode("ascii"))
-        # Chunked writes keep the temporary copies small for multi-million meshes.
-        for arr in (vrec, frec):
-            step = 1 << 20
-            for i in range(0, len(arr), step):
-                fh.write(arr[i:i + step].tobytes())
-    return Path(path)
-
-
-_PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "<i2", "ushort": "<u2", "int": "<i4",
-              "uint": "<u4", "float": "<f4", "double": "<f8", "int8": "i1", "uint8": "u1",
-              "int16": "<i2", "uint16": "<u2", "int32": "<i4", "uint32": "<u4",
-              "float32": "<f4", "float64": "<f8"}
+    try:
+        return _ply.write_ply(path, {"vertex": vrec, "face": frec},
+                              comments=["written by tunnelsim"])
+    except PointFileError as exc:
+        raise TunnelFileError(str(exc)) from exc
 
 
 def read_ply(path):
-    """Read a binary little-endian triangle PLY (as written by ``write_ply``).
+    """Read a binary triangle PLY (as written by ``write_ply``).
 
     Returns a dict with ``vertices`` (n, 3) float64, ``faces`` (m, 3) int64 and any
-    extra vertex/face properties by name. Other PLY files: use trimesh.
+    extra vertex/face properties by name. Raises ``TunnelFileError`` for a missing,
+    corrupt or cut-short file, a file without faces, faces that are not triangles and
+    vertex indices out of range. ASCII PLY: convert it first (trimesh, CloudCompare).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise TunnelFileError(f"Expected a PLY file, got '{path}' which does not exist.")
-    with open(path, "rb") as fh:
-        if fh.readline().strip() != b"ply":
-            raise TunnelFileError(f"Expected a PLY file, got '{path}' without the 'ply' "
-                                  "magic line.")
-        elements, props = [], {}
-        fmt = None
-        while True:
-            line = fh.readline()
-            if not line:
-                raise TunnelFileError(f"Expected 'end_header' in '{path}', got end of file.")
-            words = line.decode("ascii", "replace").split()
-            if not words or words[0] in ("comment", "obj_info"):
-                continue
-            if words[0] == "format":
-                fmt = words[1]
-            elif words[0] == "element":
-                elements.append((words[1], int(words[2])))
-                props[words[1]] = []
-            elif words[0] == "property":
-                props[elements[-1][0]].append(words[1:])
-            elif words[0] == "end_header":
-                break
-        if fmt != "binary_little_endian":
-            raise TunnelFileError(f"Expected a binary little-endian PLY, got format {fmt} "
-                                  f"in '{path}'; read it with trimesh.")
-        out = {}
-        for name, count in elements:
-            fields = []
-            for p in props[name]:
-                if p[0] == "list":
-                    if _PLY_TYPES[p[1]] != "u1":
-                        raise TunnelFileError("Expected face lists with uchar counts.")
-                    fields += [("_n", "u1"), ("_v", _PLY_TYPES[p[2]], (3,))]
-                else:
-                    fields.append((p[1], _PLY_TYPES[p[0]]))
-            rec = np.frombuffer(fh.read(np.dtype(fields).itemsize * count),
-                                dtype=fields, count=count)
-            if name == "face":
-                if (rec["_n"] != 3).any():
-                    raise TunnelFileError(f"Expected triangles only in '{path}'.")
-                out["faces"] = rec["_v"].astype(np.int64)
-            if name == "vertex":
-                out["vertices"] = np.stack([rec["x"], rec["y"], rec["z"]], 1).astype(float)
-            for fname in rec.dtype.names:
-                if not fname.startswith("_") and fname not in ("x", "y", "z"):
-                    out[fname] = rec[fname].copy()
+    try:
+        elements = _ply.read_ply(path)
+    except PointFileError as exc:
+        raise TunnelFileError(str(exc)) from exc
+    vert = elements.get("vertex")
+    if vert is None or not {"x", "y", "z"} <= set(vert.dtype.names or ()) or \
+            "face" not in elements:
+        raise TunnelFileError(f"Expected a triangle mesh ('vertex' with x, y, z, and "
+                              f"'face') in '{path}', got elements {list(elements)}.")
+    out: dict[str, Any] = {"vertices": np.stack([vert["x"], vert["y"], vert["z"]],
+                                                1).astype(np.float64)}
+    for name, rec in elements.items():
+        lists = [n for n in rec.dtype.names or () if rec.dtype[n].shape]
+        if name == "face":
+            if len(lists) != 1 or rec.dtype[lists[0]].shape != (3,):
+                raise TunnelFileError(f"Expected triangles only (one list of 3 vertex "
+                                      f"indices per face) in '{path}'.")
+            faces = rec[lists[0]].astype(np.int64)
+            if len(faces) and (faces.min() < 0 or faces.max() >= len(vert)):
+                raise TunnelFileError(f"Expected vertex indices in [0, {len(vert)}) in "
+                                      f"'{path}', got {faces.min()} to {faces.max()}; "
+                                      "the file is corrupt.")
+            out["faces"] = faces
+        for fname in rec.dtype.names or ():
+            if fname not in lists and not (name == "vertex" and fname in ("x", "y", "z")):
+                out[fname] = rec[fname]
     return out
 
 
-def sidecar(path) -> Path:
+def sidecar(path: str | Path) -> Path:
+    """The JSON beside a tunnel's PLY (same name, ``.json``)."""
     return Path(path).with_suffix(".json")
 
 
-def write_tunnel(tunnel, path):
+def write_tunnel(tunnel: TunnelMesh, path: str | Path) -> tuple[Path, Path]:
     """Write the tunnel's PLY and JSON sidecar (atomically); returns both paths."""
     path = Path(path)
     if path.suffix.lower() != ".ply":
@@ -280,29 +259,62 @@ def write_tunnel(tunnel, path):
               tunnel.displacement, {"chainage": tunnel.vertex_chainage,
                                     "profile_t": tunnel.vertex_param})
     meta = dict(tunnel.metadata, format=FORMAT, mesh=path.name)
-    with atomic_writer(sidecar(path), "w") as fh:
-        json.dump(meta, fh, indent=1)
+    write_json(sidecar(path), meta, indent=1)
     return path, sidecar(path)
 
 
-def read_tunnel(path):
-    """Read a tunnel written by ``write_tunnel`` back into a ``TunnelMesh``."""
-    from survey.world.alignment import Alignment
-    from survey.world.profiles import Profile
-    from survey.world.mesh import TunnelMesh
+def read_meta(js: str | Path) -> dict[str, Any]:
+    """The JSON object of a tunnel sidecar; ``TunnelFileError`` for a missing, unreadable,
+    undecodable or non-object file."""
+    js = Path(js)
+    if not js.is_file():
+        raise TunnelFileError(f"Expected a tunnel JSON, got '{js}' which does not exist.")
+    try:
+        meta = json.loads(js.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise TunnelFileError(f"Expected a JSON tunnel description in '{js}', got a file "
+                              f"that does not parse ({exc}); rewrite it with "
+                              "'tunnelsim tunnel'.") from None
+    if not isinstance(meta, dict):
+        raise TunnelFileError(f"Expected a JSON object in '{js}', got a "
+                              f"{type(meta).__name__}; rewrite it with 'tunnelsim tunnel'.")
+    return meta
 
+
+def _geometry(meta: dict[str, Any], js: Path) -> tuple[Alignment, Profile]:
+    """The alignment and profile a tunnel JSON describes."""
+    if not isinstance(meta.get("alignment"), dict) or not isinstance(meta.get("profile"), dict):
+        raise TunnelFileError(f"Expected 'alignment' and 'profile' objects in '{js}' (a JSON "
+                              "written by 'tunnelsim tunnel'), got "
+                              f"{sorted(k for k in ('alignment', 'profile') if k in meta)}.")
+    try:
+        return Alignment.from_dict(meta["alignment"]), Profile.from_dict(meta["profile"])
+    except TunnelsimError:
+        raise
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise TunnelFileError(f"Expected a valid alignment and profile in '{js}', got "
+                              f"{type(exc).__name__}: {exc}; rewrite it with 'tunnelsim "
+                              "tunnel'.") from None
+
+
+def read_tunnel(path: str | Path) -> TunnelMesh:
+    """Read a tunnel written by ``write_tunnel`` back into a ``TunnelMesh``."""
     path = Path(path)
     js = sidecar(path)
     if not js.is_file():
         raise TunnelFileError(f"Expected the metadata file '{js}' beside '{path}', got "
                               "none; write tunnels with TunnelMesh.write.")
-    meta = json.loads(js.read_text())
+    meta = read_meta(js)
     if meta.get("format") != FORMAT:
         raise TunnelFileError(f"Expected format {FORMAT!r} in '{js}', got "
                               f"{meta.get('format')!r}.")
     ply = read_ply(path)
-    al = Alignment.from_dict(meta["alignment"])
-    prof = Profile.from_dict(meta["profile"])
+    missing = [k for k in ("label", "chainage", "profile_t") if k not in ply]
+    if missing:
+        raise TunnelFileError(f"Expected the tunnel PLY properties label, chainage and "
+                              f"profile_t in '{path}', got no {', '.join(missing)}; it is "
+                              "not a tunnelsim tunnel (or it is damaged).")
+    al, prof = _geometry(meta, js)
     disp = None
     if "dx" in ply:
         disp = np.stack([ply["dx"], ply["dy"], ply["dz"]], 1).astype(np.float64)
@@ -310,19 +322,10 @@ def read_tunnel(path):
                       ply["chainage"], ply["profile_t"], al, prof, meta, disp)
 
 
-def read_axis(json_path):
-    """(Alignment, profile-centre height) from a generated tunnel's JSON."""
-    from survey.world.alignment import Alignment
-    from survey.world.profiles import Profile
-
+def read_axis(json_path: str | Path) -> tuple[Alignment, float]:
+    """(Alignment, profile-centre height in m) from a generated tunnel's JSON."""
     js = Path(json_path)
-    if not js.is_file():
-        raise TunnelFileError(f"Expected a tunnel JSON, got '{js}' which does not exist.")
-    meta = json.loads(js.read_text())
-    if "alignment" not in meta or "profile" not in meta:
-        raise TunnelFileError(f"Expected 'alignment' and 'profile' in '{js}' (a JSON "
-                              "written by 'tunnelsim tunnel'), got neither.")
-    return (Alignment.from_dict(meta["alignment"]),
-            float(Profile.from_dict(meta["profile"]).centroid[1]))
+    al, prof = _geometry(read_meta(js), js)
+    return al, float(prof.centroid[1])
 
 

@@ -91,7 +91,7 @@ def test_per_face_reflectivity_is_checked(tube, two_seconds):
     (lambda s, t: simulate_station(s, "zf_imager_5016", [10, 0, 0], attitude=30.0),
      "attitude.*Rotation"),
     (lambda s, t: simulate_station(s, "zf_imager_5016", [10, 0], resolution="high"),
-     r"`position` of shape \(n, 3\) or \(3,\), got \(2,\)"),
+     r"`position` to have shape \(n, 3\) or \(3,\), got \(2,\)"),
     (lambda s, t: simulate_station(s, "zf_imager_5016", np.zeros((2, 3))),
      "one station `position`"),
     (lambda s, t: simulate_station(s, "zf_imager_5016", [10, np.nan, 0]), "finite"),

@@ -11,8 +11,13 @@ from scipy.spatial.transform import Rotation
 
 from raytrace import Scene
 from raytrace.shapes import tunnel_tube
-from sensors import (PointFileError, Settings, Trajectory, simulate_drive,
-                     simulate_station)
+from sensors import (
+    PointFileError,
+    Settings,
+    Trajectory,
+    simulate_drive,
+    simulate_station,
+)
 
 UTM = np.array([451_234.0, 5_352_876.0, 612.0])
 
@@ -124,3 +129,76 @@ def test_ideal_station_points_lie_on_the_mesh(utm_scene):
     o = UTM + [30.0, 0.0, 1.5]
     hits = utm_scene.cast(o, p - o)
     np.testing.assert_allclose(hits.points, p, atol=1e-7)
+
+
+# ---------------------------------------------------------------- the stream API
+def _chunk(n, seed=0):
+    from sensors import POINT_DTYPE
+
+    rng = np.random.default_rng(seed)
+    c = np.zeros(n, dtype=POINT_DTYPE)
+    for name in POINT_DTYPE.names:
+        c[name] = rng.uniform(0, 100, n).astype(POINT_DTYPE[name])
+    c["x"] += UTM[0]
+    c["flag"] = rng.integers(1, 4, n)
+    return c
+
+
+def test_open_writer_records_what_it_is_given(tmp_path):
+    """A writer is given the sensor's name, the seed and the pose, and stores them: in
+    the LAS VLR, in the PLY comments."""
+    import json
+
+    from sensors import open_writer
+
+    rot = Rotation.from_euler("z", 0.3)
+    parts = [_chunk(500, 1), _chunk(0), _chunk(700, 2)]
+    for suffix in ("laz", "ply"):
+        with open_writer(tmp_path / f"w.{suffix}", sensor="my_scanner", seed=11,
+                         pose=(UTM, rot)) as w:
+            for c in parts:
+                w.write_points(c)
+        assert w.n_points == 1200 and "1,200 points" in repr(w)
+    whole = np.concatenate(parts)
+    las = laspy.read(tmp_path / "w.laz")
+    info = json.loads(las.header.vlrs.get_by_id("tunnelsim", [1])[0].record_data)
+    assert info["sensor"] == "my_scanner" and info["seed"] == 11
+    np.testing.assert_allclose(info["station_quaternion_xyzw"], rot.as_quat())
+    np.testing.assert_array_equal(las.gps_time, whole["time"])
+    assert set(las.point_format.extra_dimension_names) == {
+        "channel", "column", "triangle", "flag"}            # compact with a pose
+    np.testing.assert_array_equal(las.classification, np.where(whole["flag"] == 2, 7, 0))
+    ply = (tmp_path / "w.ply").read_bytes()
+    assert b"comment tunnelsim my_scanner" in ply and b'"seed": 11' in ply
+    cloud = trimesh.load(tmp_path / "w.ply")
+    np.testing.assert_array_equal(cloud.vertices[:, 0], whole["x"])
+
+
+def test_open_writer_refuses_what_it_cannot_store(tmp_path):
+    from sensors import open_writer
+
+    with pytest.raises(PointFileError, match="TLS station"):
+        open_writer(tmp_path / "a.e57", sensor="s")
+    with pytest.raises(PointFileError, match="fields 'full' or 'compact'"):
+        open_writer(tmp_path / "a.laz", sensor="s", fields="all")
+    with pytest.raises(PointFileError, match="at most 50,000,000 pulses"):
+        open_writer(tmp_path / "a.e57", sensor="s", pose=(UTM, Rotation.identity()),
+                    expected_points=60_000_000)
+    with open_writer(tmp_path / "a.npz", sensor="s") as w:
+        with pytest.raises(PointFileError, match="fields of POINT_DTYPE"):
+            w.write_points(np.zeros(3, dtype=[("x", "f8")]))
+        w.abort()
+    with pytest.raises(PointFileError, match="closed one"):
+        w.write_points(_chunk(2))
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("suffix", ["las", "laz", "ply", "npz", "e57"])
+def test_an_exception_inside_the_writer_leaves_nothing(tmp_path, suffix):
+    from sensors import open_writer
+
+    with pytest.raises(RuntimeError), open_writer(tmp_path / f"a.{suffix}", sensor="s",
+                                                  pose=(UTM, Rotation.identity())) as w:
+        w.write_points(_chunk(100))
+        raise RuntimeError("simulated crash")
+    assert not list(tmp_path.iterdir())

@@ -119,27 +119,11 @@ def register(commands: CommandSet) -> None:
 
 # ---------------------------------------------------------------------------- compare
 def _load_reference(path):
-    import numpy as np
+    from survey.analysis.compare import ReferenceCloud, ReferenceMesh
+    from survey.clouds.cloudio import read_reference
 
-    p = Path(path)
-    if p.suffix.lower() in (".ply", ".obj", ".stl", ".off"):
-        import trimesh
-
-        if not p.is_file():
-            raise TunnelsimCLIError(f"Expected a reference cloud or mesh, got '{p}' which "
-                                    "does not exist.")
-        try:
-            m = trimesh.load(str(p), process=False)
-        except Exception as exc:   # trimesh raises many types
-            raise TunnelsimCLIError(f"Expected a readable reference, got '{p}' which failed "
-                                    f"with: {exc}") from exc
-        faces = getattr(m, "faces", None)
-        if faces is not None and len(faces):
-            from survey.analysis.compare import ReferenceMesh
-            return ReferenceMesh(np.asarray(m.vertices), np.asarray(faces)), "mesh"
-    from survey.analysis.compare import ReferenceCloud
-    from survey.clouds.cloudio import iter_points
-    return ReferenceCloud(np.concatenate(list(iter_points(p)))), "cloud"
+    v, f = read_reference(path)
+    return (ReferenceMesh(v, f), "mesh") if f is not None else (ReferenceCloud(v), "cloud")
 
 
 def cmd_compare(args) -> int:

@@ -1,0 +1,397 @@
+"""LAS and LAZ files (ASPRS LAS 1.0-1.4, LAZ through lazrs), read and written in one
+place for the whole project: simulated clouds (``sensors.writers``), processed and
+rewritten clouds (``survey.clouds.cloudio``).
+
+Reading (``LasSource``) checks what laspy takes on trust, so that a bad file gives one
+``PointFileError`` naming the file and the problem, never a library traceback and never
+a silently shorter cloud:
+
+- an empty file, a missing ``LASF`` signature, a header of zeros or one whose sizes and
+  offsets contradict each other or the file;
+- a file shorter than its header promises (LAS: from the file size before any point is
+  read; LAZ: while decompressing), with how many points were promised and read;
+- coordinate scales or offsets that are zero, NaN or infinite.
+
+COPC files (``.copc.laz``) read as the LAZ 1.4 they are; their octree VLR and EVLR do not
+describe a rewritten file and are left out of it (laspy cannot write them).
+
+Writing (``LasWriter``) is a stream of point records into a temporary file renamed into
+place on ``close``. ``output_header`` copies an input's header for a rewrite: every
+field, VLR and EVLR (LAS 1.3 and 1.4 waveform data included), so that ``tunnelsim
+transform`` and ``compare`` keep what they were given.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import os
+import struct
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+from typing import Any, Self
+
+import numpy as np
+
+from .errors import PointFileError
+from .stream import AtomicStream, deferred_interrupt
+
+__all__ = ["LAS_SCALE", "LasSource", "LasWriter", "offsets_near", "output_header",
+           "point_records", "quantize", "write_las"]
+
+#: Default coordinate scale of the files tunnelsim writes (m): 0.1 mm.
+LAS_SCALE = 1e-4
+#: VLRs/EVLRs of this user describe a COPC octree and are not copied into a rewrite.
+COPC_USER = "copc"
+#: (user, record) of the EVLR holding waveform data packets.
+WAVEFORM_EVLR = ("LASF_Spec", 65535)
+#: Byte offsets in the public header block (LAS 1.4 R15, table 3).
+_HEADER = struct.Struct("<4s20xBB68xHIIBHI")     # signature ... legacy point count
+_OFFSET_COUNT_14 = 247                            # uint64 point count (LAS 1.4)
+_OFFSET_WAVEFORM = 227                            # uint64 start of waveform data (1.3+)
+_EVLR_HEAD = struct.Struct("<H16sHQ32s")          # 60-byte extended VLR header
+
+
+# DECISION: laspy logs some read failures with ``logger.error`` (a LAZ backend that
+# cannot start, fewer points than asked) before raising or returning short; with no
+# logging configured, Python prints those on stderr as extra lines. Every such case is
+# turned into one PointFileError here, so the library's own log stays silent unless an
+# application configures logging (a NullHandler stops only the last-resort printer).
+logging.getLogger("laspy").addHandler(logging.NullHandler())
+
+
+def _vlr_list(items):
+    from laspy.vlrs.vlrlist import VLRList
+
+    return VLRList(items)
+
+
+def _bad(path, what: str) -> PointFileError:
+    return PointFileError(f"Expected a LAS/LAZ file, got '{path}' {what}.")
+
+
+def _raw_header(path: Path, size: int) -> dict[str, int]:
+    """The fields needed to check a file before laspy reads it."""
+    if size == 0:
+        raise _bad(path, "which is empty (0 bytes)")
+    with open(path, "rb") as fh:
+        raw = fh.read(_OFFSET_COUNT_14 + 8)
+    if raw[:4] != b"LASF":
+        raise _bad(path, "without the 'LASF' signature")
+    if len(raw) < _HEADER.size:
+        raise _bad(path, f"of {size} bytes, too short for a LAS header (227 bytes at "
+                         "least); it is cut short")
+    _, major, minor, head_size, offset, _, fmt, rec_len, legacy = _HEADER.unpack_from(raw)
+    if major != 1 or minor > 4:
+        raise _bad(path, f"whose header says LAS version {major}.{minor} (expected 1.0 to "
+                         "1.4): the header is corrupt (zeros after the signature?)")
+    if head_size < 227 or offset < head_size:
+        raise _bad(path, f"whose header sizes contradict each other (header {head_size} "
+                         f"bytes, points from byte {offset}): the header is corrupt")
+    if offset > size:
+        raise _bad(path, f"which ends at byte {size:,}, before its points (from byte "
+                         f"{offset:,}): it is cut short; copy or export it again")
+    compressed = bool(fmt & 0xC0)
+    fmt &= 0x3F
+    if fmt > 10 or rec_len == 0:
+        raise _bad(path, f"whose header names point format {fmt} with {rec_len}-byte "
+                         "records (expected formats 0 to 10): the header is corrupt")
+    count = legacy
+    if minor >= 4 and len(raw) >= _OFFSET_COUNT_14 + 8:
+        count = struct.unpack_from("<Q", raw, _OFFSET_COUNT_14)[0] or legacy
+    return {"minor": minor, "offset": offset, "record": rec_len, "count": count,
+            "compressed": compressed, "format": fmt}
+
+
+def _cut_short(path, promised: int, got: int, how: str) -> PointFileError:
+    return PointFileError(
+        f"Expected {promised:,} points in '{path}' (its header says so), got {got:,} "
+        f"{how}: the file is cut short or corrupt (an interrupted copy or download?); "
+        "copy or export it again.")
+
+
+class LasSource:
+    """An open, checked LAS/LAZ file; use as a context manager.
+
+    Attributes
+    ----------
+    path : Path
+    header : laspy.LasHeader
+        As read (``point_count``: the points the header promises).
+    compressed : bool
+
+    With ``xyz_only``, a LAZ file's other dimensions are not decompressed (zeros).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, xyz_only: bool = False) -> None:
+        import laspy
+
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise PointFileError(f"Expected a LAS/LAZ file, got '{self.path}' which does "
+                                 "not exist.")
+        self.size = self.path.stat().st_size
+        raw = _raw_header(self.path, self.size)
+        self.compressed = raw["compressed"]
+        if not self.compressed and self.size < raw["offset"] + raw["count"] * raw["record"]:
+            whole = (self.size - raw["offset"]) // raw["record"]
+            raise _cut_short(self.path, raw["count"], whole, "whole point records")
+        try:
+            # Point formats 6-10 compress in layers: x, y, z alone decompress faster.
+            sel = laspy.DecompressionSelection
+            self._reader = laspy.open(self.path, decompression_selection=(
+                sel.XY_RETURNS_CHANNEL | sel.Z if xyz_only else sel.all()))
+        except Exception as exc:   # laspy and lazrs raise many types for broken headers
+            raise _bad(self.path, f"whose header laspy cannot read ({exc}): it is "
+                                  "corrupt") from exc
+        self.header = self._reader.header
+        sc = np.asarray(self.header.scales, dtype=np.float64)
+        off = np.asarray(self.header.offsets, dtype=np.float64)
+        if not (np.isfinite(sc).all() and (sc != 0).all() and np.isfinite(off).all()):
+            self.close()
+            raise _bad(self.path, f"whose coordinate scales {sc.tolist()} or offsets "
+                                  f"{off.tolist()} are zero, NaN or infinite: every "
+                                  "coordinate would be NaN; fix the header")
+
+    @property
+    def point_count(self) -> int:
+        return int(self.header.point_count)
+
+    def chunks(self, size: int) -> Iterator[Any]:
+        """laspy ``ScaleAwarePointRecord`` chunks of at most ``size`` points; raises
+        ``PointFileError`` when the data end before the header's point count."""
+        n = self.point_count
+        done = 0
+        while done < n:
+            try:
+                with deferred_interrupt():
+                    rec = self._reader.read_points(min(size, n - done))
+            except Exception as exc:   # lazrs.LazrsError, ValueError from numpy, ...
+                raise _cut_short(self.path, n, done,
+                                 f"points before the data failed to decompress ({exc})") from exc
+            if len(rec) == 0:
+                break
+            done += len(rec)
+            yield rec
+        if done != n:
+            raise _cut_short(self.path, n, done, "points")
+
+    def header_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(mins (3,), maxs (3,)) as the header states them (not checked)."""
+        return (np.asarray(self.header.mins, dtype=np.float64),
+                np.asarray(self.header.maxs, dtype=np.float64))
+
+    def evlrs(self) -> list[Any]:
+        """The file's EVLRs (COPC octree pages left out); for a LAS 1.3 file, its
+        waveform data record, which laspy does not read."""
+        import laspy
+
+        if self.header.version.minor >= 4:
+            return [v for v in (self.header.evlrs or []) if v.user_id != COPC_USER]
+        start = int(self.header.start_of_waveform_data_packet_record)
+        if self.header.version.minor < 3 or start == 0:
+            return []
+        with open(self.path, "rb") as fh:
+            fh.seek(start)
+            head = fh.read(_EVLR_HEAD.size)
+            if len(head) < _EVLR_HEAD.size:
+                raise _bad(self.path, "whose waveform data record lies beyond its end: it "
+                                      "is cut short")
+            _, user, rid, length, desc = _EVLR_HEAD.unpack(head)
+            data = fh.read(length)
+        if len(data) != length:
+            raise _bad(self.path, f"whose waveform data record promises {length:,} bytes "
+                                  f"and holds {len(data):,}: it is cut short")
+        return [laspy.VLR(user.rstrip(b"\0").decode("ascii", "replace"), rid,
+                          desc.rstrip(b"\0").decode("ascii", "replace"), data)]
+
+    def close(self) -> None:
+        self._reader.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def output_header(source: Any, *, scales: np.ndarray | None = None,
+                  offsets: np.ndarray | None = None,
+                  extra: Mapping[str, np.dtype] | None = None) -> Any:
+    """A header for rewriting the file ``source`` (a ``LasSource``): its version, point
+    format (extra bytes included), global encoding, identifiers, dates and VLRs, with
+    the COPC octree VLR left out and the ``extra`` dimensions {name: dtype} added (an
+    input extra dimension of the same name is replaced). EVLRs are passed to
+    ``LasWriter`` separately (``source.evlrs()``)."""
+    import laspy
+
+    head = copy.deepcopy(source.header)
+    head.vlrs = _vlr_list([v for v in head.vlrs if v.user_id != COPC_USER and
+                               type(v).__name__ != "LasZipVlr"])
+    head.evlrs = None
+    head.start_of_waveform_data_packet_record = 0
+    if scales is not None:
+        head.scales = np.asarray(scales, dtype=np.float64)
+    if offsets is not None:
+        head.offsets = np.asarray(offsets, dtype=np.float64)
+    if extra:
+        old = [e for e in head.point_format.extra_dimension_names if e in extra]
+        if old:
+            head.remove_extra_dims(old)
+        head.add_extra_dims([laspy.ExtraBytesParams(name=k, type=np.dtype(t))
+                             for k, t in extra.items()])
+    return head
+
+
+def offsets_near(xyz: np.ndarray) -> np.ndarray:
+    """LAS offsets for coordinates ``xyz`` (n, 3): the first point rounded to a
+    kilometre, so that a 0.1 mm scale reaches 214 km around it (UTM keeps 0.1 mm)."""
+    first = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)[:1]
+    return np.round(first[0] / 1000.0) * 1000.0 if len(first) else np.zeros(3)
+
+
+def quantize(xyz: np.ndarray, scales: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(n, 3) int32 LAS integer coordinates of ``xyz`` (n, 3) float64; raises
+    ``PointFileError`` for NaN or for coordinates beyond the int32 range."""
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    q = np.round((xyz - offsets) / scales)
+    bad = ~(np.abs(q) < 2**31 - 1).all(axis=1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise PointFileError(f"Expected coordinates within {float(np.min(scales)) * 2**31:,.0f}"
+                             f" m of the LAS offset {np.asarray(offsets).tolist()}, got point "
+                             f"{i} at {xyz[i].tolist()}; split the output or remove it.")
+    return q.astype(np.int32)
+
+
+def point_records(header: Any, xyz: np.ndarray,
+                  fields: Mapping[str, np.ndarray] | None = None) -> Any:
+    """A laspy ``ScaleAwarePointRecord`` for ``header`` with coordinates ``xyz`` (n, 3)
+    and the other dimensions from ``fields`` {name: (n,) array} (zero elsewhere; raw
+    array names such as ``bit_fields`` are accepted)."""
+    import laspy
+
+    q = quantize(xyz, header.scales, header.offsets)
+    rec = laspy.ScaleAwarePointRecord.zeros(len(q), header=header)
+    a = rec.array
+    a["X"], a["Y"], a["Z"] = q.T
+    for name, v in (fields or {}).items():
+        a[name] = v
+    return rec
+
+
+class LasWriter(AtomicStream):
+    """A LAS/LAZ file written as a stream of point records, atomically.
+
+    Parameters
+    ----------
+    path : path-like
+        The file; LAZ when ``compress`` is True (default: from the ``.laz`` suffix).
+    header : laspy.LasHeader
+        Scales and offsets must be final: records are stored in them.
+    evlrs : iterable of laspy VLRs
+        Written after the points (LAS 1.3: only a waveform data record).
+
+    ``write_points`` takes laspy point records of the header's point format; ``close``
+    writes the EVLRs, points the header at the waveform data (if any) and moves the
+    file into place; an exception inside ``with`` leaves nothing at ``path``.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], header: Any, *,
+                 compress: bool | None = None, evlrs: Iterable[Any] = ()) -> None:
+        import laspy
+
+        path = Path(path)
+        self._evlrs = list(evlrs)
+        if header.version.minor < 4 and [v for v in self._evlrs
+                                         if (v.user_id, v.record_id) != WAVEFORM_EVLR]:
+            raise PointFileError(f"Expected EVLRs only in LAS 1.4 (or a waveform record in "
+                                 f"1.3), got others for '{path}' (LAS {header.version}).")
+        compress = path.suffix.lower() == ".laz" if compress is None else compress
+        super().__init__(path)
+        try:
+            # "replace": a header copied from another writer may hold non-ASCII text
+            # (a VLR description, a system identifier) that laspy refuses to encode.
+            self._writer = laspy.open(self._fh, mode="w", header=header, closefd=False,
+                                      do_compress=compress, encoding_errors="replace")
+        except BaseException as exc:
+            self._discard(exc)
+            if isinstance(exc, Exception):   # laspy raises several types for these
+                raise PointFileError(f"Expected a LAS header laspy can write for "
+                                     f"'{path}', got one it refuses: {exc}.") from exc
+            raise
+        self.header = self._writer.header
+        self.n_points = 0
+
+    def write_points(self, records: Any) -> None:
+        """Append laspy point records (``point_records`` makes them)."""
+        with deferred_interrupt():
+            self._writer.write_points(records)
+        self.n_points += len(records)
+
+    def _finish(self) -> None:
+        with deferred_interrupt():
+            if self.header.version.minor >= 4 and self._evlrs:
+                self._writer.write_evlrs(_vlr_list(self._evlrs))
+            self._writer.close()
+        if self._evlrs:
+            self._place_evlrs()
+        super()._finish()
+
+    def _place_evlrs(self) -> None:
+        """LAS 1.3: append the waveform record laspy does not write. Both versions:
+        point the header's waveform field at that record's new place."""
+        fh = self._fh
+        if self.header.version.minor >= 4:
+            pos = int(self.header.start_of_first_evlr)
+        else:
+            pos = fh.seek(0, os.SEEK_END)
+            _vlr_list(self._evlrs).write_to(fh, as_extended=True)
+        for v in self._evlrs:
+            if (v.user_id, v.record_id) == WAVEFORM_EVLR:
+                fh.seek(_OFFSET_WAVEFORM)
+                fh.write(struct.pack("<Q", pos))
+                break
+            pos += _EVLR_HEAD.size + len(v.record_data_bytes())
+        fh.seek(0, os.SEEK_END)
+
+
+#: Points per record chunk when whole arrays are written.
+WRITE_CHUNK = 1 << 20
+
+
+def write_las(path: str | os.PathLike[str], xyz: np.ndarray, *,
+              fields: Mapping[str, np.ndarray] | None = None,
+              extra: Mapping[str, np.ndarray] | None = None,
+              point_format: int = 6, scale: float = LAS_SCALE,
+              vlrs: Iterable[Any] = (), system_identifier: str = "",
+              compress: bool | None = None) -> Path:
+    """Write points ``xyz`` (n, 3) float64 as LAS 1.4 (default point format 6, scale
+    ``scale`` m, offsets near the data), atomically, in chunks.
+
+    ``fields`` fills standard dimensions {name: (n,) array} (e.g. ``classification``,
+    ``intensity``, ``gps_time``); ``extra`` adds extra-bytes dimensions of the arrays'
+    dtypes. Every point is "return 1 of 1". Returns the path.
+    """
+    import laspy
+
+    xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
+    head = laspy.LasHeader(point_format=point_format, version="1.4")
+    head.scales = np.full(3, scale)
+    head.offsets = offsets_near(xyz)
+    head.generating_software = "tunnelsim"
+    if system_identifier:
+        head.system_identifier = system_identifier[:32]
+    extra = {k: np.asarray(v) for k, v in (extra or {}).items()}
+    head.add_extra_dims([laspy.ExtraBytesParams(name=k, type=v.dtype)
+                         for k, v in extra.items()])
+    head.vlrs.extend(vlrs)
+    every = dict(fields or {}, **extra)
+    with LasWriter(path, head, compress=compress) as w:
+        for i in range(0, len(xyz), WRITE_CHUNK):
+            part: dict[str, Any] = {k: np.asarray(v)[i:i + WRITE_CHUNK]
+                                    for k, v in every.items()}
+            # return 1 of 1: 4 + 4 bits from format 6 on, 3 + 3 bits before it
+            part.setdefault("bit_fields", 0x11 if point_format >= 6 else 0x09)
+            w.write_points(point_records(w.header, xyz[i:i + WRITE_CHUNK], part))
+    return Path(path)
