@@ -13,6 +13,9 @@ from numpy.typing import NDArray
 from raytrace import Scene
 from raytrace.errors import SceneFileError
 
+from .errors import PointFileError
+from .ply import read_ply_header
+
 __all__ = ["load_mesh"]
 
 
@@ -41,6 +44,7 @@ def load_mesh(path: str | os.PathLike[str]) -> tuple[Scene, NDArray[np.float64] 
         raise SceneFileError(f"Expected a mesh file, got '{path}' which does not exist.")
     if path.suffix.lower() != ".ply":
         return Scene.from_file(path), None
+    _check_ply_mesh(path)
     import trimesh
 
     try:
@@ -55,3 +59,24 @@ def load_mesh(path: str | os.PathLike[str]) -> tuple[Scene, NDArray[np.float64] 
         if len(refl) != len(mesh.faces):
             refl = None
     return Scene(np.asarray(mesh.vertices), np.asarray(mesh.faces)), refl
+
+
+def _check_ply_mesh(path: Path) -> None:
+    """Refuse a binary PLY that is cut short, corrupt or has no faces, with the reason
+    (records promised and held) rather than the mesh library's; ASCII PLY is left to
+    trimesh, which reads it."""
+    with open(path, "rb") as fh:
+        head = fh.read(512)
+    if b"format ascii" in head:
+        return
+    try:
+        header = read_ply_header(path)
+    except PointFileError as exc:
+        raise SceneFileError(str(exc)) from None
+    faces = [e for e in header.elements if e.name == "face"]
+    if not faces or faces[0].count == 0:
+        n = sum(e.count for e in header.elements if e.name == "vertex")
+        raise SceneFileError(f"Expected a triangle mesh in '{path}', got a PLY with {n:,} "
+                             "vertices and no faces (a point cloud?); pass a mesh with "
+                             "faces (PLY, OBJ, STL), or reconstruct one with 'tunnelsim "
+                             "mesh'.")

@@ -95,6 +95,9 @@ class Run:
 
     Built by ``simulate_station`` and ``simulate_drive``. Every pass over a run gives
     the same points (the random streams depend on the seed and the pulse index only).
+    Each chunk is a structured array of ``sensors.POINT_DTYPE``: x, y, z, sx, sy, sz and
+    range in metres, time in seconds, azimuth, elevation and incidence in radians
+    (``sensors.fields.FIELDS`` gives every field's unit and meaning).
 
     Attributes
     ----------
