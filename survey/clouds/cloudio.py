@@ -20,7 +20,7 @@ import os
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 from numpy.typing import NDArray
@@ -125,15 +125,42 @@ def _raw_chunks(path: Path, kind: str, chunk: int) -> Iterator[NDArray[np.float6
         yield from read_e57(path)
 
 
+def _text_columns(path: Path, fh: TextIO, delim: str | None) -> tuple[int, int, int]:
+    """Columns of x, y, z in a text cloud, reading past a header line if it has one
+    (``x,y,z,...``, CloudCompare's ``//X,Y,Z,...``); the file is left at the first data
+    line."""
+    while True:
+        pos = fh.tell()
+        line = fh.readline()
+        if not line:
+            return (0, 1, 2)
+        text = line.strip()
+        if text and not text.startswith("#"):
+            break
+    words = [w.strip().lstrip("/").strip().lower()
+             for w in (text.split(delim) if delim else text.split())]
+    try:
+        [float(w) for w in words[:3]]
+    except ValueError:
+        if {"x", "y", "z"} <= set(words):
+            return (words.index("x"), words.index("y"), words.index("z"))
+        raise CloudFileError(f"Expected numeric x y z columns, or a header line naming x, "
+                             f"y and z, in '{path}', got the line {text[:60]!r}; name the "
+                             "coordinate columns x, y, z or remove the header.") from None
+    fh.seek(pos)
+    return (0, 1, 2)
+
+
 def _text_chunks(path: Path, delim: str | None, chunk: int) -> Iterator[NDArray[np.float64]]:
     with open(path, errors="replace") as fh:
+        cols = _text_columns(path, fh, delim)
         while True:
             try:
                 with warnings.catch_warnings():
                     # The read after the last row finds no data: the loop's end, not news.
                     warnings.filterwarnings("ignore", "loadtxt: input contained no data")
                     a = np.loadtxt(fh, delimiter=delim, max_rows=chunk, ndmin=2,
-                                   usecols=(0, 1, 2), comments="#")
+                                   usecols=cols, comments="#")
             except (ValueError, IndexError) as exc:
                 raise CloudFileError(f"Expected numeric x y z columns in '{path}', got "
                                      f"unreadable text ({exc}).") from exc

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from survey.cli.main import main
+from survey.errors import CloudFileError
 from tests import iofiles as F
 
 N = 600                                     # points of every good input (iofiles)
@@ -383,3 +384,23 @@ def test_cloud_bounds_are_the_points_own(tmp_path, suffix):
     with pytest.warns(UserWarning, match="states bounds .* using the points' bounds"):
         lo, hi, n = cloud_bounds(tmp_path / f"a{suffix}", chunk=97)
     np.testing.assert_array_equal(lo, xyz.min(axis=0))
+
+
+@pytest.mark.parametrize("header", ["x,y,z,intensity", "//X,Y,Z,Intensity", "z,x,y,i"])
+def test_text_cloud_with_a_header_reads_its_named_columns(tmp_path, header):
+    """A CSV cloud with a header line (CloudCompare writes '//X,Y,Z,...') is read by the
+    names in it, whatever the column order; without x, y and z it is refused by name."""
+    from survey.clouds.cloudio import read_points
+
+    xyz = np.random.default_rng(3).uniform(-5, 5, (50, 3))
+    names = [w.lstrip("/").lower() for w in header.split(",")]
+    cols = {"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2], "intensity": np.ones(50),
+            "i": np.ones(50)}
+    rows = np.stack([cols[n] for n in names], 1)
+    path = tmp_path / "c.csv"
+    path.write_text("# a comment\n" + header + "\n" +
+                    "\n".join(",".join(f"{v:.6f}" for v in r) for r in rows) + "\n")
+    np.testing.assert_allclose(read_points(path), xyz, atol=1e-6)
+    (tmp_path / "bad.csv").write_text("east,north,height\n1,2,3\n")
+    with pytest.raises(CloudFileError, match="header line naming x, y and z"):
+        read_points(tmp_path / "bad.csv")
