@@ -23,17 +23,22 @@ prisms picked in the drifting cloud with the time they were passed).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import os
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from sensors import Trajectory
 from sensors.trajectory import Mount
 from survey.adjust.controlpoints import ControlPoints
 from survey.errors import DriftError
+
+if TYPE_CHECKING:
+    from sensors.simulate import Run
 
 #: Prism centres picked from an MLS cloud, per axis (m): ASSUMED, typical of fitting a
 #: sphere/prism target in a dense profiler cloud.
@@ -63,7 +68,8 @@ def slam_trajectory(true: Trajectory, *, heading_rw: float = 2e-5, pitch_rw: flo
     return Trajectory(true.times, ps, re * true.rotations)
 
 
-def to_slam_frame(true: Trajectory, slam: Trajectory, xyz, times):
+def to_slam_frame(true: Trajectory, slam: Trajectory, xyz: ArrayLike,
+                  times: ArrayLike) -> NDArray[np.float64]:
     """World points (n, 3) seen at ``times`` (n,) placed in the SLAM map frame."""
     t = np.asarray(times, dtype=np.float64)
     pt, mt = true.sensor_matrices(t, Mount())
@@ -84,7 +90,7 @@ class DriftedRun:
     the run's descriptive attributes are named one by one.
     """
 
-    def __init__(self, run: Any, true: Trajectory, slam: Trajectory) -> None:
+    def __init__(self, run: Run, true: Trajectory, slam: Trajectory) -> None:
         self.run, self.true, self.slam = run, true, slam
 
     def __repr__(self) -> str:
@@ -114,7 +120,9 @@ class DriftedRun:
         for pts in self.run:
             yield self.to_map(pts)
 
-    def write(self, path, *, fmt: str | None = None, progress=None, fields=None) -> dict:
+    def write(self, path: str | os.PathLike[str], *, fmt: str | None = None,
+              progress: Callable[[int, int], object] | None = None,
+              fields: str | None = None) -> dict[str, Any]:
         """Stream the drifted chunks into ``path``, as ``Run.write`` does for the true
         ones (same formats and options: ``sensors.writers.open_writer``); returns the
         run's stats plus the path."""
@@ -149,7 +157,8 @@ class SlamObservation:
                 f"{len(self.world)} control points observed)")
 
 
-def observe_slam(run: Any, trajectory: Trajectory, control_ids, control_xyz, *,
+def observe_slam(run: Run, trajectory: Trajectory, control_ids: Iterable[str],
+                 control_xyz: ArrayLike, *,
                  seed: int = 0, prism_sigma_m: float = PRISM_SIGMA_MLS_M,
                  control_sigma_m: float = CONTROL_SIGMA_M, **drift: float
                  ) -> SlamObservation:

@@ -180,10 +180,18 @@ class ReferenceMesh:
     def __init__(self, vertices: ArrayLike, faces: ArrayLike) -> None:
         v, _ = as_points(vertices, "vertices", CompareError)
         f = np.asarray(faces)
-        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0 or \
-                not np.issubdtype(f.dtype, np.integer) or f.min() < 0 or f.max() >= len(v):
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
             raise CompareError(f"Expected `faces` (m, 3) of vertex indices below {len(v)}, "
                                f"got shape {f.shape}.")
+        if not np.issubdtype(f.dtype, np.integer):
+            whole = np.issubdtype(f.dtype, np.floating) and bool(np.isfinite(f).all()) \
+                and bool((f == np.round(f)).all())
+            raise CompareError(f"Expected integer `faces` (vertex indices), got dtype "
+                               f"{f.dtype}" + ("" if whole else " with non-integer values")
+                               + "; pass vertex indices as integers.")
+        if f.min() < 0 or f.max() >= len(v):
+            raise CompareError(f"Expected `faces` (m, 3) of vertex indices below {len(v)}, "
+                               f"got indices from {f.min()} to {f.max()}.")
         self.origin = v.mean(axis=0)
         self.tris = np.ascontiguousarray((v - self.origin)[f])          # (m, 3, 3)
         n = np.cross(self.tris[:, 1] - self.tris[:, 0], self.tris[:, 2] - self.tris[:, 0])

@@ -19,21 +19,26 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import median_filter
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from survey.clouds.reconstruct import ReconstructedTunnel
 from survey.clouds.segment import ATTACHMENT, segment_tunnel
+from survey.world.alignment import Alignment
 from survey.world.generator import fan_faces, grid_faces
 
 #: Support of the detail layer's vertices (the lining's are >= 0).
 DETAIL_SUPPORT = -1.0
 
 
-def attachment_tubes(points, alignment, *, link_m: float = 0.03, slab_m: float = 0.25,
-                     min_length_m: float = 2.0, min_points: int = 50, sides: int = 8):
+def attachment_tubes(points: ArrayLike, alignment: Alignment, *, link_m: float = 0.03,
+                     slab_m: float = 0.25, min_length_m: float = 2.0, min_points: int = 50,
+                     sides: int = 8) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Tubes (vertices (n, 3), faces (m, 3)) for attachment points (k, 3); empty
     arrays when none qualifies."""
     p = np.asarray(points, dtype=np.float64)
@@ -117,7 +122,8 @@ class DetailedMesh:
                          vertex_fields={"support": self.support})
 
 
-def with_detail_layer(reconstruction, points, **tubes) -> DetailedMesh:
+def with_detail_layer(reconstruction: ReconstructedTunnel, points: ArrayLike,
+                      **tubes: Any) -> DetailedMesh:
     """The lining of ``reconstruction`` (a ``ReconstructedTunnel``) plus its points'
     attachments as closed tubes.
 

@@ -26,11 +26,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
-
-from survey.world.alignment import Alignment
 from survey.clouds.axis import cell_runs, fill_gaps, unroll
 from survey.errors import ReconstructionError
+from survey.world.alignment import Alignment
 
 
 @dataclass
@@ -61,10 +61,11 @@ class ReconstructedTunnel:
         return float(np.mean(self.support == 0))
 
 
-def reconstruct_tunnel(points, *, alignment: Alignment | None = None,
+def reconstruct_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
                        centre_height_m: float | None = None, cell_m: float = 0.1,
                        cell_rad: float = np.deg2rad(2.0), min_points: int = 3,
-                       margin_m: float = 0.0, rows_at=None) -> ReconstructedTunnel:
+                       margin_m: float = 0.0,
+                       rows_at: ArrayLike | None = None) -> ReconstructedTunnel:
     """Mesh a tunnel lining from points (see module doc).
 
     alignment, centre_height_m : optional known centreline and height of the profile
@@ -147,9 +148,10 @@ def reconstruct_tunnel(points, *, alignment: Alignment | None = None,
                                quality)
 
 
-def poisson_tunnel(points, *, alignment: Alignment | None = None,
+def poisson_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
                    centre_height_m: float | None = None, depth: int = 10,
-                   density_quantile: float = 0.02, normal_radius_m: float = 0.1):
+                   density_quantile: float = 0.02, normal_radius_m: float = 0.1
+                   ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """The CloudCompare-style alternative: screened Poisson reconstruction through
     Open3D (Kazhdan & Hoppe 2013), with normals oriented towards the tunnel axis,
     vertices of the lowest ``density_quantile`` of Poisson densities removed, and the
@@ -198,7 +200,7 @@ BUDGET_MIN_GROWTH = 1.02
 BUDGET_MAX_GROWTH = 1e3
 
 
-def reconstruct_within_budget(points, max_triangles: int, *,
+def reconstruct_within_budget(points: ArrayLike, max_triangles: int, *,
                               alignment: Alignment | None = None,
                               centre_height_m: float | None = None, cell_m: float = 0.1,
                               cell_rad: float = np.deg2rad(2.0),

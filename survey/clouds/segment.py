@@ -30,9 +30,11 @@ noise 7 (low point, noise).
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
-from survey.errors import ReconstructionError
 from survey.clouds.axis import cell_runs, fill_gaps, unroll
+from survey.errors import ReconstructionError
+from survey.world.alignment import Alignment
 
 #: Class codes (LAS 1.4 classification values).
 FLOOR, LINING, ATTACHMENT, OBJECT, NOISE = 2, 64, 65, 66, 7
@@ -48,9 +50,10 @@ RECESS_SHARE = 0.3
 FLOOR_TILT_RAD = np.deg2rad(30.0)
 
 
-def segment_tunnel(points, *, alignment=None, centre_height_m: float | None = None,
-                   cell_m: float = 0.25, cell_rad: float = np.deg2rad(2.0),
-                   tol_m: float = 0.02, attachment_m: float = 0.5, min_points: int = 3):
+def segment_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
+                   centre_height_m: float | None = None, cell_m: float = 0.25,
+                   cell_rad: float = np.deg2rad(2.0), tol_m: float = 0.02,
+                   attachment_m: float = 0.5, min_points: int = 3) -> NDArray[np.uint8]:
     """Class code (n,) uint8 per point (see module doc)."""
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or len(p) == 0 or not np.isfinite(p).all():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -16,7 +17,7 @@ def _csv(path):
         return list(csv.DictReader(fh))
 
 
-def demo_summary(folder) -> dict:
+def demo_summary(folder: str | os.PathLike[str]) -> dict[str, Any]:
     """Key numbers of a finished demo folder (missing pieces are left out)."""
     from sensors import Trajectory
 

@@ -3,10 +3,17 @@ map (chainage x angle, like the seed's Figure 6)."""
 
 from __future__ import annotations
 
+import os
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 
+if TYPE_CHECKING:
+    from survey.analysis.planning import Plan, Planner
 
-def plan_csv(plan, planner) -> str:
+
+def plan_csv(plan: Plan, planner: Planner) -> str:
     """One row per station: chainage, position, area share it serves alone, overlap with
     the next station."""
     lines = ["plan,station,chainage_m,x,y,z,serves_share,overlap_next_share"]
@@ -17,7 +24,8 @@ def plan_csv(plan, planner) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plan_markdown(plans, planner, info=None) -> str:
+def plan_markdown(plans: Sequence[Plan], planner: Planner,
+                  info: Mapping[str, Any] | None = None) -> str:
     th = planner.th
     out = [(f"# Station plan: {planner.sensor.name}, resolution {planner.resolution} "
             f"({np.degrees(planner.step_rad):.4f} deg)"), "",
@@ -56,13 +64,14 @@ def plan_markdown(plans, planner, info=None) -> str:
     return "\n".join(out) + "\n"
 
 
-def plan_summary(plans, planner, info=None) -> dict:
+def plan_summary(plans: Sequence[Plan], planner: Planner,
+                 info: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The plans as plain data (what ``tunnelsim plan`` writes as plan.json): sensor,
     resolution, per plan its name, station count, coverage share, gap count and station
     chainages (m), and the optimisation's figures (``Planner.optimize``'s info) or None.
     NumPy numbers become Python ones; a NaN stays NaN (strict JSON writers make it
     null)."""
-    def plain(v):
+    def plain(v: Any) -> Any:
         return v.item() if isinstance(v, np.generic) else v
 
     return {"sensor": planner.sensor.name, "resolution": planner.resolution,
@@ -73,7 +82,8 @@ def plan_summary(plans, planner, info=None) -> dict:
             "optimisation": None if info is None else {k: plain(v) for k, v in info.items()}}
 
 
-def plot_coverage(plans, planner, path):
+def plot_coverage(plans: Sequence[Plan], planner: Planner,
+                  path: str | os.PathLike[str]) -> str | os.PathLike[str]:
     """Unrolled coverage maps, one panel per plan: white = no cell (floor), red = gap,
     yellow = seen but below the thresholds, greens = served by 1, 2, 3+ stations;
     station chainages marked. Atomic PNG."""
@@ -103,7 +113,7 @@ def plot_coverage(plans, planner, path):
     axes[-1, 0].set_xlabel("chainage (m)")
     cb = fig.colorbar(im, ax=axes[:, 0].tolist(), ticks=[0, 1, 2, 3, 4], shrink=0.9)
     cb.ax.set_yticklabels(["gap", "below thr.", "1 station", "2", "3+"], fontsize=8)
-    save_png(fig, path)
+    save_png(fig, os.fspath(path))
     return path
 
 

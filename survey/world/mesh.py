@@ -20,6 +20,7 @@ atomically.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +29,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from raytrace.fileio import write_json
 from sensors import ply as _ply
@@ -161,8 +162,10 @@ def _moved_control_points(points: Sequence[Mapping[str, Any]],
     return out
 
 
-def write_ply(path, vertices, faces, labels=None, reflectivity=None, displacement=None,
-              vertex_fields=None):
+def write_ply(path: str | os.PathLike[str], vertices: ArrayLike, faces: ArrayLike,
+              labels: ArrayLike | None = None, reflectivity: ArrayLike | None = None,
+              displacement: ArrayLike | None = None,
+              vertex_fields: Mapping[str, ArrayLike] | None = None) -> Path:
     """Binary little-endian PLY with float64 vertices, optional per-face ``label``
     (uint8) and ``reflectivity`` (float32), per-vertex displacement ``dx dy dz`` and
     other per-vertex scalars ``vertex_fields`` {name: (n,) float64 array}; written
@@ -205,7 +208,7 @@ def write_ply(path, vertices, faces, labels=None, reflectivity=None, displacemen
         raise TunnelFileError(str(exc)) from exc
 
 
-def read_ply(path):
+def read_ply(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Read a binary triangle PLY (as written by ``write_ply``).
 
     Returns a dict with ``vertices`` (n, 3) float64, ``faces`` (m, 3) int64 and any

@@ -24,6 +24,7 @@ from survey.adjust.helmert import (
 from survey.analysis.compare import (
     Distances,
     ReferenceCloud,
+    ReferenceMesh,
     cloud_to_cloud,
     cloud_to_mesh,
 )
@@ -300,6 +301,22 @@ def test_nan_points_are_named_with_their_row():
         ReferenceCloud(np.ones((3, 3))).distances(p)
     with pytest.raises(PreprocessError, match="finite"):
         statistical_outliers(p)
+
+
+def test_reference_mesh_names_what_is_wrong_with_faces():
+    v, f = _mesh()
+    # Float faces are a dtype problem, not a shape one: the message must say so.
+    for bad in (f + 0.5, np.asarray(f, dtype=np.float32) - 0.25):
+        with pytest.raises(CompareError, match=r"integer `faces`.*non-integer values") as e:
+            ReferenceMesh(v, bad)
+        assert "shape" not in str(e.value)
+    with pytest.raises(CompareError, match=r"integer `faces`.*got dtype float64;"):
+        cloud_to_mesh(np.zeros((2, 3)), v, f.astype(np.float64))
+    with pytest.raises(CompareError, match=r"below 9, got indices from 0 to 9\."):
+        ReferenceMesh(v, np.where(f == 8, 9, f))
+    with pytest.raises(CompareError, match=r"got shape \(9, 2\)"):
+        ReferenceMesh(v, f[:, :2])
+    assert len(ReferenceMesh(v, f).tris) == len(f)
 
 
 # ------------------------------------------------------------------------ reprs
