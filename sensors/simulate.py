@@ -97,7 +97,7 @@ class Run:
     the same points (the random streams depend on the seed and the pulse index only).
     Each chunk is a structured array of ``sensors.POINT_DTYPE``: x, y, z, sx, sy, sz and
     range in metres, time in seconds, azimuth, elevation and incidence in radians
-    (``sensors.fields.FIELDS`` gives every field's unit and meaning).
+    (``sensors.fields`` documents every field; ``FIELD_UNITS`` holds the units).
 
     Attributes
     ----------
@@ -497,6 +497,7 @@ def simulate_drive(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
     Returns
     -------
     Run
+        The configured drive: iterate it for point chunks or ``write`` it.
 
     Raises
     ------

@@ -51,8 +51,8 @@ def test_a_point_cloud_is_not_a_mesh(tmp_path, capsys):
 
 
 def test_every_point_field_has_a_unit_and_angles_are_radians():
-    from sensors.fields import FIELDS, POINT_DTYPE
+    from sensors.fields import FIELD_UNITS, POINT_DTYPE
 
-    assert set(FIELDS) == set(POINT_DTYPE.names)
-    assert {n for n, (u, _m) in FIELDS.items() if u == "rad"} == \
+    assert set(FIELD_UNITS) == set(POINT_DTYPE.names)
+    assert {n for n, u in FIELD_UNITS.items() if u == "rad"} == \
         {"azimuth", "elevation", "incidence"}

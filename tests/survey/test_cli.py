@@ -98,11 +98,8 @@ def test_tunnel_bad_input_is_one_line(argv, match, capsys, tmp_path, monkeypatch
 
 
 @pytest.fixture(scope="module")
-def tbm(tmp_path_factory):
-    out = tmp_path_factory.mktemp("tbm") / "tbm.ply"
-    assert main(["tunnel", "-o", str(out), "--preset", "tbm", "--edge-length", "0.3",
-                 "--quiet"]) == 0
-    return out
+def tbm(tbm_mesh):
+    return tbm_mesh(0.3)
 
 
 def test_sensors_lists_every_model(capsys):

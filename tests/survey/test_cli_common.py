@@ -36,11 +36,8 @@ def _one_line_error(capsys) -> str:
 
 
 @pytest.fixture(scope="module")
-def tbm(tmp_path_factory):
-    out = tmp_path_factory.mktemp("tbm") / "tbm.ply"
-    assert main(["tunnel", "-o", str(out), "--preset", "tbm", "--edge-length", "0.5",
-                 "--quiet"]) == 0
-    return out
+def tbm(tbm_mesh):
+    return tbm_mesh(0.5)
 
 
 # ---------------------------------------------------------------------------- numbers
