@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import config
-from ._checks import first_rows, prepare_rays, validate_mesh
+from .checks import first_rows, prepare_rays, validate_mesh
 from ._kernels.build import build_bvh, slot_triangles, to_quad_layout, triangle_setup
 from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
 from ._kernels.order import counting_sort, morton_keys

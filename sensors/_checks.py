@@ -13,7 +13,7 @@ import numbers
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from raytrace._checks import as_points as points_and_flag
+from raytrace.checks import as_points as points_and_flag
 
 __all__ = ["as_number", "as_points", "as_whole"]
 
@@ -49,5 +49,5 @@ def as_whole(value: object, name: str, error: type[ValueError], *, lo: int) -> i
 
 def as_points(a: ArrayLike, name: str, error: type[ValueError]) -> NDArray[np.float64]:
     """(n, 3) float64 from (n, 3), one (3,) row, or x, y, z records; finite (the rule of
-    ``raytrace._checks.as_points``, without its single-point flag)."""
+    ``raytrace.checks.as_points``, without its single-point flag)."""
     return points_and_flag(a, name, error)[0]

@@ -174,6 +174,16 @@ def test_no_private_names_across_modules():
     assert not bad, "\n".join(bad)
 
 
+def test_no_private_modules_across_packages():
+    """``_kernels`` and ``_checks`` are their package's own business: another package
+    goes through public modules."""
+    bad = [f"{mod}:{line} imports {target}"
+           for mod, edges in EDGES.items() for target, _name, line in edges
+           if any(p.startswith("_") for p in target.split(".")[1:])
+           and target.split(".")[0] != mod.split(".")[0]]
+    assert not bad, "\n".join(bad)
+
+
 @pytest.mark.parametrize("rule", ["cycle", "layer", "private"])
 def test_the_rules_catch_a_violation(rule, monkeypatch):
     """Each rule fails on a module that breaks it (so a passing run means something)."""

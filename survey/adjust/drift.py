@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CubicSpline
 from scipy.spatial.transform import Rotation, RotationSpline, Slerp
 
-from raytrace._checks import as_points
+from raytrace.checks import as_points
 from survey.adjust.helmert import HelmertResult, fit_helmert
 from survey.errors import DriftError
 

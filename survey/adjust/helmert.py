@@ -49,7 +49,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
-from raytrace._checks import as_points
+from raytrace.checks import as_points
 from survey.errors import HelmertError
 
 if TYPE_CHECKING:

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from raytrace._checks import as_points
+from raytrace.checks import as_points
 from survey.errors import CompareError
 
 __all__ = ["BLOCK", "STAT_FIELDS", "Distances", "ReferenceCloud", "ReferenceMesh",

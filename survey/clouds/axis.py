@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from raytrace._checks import as_points
+from raytrace.checks import as_points
 from survey.errors import AlignmentError, ReconstructionError
 from survey.world.alignment import Alignment
 from survey.world.mesh import read_axis, read_meta, sidecar

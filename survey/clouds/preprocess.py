@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
-from raytrace._checks import as_points
+from raytrace.checks import as_points
 from survey.errors import PreprocessError
 
 __all__ = ["VoxelGrid", "radius_outliers", "statistical_outliers", "voxel_down_sample"]

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from raytrace._checks import as_points
+from raytrace.checks import as_points
 from survey.errors import AlignmentError
 
 __all__ = ["Alignment", "Element", "arc", "clothoid", "curve", "straight"]

@@ -1,5 +1,6 @@
-"""Validation at the public boundary of ``Scene``: meshes, rays and their [t_min, t_max]
-limits are coerced with ``np.asarray`` and checked here, once, before any kernel runs.
+"""Validation at the public boundary: meshes, rays and their [t_min, t_max] limits for
+``Scene`` (coerced with ``np.asarray`` and checked here, once, before any kernel runs),
+and ``as_points``, the one rule for point arguments that ``sensors`` and ``survey`` use too.
 
 Every failure is a ``MeshError`` or ``RayError`` (both ``ValueError``) whose message
 says what was expected, what was got and what to do.
