@@ -58,7 +58,7 @@ _EXPORTS = {
     "survey.report.planning": ("plan_csv", "plan_markdown", "plot_coverage", "plan_summary"),
     "survey.report.study": ("plot_study", "study_csv", "study_markdown"),
     "survey.report.reconstruct": ("plot_support",),
-    "survey.report.demo": ("demo_summary", "summary_markdown"),
+    "survey.report.demo": ("demo_summary", "summary_markdown", "cloud_c2m_rms"),
     "survey.export.gazebo": ("export_gazebo", "lidar_sdf"),
     "survey.errors": ("TunnelsimError", "AlignmentError", "CloudFileError", "CompareError",
                       "ControlPointError", "DeformationError", "DriftError", "FeatureError",
@@ -102,7 +102,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.report.planning import plan_csv, plan_markdown, plot_coverage, plan_summary
     from survey.report.study import plot_study, study_csv, study_markdown
     from survey.report.reconstruct import plot_support
-    from survey.report.demo import demo_summary, summary_markdown
+    from survey.report.demo import demo_summary, summary_markdown, cloud_c2m_rms
     from survey.export.gazebo import export_gazebo, lidar_sdf
     from survey.errors import (TunnelsimError, AlignmentError, CloudFileError, CompareError,
         ControlPointError, DeformationError, DriftError, FeatureError, GazeboExportError,

@@ -5,9 +5,9 @@ from .compare import plot_histogram, stats_csv, stats_markdown
 from .planning import plan_csv, plan_markdown, plot_coverage, plan_summary
 from .study import plot_study, study_csv, study_markdown
 from .reconstruct import plot_support
-from .demo import demo_summary, summary_markdown
+from .demo import cloud_c2m_rms, demo_summary, summary_markdown
 
-__all__ = ["plan_summary", "drift_report", "helmert_report", "plot_histogram", "stats_csv",
+__all__ = ["cloud_c2m_rms", "plan_summary", "drift_report", "helmert_report", "plot_histogram", "stats_csv",
            "stats_markdown", "plan_csv", "plan_markdown", "plot_coverage", "plot_study",
            "study_csv", "study_markdown", "plot_support", "demo_summary",
            "summary_markdown"]

@@ -37,6 +37,10 @@ def test_demo_quick_key_numbers_are_sane(demo):
     assert s["corrected_drift_max_m"] < 0.01
     assert s["corrected_check_rms_m"] < 0.01
     assert s["corrected_drift_max_m"] < s["raw_drift_max_m"]
+    # ... and on the cloud's own points (issue 15: a cloud written without its drift
+    # showed none of it): C2M RMS against the true mesh shrinks with the correction.
+    before, after = s["cloud_c2m_rms_before_m"], s["cloud_c2m_rms_after_m"]
+    assert np.isfinite([before, after]).all() and after < before
     # Reconstruction: millimetre-level median fit.
     assert s["reconstruction"]["median_m"] < 0.005
     # Table 1: stations on the reconstruction agree with the truth at the cm level.
@@ -66,6 +70,8 @@ def test_demo_report_links_every_figure(demo):
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
     s = json.loads((demo / "summary.json").read_text())
     assert f"{1000 * s['corrected_check_rms_m']:.1f}" in md
+    assert f"{1000 * s['cloud_c2m_rms_before_m']:.1f} / " \
+        f"{1000 * s['cloud_c2m_rms_after_m']:.1f} mm" in md
     assert md.count("```\ntunnelsim ") == len(load_pipeline(demo_text())["steps"])
 
 
