@@ -1,13 +1,16 @@
 """Control-point files: CSV with a header naming at least ``id, x, y, z`` and optionally
 ``sigma`` (one standard deviation for all three coordinates, m) or ``sx, sy, sz`` and
 ``time`` (s, when the point was observed in a moving system). Matching two files by id
-gives the common points of a Helmert adjustment."""
+gives the common points of a Helmert adjustment; ids found in one file only are left
+out, silently, with a warning or as an error (``match(..., unmatched_ids=...)``)."""
 
 from __future__ import annotations
 
 import csv
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -15,7 +18,7 @@ from numpy.typing import NDArray
 from raytrace.fileio import atomic_writer
 from survey.errors import ControlPointError
 
-__all__ = ["ControlPoints", "match", "read_control_points"]
+__all__ = ["ControlPoints", "match", "read_control_points", "unmatched", "unmatched_message"]
 
 
 @dataclass(repr=False)
@@ -107,10 +110,63 @@ def read_control_points(path: str | Path) -> ControlPoints:
     return ControlPoints(ids, xyz, sigma, np.array(tim) if tim else None)
 
 
-def match(a: ControlPoints, b: ControlPoints, *, require_all: bool = False
+def _some(ids: list[str], k: int = 5) -> str:
+    """The first ``k`` ids for a message: "CP01, CP02, ... (12 in all)"."""
+    text = ", ".join(ids[:k])
+    return text + (f", ... ({len(ids)} in all)" if len(ids) > k else "")
+
+
+def unmatched(a: ControlPoints, b: ControlPoints) -> tuple[list[str], list[str]]:
+    """The ids of ``a`` that ``b`` lacks and the ids of ``b`` that ``a`` lacks, each in
+    its file's order."""
+    in_a, in_b = set(a.ids), set(b.ids)
+    return [k for k in a.ids if k not in in_b], [k for k in b.ids if k not in in_a]
+
+
+def unmatched_message(a: ControlPoints, b: ControlPoints,
+                      names: tuple[str, str] = ("source", "target")) -> str:
+    """What ``unmatched`` found, in words, with examples of the ids seen in each file
+    (so that "CP5" against "CP05" shows at once); "" when every id is in both."""
+    only_a, only_b = unmatched(a, b)
+    if not only_a and not only_b:
+        return ""
+    parts = []
+    for (here, there), only in zip((names, names[::-1]), (only_a, only_b)):
+        if only:
+            parts.append(f"{len(only)} id{'s' if len(only) > 1 else ''} of '{here}' "
+                         f"missing from '{there}' ({_some(only, 10)})")
+    common = len(a) - len(only_a)
+    return (f"{' and '.join(parts)}; {common} in both (ids seen: '{names[0]}' "
+            f"{_some(a.ids)}; '{names[1]}' {_some(b.ids)})")
+
+
+def match(a: ControlPoints, b: ControlPoints, *, require_all: bool = False,
+          unmatched_ids: Literal["ignore", "warn", "error"] = "ignore",
+          names: tuple[str, str] = ("source", "target")
           ) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
     """Indices (ia, ib), each (k,), of the points present in both (by id), in a's order.
-    With ``require_all`` every point of ``a`` must have a partner."""
+
+    Parameters
+    ----------
+    a, b : ControlPoints
+    require_all : bool
+        Every point of ``a`` must have a partner (``b`` may hold more).
+    unmatched_ids : "ignore", "warn" or "error"
+        What an id found in only one of the two does: nothing, a ``UserWarning`` or a
+        ``ControlPointError``; either message names the ids on each side, with examples
+        of the ids seen (``unmatched_message``).
+    names : (str, str)
+        How the messages name ``a`` and ``b`` (file names).
+
+    Raises
+    ------
+    ControlPointError
+        Fewer than 3 common points; a missing partner with ``require_all``; any
+        unmatched id with ``unmatched_ids="error"``.
+    """
+    if unmatched_ids not in ("ignore", "warn", "error"):
+        raise ControlPointError(f"Expected unmatched_ids 'ignore', 'warn' or 'error', got "
+                                f"{unmatched_ids!r}.")
     pos = {k: i for i, k in enumerate(b.ids)}
     missing = [k for k in a.ids if k not in pos]
     if require_all and missing:
@@ -120,5 +176,13 @@ def match(a: ControlPoints, b: ControlPoints, *, require_all: bool = False
     ib = [pos[a.ids[i]] for i in ia]
     if len(ia) < 3:
         raise ControlPointError(f"Expected at least 3 points common to both files (matched "
-                                f"by id), got {len(ia)}.")
+                                f"by id), got {len(ia)} (ids seen: '{names[0]}' "
+                                f"{_some(a.ids)}; '{names[1]}' {_some(b.ids)}).")
+    text = unmatched_message(a, b, names) if unmatched_ids != "ignore" else ""
+    if text and unmatched_ids == "error":
+        raise ControlPointError(f"Expected every control point id in both files (strict "
+                                f"matching), got {text}.")
+    if text:
+        warnings.warn(f"Control point ids not in both files, left out: {text}.",
+                      UserWarning, stacklevel=2)
     return np.array(ia), np.array(ib)

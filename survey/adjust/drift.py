@@ -191,7 +191,10 @@ def fit_drift(mls_xyz: ArrayLike, mls_times: ArrayLike, world_xyz: ArrayLike, *,
         raise DriftError(f"Expected at least 3 control points, got {len(m)}.")
     id_list = [str(i) for i in range(len(m))] if ids is None else [str(i) for i in ids]
     if model == "global":
-        h = fit_helmert(m, g, model=7, sigma_target_m=sigma_world_m, ids=id_list)
+        # DECISION: SLAM scale drift in a tunnel can exceed the unit guard's 1,000 ppm;
+        # here both systems are metres by construction.
+        h = fit_helmert(m, g, model=7, sigma_target_m=sigma_world_m, ids=id_list,
+                        allow_scale=True)
         corr = DriftCorrection("global", np.array([t.min()]), None, np.zeros((1, 3)),
                                np.zeros((1, 3)), helmert=h, ids=id_list)
     elif model == "piecewise":
@@ -215,7 +218,7 @@ def fit_drift(mls_xyz: ArrayLike, mls_times: ArrayLike, world_xyz: ArrayLike, *,
             # with NEIGHBOUR_SIGMA x the sigma per section of distance.
             far = np.abs(sec[use] - k).astype(np.float64)
             sw = sw * (1.0 + (NEIGHBOUR_SIGMA - 1.0) * far)
-            h = fit_helmert(m[use], g[use], model=6, sigma_target_m=sw)
+            h = fit_helmert(m[use], g[use], model=6, sigma_target_m=sw, allow_scale=True)
             mc = m[use].mean(axis=0)
             times.append(t[sec == k].mean())
             rots.append(h.rotation_matrix)

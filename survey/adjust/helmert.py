@@ -8,35 +8,36 @@ with R_x(a) = [[1, 0, 0], [0, cos a, -sin a], [0, sin a, cos a]] (and alike), wh
 what PROJ's ``+proj=helmert +convention=position_vector +exact`` computes (checked
 numerically against pyproj in the tests). The coordinate-frame convention (EPSG 1032)
 has the opposite rotation signs; ``HelmertResult.rotation_arcsec_cf`` gives them.
-Models: 7 (t, R, s), 6 (rigid: s = 0), 9 (a scale per source axis:
-x_t = t + R diag(1 + s_i 1e-6) x_s; not an EPSG method); given as the int or the string.
+Models (``FORMS``): 7 (t, R, s), 6 (rigid: s = 0), 9 (a scale per source axis:
+x_t = t + R diag(1 + s_i 1e-6) x_s; not an EPSG method, written for PROJ as
+``+proj=affine``); given as the int or the string.
 
-Units: translations in metres, rotations in arcseconds (radians inside), scale in ppm.
-Argument order as everywhere in ``survey``: the points you have first (``source``, the
-role of ``compared`` in ``cloud_to_cloud``), the reference second (``target``).
+Units: translations in metres, rotations in arcseconds (radians inside; degrees and gon
+as properties), scale in ppm. Argument order as everywhere in ``survey``: the points
+you have first (``source``), the reference second (``target``).
 
 Estimation (Wolf & Ghilani, "Adjustment Computations", ch. on 3-D conformal
-transformations; Niemeier, "Ausgleichungsrechnung"):
+transformations; Niemeier, "Ausgleichungsrechnung"), in ``helmert_stats``:
 
-1. Closed-form start: Umeyama 1991 (SVD of the weighted cross-covariance, with the
-   reflection fix det(U V^T) = -1 -> flip the last singular vector).
+1. Closed-form start: Umeyama 1991 (SVD of the weighted cross-covariance).
 2. Gauss–Newton on (t, rx, ry, rz, s) with exact rotations, coordinates reduced to the
-   weighted centroids for conditioning; the Jacobian of R by complex-step
-   differentiation (exact to rounding; Squire & Trapp 1998).
+   weighted centroids for conditioning; Jacobian by complex-step differentiation.
 3. Errors in the target only: weights 1/sigma_target_m^2. Errors in both systems
    (Gauss–Helmert model): the misclosure of point i has covariance
-   Sigma_t,i + (1 + s)^2 R Sigma_s,i R^T, and the normal equations use its inverse.
+   Sigma_t,i + (1 + s)^2 R Sigma_s,i R^T.
 
-Statistics (Baarda 1968; Pope 1976; Teunissen, "Testing theory"): redundancy
-r = 3n - u, sigma0^2 = v^T P v / r, covariance of the parameters sigma0^2 (A^T P A)^-1
-(a posteriori; a priori when sigmas are given and ``use_apriori``), cofactors of the
-residuals Q_vv = Q_ll - A N^-1 A^T, redundancy numbers diag(Q_vv P), a global chi^2
-test of v^T P v against r (with a priori sigmas), per-coordinate w-tests
-w = v / (sigma_0 sqrt(q_vv)) against 3.29 (alpha = 0.001) when sigmas are known, and
-Pope's tau-test (estimated sigma0) otherwise; a point's test value is the largest of
-its three. Minimal detectable bias sigma delta0 / sqrt(r_i) with delta0 = 4.13
-(alpha = 0.001, power 0.80). Data snooping flags the worst point above the critical
-value; nothing is dropped.
+Guards: input that gives confident nonsense is refused with a ``HelmertError`` naming
+the likely cause, unless the caller says it is meant: mirror images (the best
+orthogonal map is a reflection: swapped axes; ``allow_reflection``), a scale beyond
+1,000 ppm (different units; ``allow_scale``), and a Gauss–Newton iteration that does
+not converge within ``max_iter``.
+
+Statistics (Baarda 1968, "A testing procedure for use in geodetic networks"; Pope
+1976): sigma0, the parameter covariance labelled a priori or a posteriori, redundancy
+numbers, a global chi^2 test, w-tests (critical value 3.29: alpha0 = 0.001, two-sided
+standard normal) with known sigmas or tau-tests otherwise, MDBs. Every point above the
+critical value is listed, largest first; nothing is dropped here (data snooping, one
+point at a time: ``survey.adjust.snooping``).
 """
 
 from __future__ import annotations
@@ -47,28 +48,47 @@ from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import stats
 
 from raytrace.checks import as_points
+from survey.adjust.helmert_stats import (
+    ALPHA,
+    ARCSEC,
+    DELTA0,
+    MAX_SCALE_PPM,
+    MODELS,
+    W_CRITICAL,
+    SimilarityModel,
+    angles_of,
+    closed_form,
+    converged,
+    correlation_warnings,
+    gauss_newton,
+    parameter_names,
+    proj_form,
+    rotation_matrix,
+    statistics,
+)
 from survey.errors import HelmertError
 
 if TYPE_CHECKING:
     from sensors.trajectory import Trajectory
 
-__all__ = ["ALPHA", "ARCSEC", "DELTA0", "MODELS", "W_CRITICAL", "HelmertModel",
-           "HelmertResult", "angles_of", "fit_helmert", "from_parameters", "model_name",
-           "rotation_matrix"]
+__all__ = ["ALPHA", "ARCSEC", "DELTA0", "FORMS", "MAX_SCALE_PPM", "MODELS", "W_CRITICAL",
+           "HelmertModel", "HelmertResult", "angles_of", "fit_helmert", "from_parameters",
+           "model_name", "rotation_matrix"]
 
-ARCSEC = np.pi / (180.0 * 3600.0)
-#: Baarda's critical value for alpha = 0.001 (two-sided, one dimension) and the
-#: non-centrality for power 0.80.
-W_CRITICAL = 3.29
-DELTA0 = 4.13
-ALPHA = 0.001
-#: Model name -> number of parameters.
-MODELS = {"7": 7, "6": 6, "9": 9}
 #: What ``model`` accepts: the parameter count as an int or a string.
 HelmertModel = Literal[6, 7, 9, "6", "7", "9"]
+#: The formula of each model (the report's and the JSON's ``form``).
+FORMS = {
+    "7": "x_target = t + (1 + s 1e-6) R x_source, R = Rx(rx) Ry(ry) Rz(rz)",
+    "6": "x_target = t + R x_source, R = Rx(rx) Ry(ry) Rz(rz)",
+    "9": "x_target = t + R diag(1 + sx 1e-6, 1 + sy 1e-6, 1 + sz 1e-6) x_source, "
+         "R = Rx(rx) Ry(ry) Rz(rz)",
+}
+#: Arcseconds -> degrees and gon (400 gon = 360 degrees).
+ARCSEC_DEG = 1.0 / 3600.0
+ARCSEC_GON = 400.0 / (360.0 * 3600.0)
 
 Floats = NDArray[np.float64]
 
@@ -90,26 +110,6 @@ def model_name(model: object) -> str:
         raise HelmertError(f"Expected model 7, 6 or 9 (an int or a string), got "
                            f"{model!r}.")
     return name
-
-
-def rotation_matrix(rx: Any, ry: Any, rz: Any) -> NDArray[Any]:
-    """R = R_x(rx) R_y(ry) R_z(rz) (radians; works for complex arguments too)."""
-    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), \
-        np.sin(rz)
-    one, zero = cx * 0 + 1, cx * 0
-    rxm = np.array([[one, zero, zero], [zero, cx, -sx], [zero, sx, cx]])
-    rym = np.array([[cy, zero, sy], [zero, one, zero], [-sy, zero, cy]])
-    rzm = np.array([[cz, -sz, zero], [sz, cz, zero], [zero, zero, one]])
-    return rxm @ rym @ rzm
-
-
-def angles_of(r: ArrayLike) -> Floats:
-    """(rx, ry, rz) in radians with R = R_x R_y R_z; ry in [-pi/2, pi/2]."""
-    r = np.asarray(r, dtype=np.float64)
-    ry = np.arcsin(np.clip(r[0, 2], -1.0, 1.0))
-    rx = np.arctan2(-r[1, 2], r[2, 2])
-    rz = np.arctan2(-r[0, 1], r[0, 0])
-    return np.array([rx, ry, rz])
 
 
 def _sigmas(sig: ArrayLike | None, n: int, name: str) -> Floats | None:
@@ -143,6 +143,11 @@ def _nan_to_none(v: Any) -> Any:
     return v
 
 
+def _g17(v: Any) -> str:
+    """A float as PROJ reads it back to the last bit."""
+    return format(float(v), ".17g")
+
+
 @dataclass(repr=False)
 class HelmertResult:
     """Parameters (PROJ form, position-vector convention) and statistics.
@@ -151,20 +156,26 @@ class HelmertResult:
     ----------
     model : str, "6", "7" or "9"
     translation_m : (3,) float64, metres
-    rotation_arcsec : (3,) float64, arcseconds (position-vector convention)
+    rotation_arcsec : (3,) float64, arcseconds (position-vector convention);
+        ``rotation_deg`` and ``rotation_gon`` give them in degrees and gon
     rotation_matrix : (3, 3) float64
     scale_ppm : float, or (3,) float64 for model "9", ppm
     translation_sigma_m, rotation_sigma_arcsec, scale_sigma_ppm : their standard
-        deviations, in the same units
-    correlation : (u, u) float64, correlations of (t, r, s)
+        deviations, in the same units, a priori or a posteriori (``sigma_basis``)
+    correlation : (u, u) float64, correlations of the parameters in the order of
+        ``parameter_names`` (translations at the centroid of the points)
     sigma0 : float, a posteriori standard deviation of unit weight
     residuals : (n, 3) float64, m, target - transformed source
     redundancy : (n, 3) float64, redundancy numbers
     w_tests : (n,) float64, largest |w| or |tau| of each point
     test : "w", "tau" or "none"; critical : float, its critical value
     mdb_m : (n,) float64, minimal detectable bias, metres
-    outliers : list of ids flagged; global_test : dict; ids : list of point ids
+    outliers : list of the ids whose test exceeds ``critical``, largest first
+    global_test : dict; ids : list of point ids
     dof : int, redundancy 3n - u; iterations : int
+    sigma_basis : "a priori" (from the given sigmas, sigma0 = 1), "a posteriori"
+        (scaled by the estimated sigma0) or "none" (no statistics)
+    correlation_warnings : list of str, pairs with |rho| > 0.95 and the geometry reason
 
     ``repr`` is two lines; the full report (parameters, tests, residuals per point) is
     ``survey.report.helmert_report(result)``.
@@ -191,6 +202,8 @@ class HelmertResult:
     ids: list[str]
     dof: int
     iterations: int
+    sigma_basis: str = "a posteriori"
+    correlation_warnings: list[str] = field(default_factory=list)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def __repr__(self) -> str:
@@ -206,10 +219,39 @@ class HelmertResult:
                 f"{self.test}-test outliers: {found})")
 
     @property
+    def parameter_names(self) -> list[str]:
+        """Names of the parameters, the rows of ``correlation``."""
+        return parameter_names(self.model)
+
+    @property
+    def formula(self) -> str:
+        """The formula of this model (``FORMS``)."""
+        return FORMS[self.model]
+
+    @property
+    def rotation_deg(self) -> Floats:
+        """(3,) rotations in degrees (position-vector convention)."""
+        return np.asarray(self.rotation_arcsec) * ARCSEC_DEG
+
+    @property
+    def rotation_gon(self) -> Floats:
+        """(3,) rotations in gon (400 gon a full turn)."""
+        return np.asarray(self.rotation_arcsec) * ARCSEC_GON
+
+    @property
     def rotation_arcsec_cf(self) -> Floats:
         """Rotations in the coordinate-frame convention (EPSG 1032): R_cf = R^T, and
         for the exact form the angles of R^T's decomposition (arcsec)."""
         return angles_of(self.rotation_matrix.T) / ARCSEC
+
+    @property
+    def outlier_tests(self) -> list[dict[str, Any]]:
+        """Every point above the critical value, largest test first:
+        [{"id", "statistic", "critical", "test"}]."""
+        at = {k: i for i, k in enumerate(self.ids)}
+        return [{"id": k, "statistic": float(self.w_tests[at[k]]),
+                 "critical": float(self.critical), "test": self.test}
+                for k in self.outliers]
 
     def _scales(self) -> Any:
         return 1.0 + np.asarray(self.scale_ppm, dtype=np.float64) * 1e-6
@@ -243,6 +285,22 @@ class HelmertResult:
             out = self.translation_m + (p * sc) @ r.T
         return out[0] if single else out
 
+    def apply_inverse(self, points: ArrayLike) -> Floats:
+        """Transform target points back to the source system (the exact inverse:
+        x_s = diag(1 + s 1e-6)^-1 R^T (x_t - t), for every model).
+
+        Parameters
+        ----------
+        points : (n, 3) or (3,) array_like of float, or structured array with x, y, z
+
+        Returns
+        -------
+        (n, 3) float64, or (3,) for a single (3,) point.
+        """
+        p, single = as_points(points, "points", HelmertError, finite=False)
+        out = ((p - self.translation_m) @ self.rotation_matrix) / self._scales()
+        return out[0] if single else out
+
     def apply_trajectory(self, traj: Trajectory) -> Trajectory:
         """A transformed copy of a ``sensors.Trajectory`` (positions and attitudes;
         the scale does not change attitudes)."""
@@ -254,21 +312,38 @@ class HelmertResult:
         return Trajectory(traj.times, self.apply(traj.positions), r * traj.rotations)
 
     def to_proj(self, *, exact: bool = True) -> str:
-        """The PROJ pipeline string of this transform (models 6 and 7)."""
+        """The PROJ string of this transform: ``+proj=helmert ...
+        +convention=position_vector`` (models 6 and 7; ``+exact`` unless ``exact`` is
+        False), or for model 9, which PROJ's Helmert cannot express,
+        ``+proj=affine`` with the matrix R diag(1 + s 1e-6). Full float precision."""
+        t = self.translation_m
         if self.model == "9":
-            raise HelmertError("Expected model 6 or 7 for a PROJ string, got 9 (PROJ has "
-                               "no per-axis scale).")
-        t, r = self.translation_m, self.rotation_arcsec
-        s = (f"+proj=helmert +x={t[0]:.12g} +y={t[1]:.12g} +z={t[2]:.12g} "
-             f"+rx={r[0]:.15g} +ry={r[1]:.15g} +rz={r[2]:.15g} "
-             f"+s={float(self.scale_ppm):.15g} +convention=position_vector")
+            m = self.rotation_matrix * self._scales()
+            cells = " ".join(f"+s{i + 1}{k + 1}={_g17(m[i, k])}" for i in range(3)
+                             for k in range(3))
+            return (f"+proj=affine +xoff={_g17(t[0])} +yoff={_g17(t[1])} "
+                    f"+zoff={_g17(t[2])} {cells}")
+        r = self.rotation_arcsec
+        s = (f"+proj=helmert +x={_g17(t[0])} +y={_g17(t[1])} +z={_g17(t[2])} "
+             f"+rx={_g17(r[0])} +ry={_g17(r[1])} +rz={_g17(r[2])} "
+             f"+s={_g17(self.scale_ppm)} +convention=position_vector")
         return s + (" +exact" if exact else "")
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict with every field (the CLI's ``--json``)."""
+        """JSON-ready dict with every field (the CLI's ``--json``), the formula
+        (``form``), the PROJ string (``proj``), rotations in degrees and gon and the
+        points above the critical value (``outlier_tests``, largest first)."""
         out = {k: _nan_to_none(v) for k, v in self.__dict__.items() if k != "extra"}
         out["convention"] = "position_vector"
-        out["form"] = "x_target = t + (1 + s 1e-6) R x_source, R = Rx(rx) Ry(ry) Rz(rz)"
+        out["form"] = self.formula
+        out["proj"] = self.to_proj()
+        out["parameter_names"] = self.parameter_names
+        sd = np.asarray(self.rotation_sigma_arcsec, dtype=np.float64)
+        out["rotation_deg"] = _nan_to_none(self.rotation_deg)
+        out["rotation_sigma_deg"] = _nan_to_none(sd * ARCSEC_DEG)
+        out["rotation_gon"] = _nan_to_none(self.rotation_gon)
+        out["rotation_sigma_gon"] = _nan_to_none(sd * ARCSEC_GON)
+        out["outlier_tests"] = self.outlier_tests
         return out
 
     @classmethod
@@ -317,28 +392,11 @@ def from_parameters(translation_m: ArrayLike, rotation_arcsec: ArrayLike,
     return HelmertResult("7", t, r, rotation_matrix(*(r * ARCSEC)), s, nan3,
                          nan3, np.nan, np.full((7, 7), np.nan), np.nan, np.zeros((0, 3)),
                          np.zeros((0, 3)), np.zeros(0), "none", np.nan, np.zeros(0), [], {},
-                         [], 0, 0, {"convention": convention, "input_arcsec": r_in})
+                         [], 0, 0, sigma_basis="none",
+                         extra={"convention": convention, "input_arcsec": r_in})
 
 
 # ---------------------------------------------------------------------------- the fit
-def _umeyama(src: Floats, dst: Floats, w: Floats, scale: bool
-             ) -> tuple[Floats, float, Floats]:
-    """Weighted closed-form similarity (Umeyama 1991) with the reflection fix."""
-    ws = w / w.sum()
-    cs = ws @ src
-    cd = ws @ dst
-    a, b = src - cs, dst - cd
-    cov = (b * ws[:, None]).T @ a
-    u, d, vt = np.linalg.svd(cov)
-    e = np.ones(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:  # reflection: flip the weakest axis
-        e[2] = -1.0
-    r = u @ np.diag(e) @ vt
-    var = np.sum(ws * np.sum(a * a, axis=1))
-    c = (d * e).sum() / var if scale else 1.0
-    return r, c, cd - c * r @ cs
-
-
 def _check_points(source: ArrayLike, target: ArrayLike, model: str
                   ) -> tuple[Floats, Floats]:
     """Source and target (n, 3): same shape, finite, enough points, not collinear."""
@@ -361,194 +419,41 @@ def _check_points(source: ArrayLike, target: ArrayLike, model: str
     return src, dst
 
 
-class _Similarity:
-    """The observation model in centroid-reduced coordinates ``a`` (source) for the
-    parameters p = (t, rx, ry, rz[, s | s_x, s_y, s_z]): predictions, their Jacobian and
-    the weights of the misclosures."""
+def _scale_refused(scale_ppm: Any, sigma_ppm: Any) -> bool:
+    """A scale beyond ``MAX_SCALE_PPM`` that is also significant (|s| > 3.29 sigma).
 
-    def __init__(self, model: str, a: Floats, var_t: Floats, var_s: Floats | None):
-        self.model, self.a, self.var_t, self.var_s = model, a, var_t, var_s
-        self.n, self.u = len(a), MODELS[model]
-
-    def start(self, r0: Floats, c0: float, t0: Floats) -> Floats:
-        """Parameters of a closed-form start (rotation, scale factor, translation)."""
-        ang = angles_of(r0)
-        if self.model == "7":
-            return np.concatenate([t0, ang, [c0 - 1.0]])
-        if self.model == "6":
-            return np.concatenate([t0, ang])
-        return np.concatenate([t0, ang, np.full(3, c0 - 1.0)])
-
-    def predict(self, p: NDArray[Any]) -> NDArray[Any]:
-        """Transformed source points (n, 3) (real or complex parameters)."""
-        r = rotation_matrix(p[3], p[4], p[5])
-        if self.model == "7":
-            return p[:3] + (1 + p[6]) * (self.a @ r.T)
-        if self.model == "6":
-            return p[:3] + self.a @ r.T
-        return p[:3] + (self.a * (1 + p[6:9])) @ r.T
-
-    def jacobian(self, p: Floats) -> Floats:
-        """d predict / d p (3n, u), by complex-step differentiation."""
-        j = np.empty((3 * self.n, self.u))
-        h = 1e-20
-        for k in range(self.u):
-            pc = p.astype(complex)
-            pc[k] += 1j * h
-            j[:, k] = (self.predict(pc).imag / h).ravel()
-        return j
-
-    def weights(self, p: Floats) -> NDArray[Any]:
-        """Per-point 3x3 weight blocks (inverse misclosure covariance)."""
-        cov = np.zeros((self.n, 3, 3))
-        cov[:, [0, 1, 2], [0, 1, 2]] = self.var_t
-        if self.var_s is not None:
-            r = rotation_matrix(p[3], p[4], p[5])
-            sc = (1 + p[6]) if self.model == "7" else \
-                (1 + p[6:9] if self.model == "9" else 1.0)
-            m = r * sc   # R diag(sc) for model 9, sc R otherwise
-            cov += np.einsum("ij,nj,kj->nik", m, self.var_s, m)
-        return np.linalg.inv(cov)
-
-    def normals(self, p: Floats) -> tuple[NDArray[Any], Floats, Floats]:
-        """(weights (n, 3, 3), Jacobian (3n, u), P J (3n, u)) at p."""
-        pw = self.weights(p)
-        j = self.jacobian(p)
-        pj = np.einsum("nij,njk->nik", pw, j.reshape(self.n, 3, self.u)).reshape(
-            3 * self.n, self.u)
-        return pw, j, pj
+    DECISION: significance too, so that a noisy scale of a tiny network (2 mm noise on
+    points 3 m apart gives several hundred ppm of pure noise) is not taken for a unit
+    error; a unit error is both huge and exact."""
+    s = np.abs(np.atleast_1d(np.asarray(scale_ppm, dtype=np.float64)))
+    sd = np.atleast_1d(np.asarray(sigma_ppm, dtype=np.float64))
+    # No redundancy (sigma NaN): nothing can be told from noise; not refused here (the
+    # closed-form check before the fit always has redundancy).
+    return bool(np.any((s > MAX_SCALE_PPM) & (s > W_CRITICAL * sd)))
 
 
-_RANK_DEFICIENT = ("Expected a point configuration that determines every parameter, got "
-                   "a rank-deficient one; add points that are not collinear.")
+def _scale_message(scale_ppm: Any, sigma_ppm: Any) -> str:
+    s = ", ".join(f"{v:+,.1f}" for v in np.atleast_1d(scale_ppm))
+    sd = ", ".join(f"{v:,.1f}" for v in np.atleast_1d(sigma_ppm))
+    return (f"Expected source and target in the same unit (a scale within ±"
+            f"{MAX_SCALE_PPM:,.0f} ppm), got a best-fit scale of {s} ppm (± {sd}): "
+            "different units? mm against m gives -999,000 ppm; convert one file, or pass "
+            "allow_scale=True (--allow-scale) if the scale is real.")
 
 
-def _gauss_newton(m: _Similarity, b: Floats, x: Floats, max_iter: int
-                  ) -> tuple[Floats, int]:
-    """Gauss–Newton from x until the steps vanish; (parameters, iterations)."""
-    it = 0
-    for it in range(1, max_iter + 1):
-        _, j, pj = m.normals(x)
-        v = (b - m.predict(x)).ravel()
-        nmat = j.T @ pj
-        rhs = pj.T @ v
-        try:
-            dx = np.linalg.solve(nmat, rhs)
-        except np.linalg.LinAlgError as exc:
-            raise HelmertError(_RANK_DEFICIENT) from exc
-        x = x + dx
-        if np.abs(dx[:3]).max() < 1e-12 and np.abs(dx[3:]).max() < 1e-14:
-            break
-    return x, it
-
-
-@dataclass
-class _Tests:
-    """Statistics of a converged fit (see the module doc)."""
-
-    v: Floats
-    ninv: NDArray[Any]
-    sigma0: float
-    dof: int
-    redundancy: Floats
-    w_tests: Floats
-    test: str
-    critical: float
-    mdb_m: Floats
-    global_test: dict[str, Any]
-
-
-def _statistics(m: _Similarity, b: Floats, x: Floats, known: bool) -> _Tests:
-    """Misclosures, sigma0, redundancy numbers, w/tau tests, MDBs and the global test."""
-    n, u = m.n, m.u
-    pw, j, pj = m.normals(x)
-    v = b - m.predict(x)                             # (n, 3) misclosures
-    nmat = j.T @ pj
-    if np.linalg.cond(nmat) > 1e14:
-        raise HelmertError(_RANK_DEFICIENT)
-    ninv = np.linalg.inv(nmat)
-    vv = v.ravel()
-    pv = np.einsum("nij,nj->ni", pw, v).ravel()
-    omega = float(vv @ pv)
-    dof = 3 * n - u
-    s0 = np.sqrt(omega / dof) if dof > 0 else np.nan
-    # Cofactors of the misclosures and redundancy numbers.
-    qll = np.linalg.inv(pw)                          # (n, 3, 3) blocks
-    jr = j.reshape(n, 3, u)
-    qvv_diag = np.einsum("nii->ni", qll) - np.einsum("nik,kl,nil->ni", jr, ninv, jr)
-    qvv_diag = np.maximum(qvv_diag, 0.0)
-    pdiag = np.einsum("nii->ni", pw)
-    redundancy = qvv_diag * pdiag
-    sig_apriori = 1.0
-    if known:
-        test = "w"
-        crit = W_CRITICAL
-        with np.errstate(divide="ignore", invalid="ignore"):
-            w = np.abs(v) / (sig_apriori * np.sqrt(qvv_diag))
-        chi_lo, chi_hi = stats.chi2.ppf([0.025, 0.975], dof) if dof > 0 else (np.nan, np.nan)
-        global_test = {"statistic": omega, "dof": dof, "alpha": 0.05,
-                       "interval": [float(chi_lo), float(chi_hi)],
-                       "passed": bool(chi_lo <= omega <= chi_hi)}
-    else:
-        test = "tau"
-        tq = stats.t.ppf(1 - ALPHA / 2, max(dof - 1, 1))
-        crit = float(np.sqrt(dof) * tq / np.sqrt(dof - 1 + tq * tq)) if dof > 1 else np.inf
-        with np.errstate(divide="ignore", invalid="ignore"):
-            w = np.abs(v) / (s0 * np.sqrt(qvv_diag))
-        global_test = {"statistic": omega, "dof": dof, "alpha": 0.05, "interval": None,
-                       "passed": None, "note": "no a priori sigmas: sigma0 estimated"}
-    w = np.where(np.isfinite(w), w, 0.0)
-    wpt = w.max(axis=1)
-    sig_for_mdb = np.sqrt(np.einsum("nii->ni", qll)) * (sig_apriori if known else s0)
-    with np.errstate(divide="ignore"):
-        mdb = (sig_for_mdb * DELTA0 / np.sqrt(np.maximum(redundancy, 1e-300))).max(axis=1)
-    return _Tests(v, ninv, float(s0), dof, redundancy, wpt, test, float(crit), mdb,
-                  global_test)
-
-
-def _proj_form(model: str, x: Floats, cov: Floats, cs: Floats, ct: Floats
-               ) -> tuple[Floats, Floats, Any, Any]:
-    """Centroid-reduced parameters back to PROJ form, x_t = ct + t' + S R (x_s - cs):
-    (translation, its standard deviations, scale_ppm, its standard deviation)."""
-    sd = np.sqrt(np.diag(cov))
-    r = rotation_matrix(*x[3:6])
-    scale_ppm: Any
-    scale_sd: Any
-    if model == "7":
-        sc = 1 + x[6]
-        t = ct + x[:3] - sc * r @ cs
-        scale_ppm, scale_sd = x[6] * 1e6, sd[6] * 1e6
-    elif model == "6":
-        t = ct + x[:3] - r @ cs
-        scale_ppm, scale_sd = 0.0, 0.0
-    else:
-        t = ct + x[:3] - r @ ((1 + x[6:9]) * cs)
-        scale_ppm, scale_sd = x[6:9] * 1e6, sd[6:9] * 1e6
-    # Covariance of t: t = ct + t' - d/dp [S R cs]; propagate with the Jacobian.
-    u = len(x)
-    jt = np.zeros((3, u))
-    jt[:, :3] = np.eye(3)
-
-    def tfun(p: NDArray[Any]) -> NDArray[Any]:
-        rr = rotation_matrix(p[3], p[4], p[5])
-        if model == "7":
-            return p[:3] - (1 + p[6]) * rr @ cs
-        if model == "6":
-            return p[:3] - rr @ cs
-        return p[:3] - rr @ ((1 + p[6:9]) * cs)
-
-    for k in range(3, u):
-        pc = x.astype(complex)
-        pc[k] += 1e-20j
-        jt[:, k] = tfun(pc).imag / 1e-20
-    t_sd = np.sqrt(np.diag(jt @ cov @ jt.T))
-    return t, t_sd, scale_ppm, scale_sd
+MIRROR = ("Expected source and target of the same handedness, got a best-fit rotation "
+          "that is a reflection (det = -1 for the centred points, weakest axis {f:.3g} "
+          "times the noise): the systems are mirror images: are x and y swapped? Check "
+          "the column order of both files, or pass allow_reflection=True "
+          "(--allow-reflection) to fit the best proper rotation anyway.")
 
 
 def fit_helmert(source: ArrayLike, target: ArrayLike, *, model: HelmertModel = 7,
                 sigma_source_m: ArrayLike | None = None,
                 sigma_target_m: ArrayLike | None = None, ids: Iterable[object] | None = None,
-                use_apriori: bool | None = None, max_iter: int = 50) -> HelmertResult:
+                use_apriori: bool | None = None, max_iter: int = 50,
+                allow_reflection: bool = False, allow_scale: bool = False
+                ) -> HelmertResult:
     """Least-squares Helmert transform from ``source`` to ``target``.
 
     Parameters
@@ -564,13 +469,23 @@ def fit_helmert(source: ArrayLike, target: ArrayLike, *, model: HelmertModel = 7
         Point names for the outlier list (default "0", "1", ...).
     use_apriori : bool
         Scale the parameter covariance with the a priori sigma0 = 1 instead of the
-        estimated one (default: True when sigmas are given).
+        estimated one (default: True when sigmas are given); ``sigma_basis`` says which.
     max_iter : int
-        Gauss–Newton iterations at most.
+        Gauss–Newton iterations at most; not converging within them is an error.
+    allow_reflection : bool
+        Fit the best proper rotation even when the two point sets are mirror images.
+    allow_scale : bool
+        Accept a scale beyond ±1,000 ppm (``MAX_SCALE_PPM``; for model 6 the scale the
+        data imply).
 
     Returns
     -------
     HelmertResult
+
+    Raises
+    ------
+    HelmertError
+        Bad input; mirror images; a scale beyond ±1,000 ppm; no convergence.
     """
     name = model_name(model)
     src, dst = _check_points(source, target, name)
@@ -591,17 +506,32 @@ def fit_helmert(source: ArrayLike, target: ArrayLike, *, model: HelmertModel = 7
     cs = (w0 @ src) / w0.sum()
     ct = (w0 @ dst) / w0.sum()
     a, b = src - cs, dst - ct
-    m = _Similarity(name, a, var_t, var_s)
-    x = m.start(*_umeyama(a, b, w0, scale=(name != "6")))
-    x, it = _gauss_newton(m, b, x, int(max_iter))
-    tests = _statistics(m, b, x, known)
-    worst = int(np.argmax(tests.w_tests))
-    outliers = [id_list[worst]] if tests.w_tests[worst] > tests.critical else []
-    scale_cov = 1.0 if use_apriori else tests.sigma0 ** 2
-    cov = tests.ninv * scale_cov
+    start = closed_form(a, b, w0, scale=(name != "6"))
+    if start.mirrored and not allow_reflection:
+        raise HelmertError(MIRROR.format(f=start.mirror_ratio))
+    if not allow_scale and _scale_refused(start.scale_ppm, start.scale_sigma_ppm):
+        raise HelmertError(_scale_message(start.scale_ppm, start.scale_sigma_ppm))
+    m = SimilarityModel(name, a, var_t, var_s)
+    x = m.start(start.rotation, start.factor, start.translation)
+    x, it, dx = gauss_newton(m, b, x, int(max_iter))
+    if not converged(dx):
+        raise HelmertError(
+            f"Expected the Gauss–Newton iteration to converge within max_iter = "
+            f"{int(max_iter)} iterations, got a last step of {np.abs(dx[:3]).max():.3g} m and "
+            f"{np.abs(dx[3:6]).max() / ARCSEC:.3g} arcsec; check that the ids pair the same "
+            "points and both files use the same axes and units, or allow more iterations "
+            "(max_iter, --max-iter).")
+    tests = statistics(m, b, x, known)
+    order = np.argsort(-tests.w_tests, kind="stable")
+    outliers = [id_list[i] for i in order if tests.w_tests[i] > tests.critical]
+    cov = tests.ninv * (1.0 if use_apriori else tests.sigma0 ** 2)
     sd = np.sqrt(np.diag(cov))
     corr = cov / np.outer(sd, sd)
-    t, t_sd, scale_ppm, scale_sd = _proj_form(name, x, cov, cs, ct)
+    t, t_sd, scale_ppm, scale_sd = proj_form(name, x, cov, cs, ct)
+    if name == "9" and not allow_scale:
+        sd_post = np.sqrt(np.diag(tests.ninv))[6:9] * tests.sigma0 * 1e6
+        if _scale_refused(scale_ppm, sd_post):
+            raise HelmertError(_scale_message(scale_ppm, sd_post))
     return HelmertResult(
         model=name, translation_m=t, rotation_arcsec=x[3:6] / ARCSEC,
         rotation_matrix=rotation_matrix(*x[3:6]), scale_ppm=scale_ppm,
@@ -609,4 +539,6 @@ def fit_helmert(source: ArrayLike, target: ArrayLike, *, model: HelmertModel = 7
         scale_sigma_ppm=scale_sd, correlation=corr, sigma0=tests.sigma0,
         residuals=tests.v, redundancy=tests.redundancy, w_tests=tests.w_tests,
         test=tests.test, critical=tests.critical, mdb_m=tests.mdb_m, outliers=outliers,
-        global_test=tests.global_test, ids=id_list, dof=tests.dof, iterations=it)
+        global_test=tests.global_test, ids=id_list, dof=tests.dof, iterations=it,
+        sigma_basis="a priori" if use_apriori else "a posteriori",
+        correlation_warnings=correlation_warnings(corr, name, src))

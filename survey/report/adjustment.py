@@ -3,43 +3,111 @@ software: parameters with standard deviations, sigma0, tests, residuals per poin
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
 
-from survey.errors import DriftError
+from survey.errors import DriftError, HelmertError
 
 if TYPE_CHECKING:  # annotations only: the report module stays light to import
     from sensors.trajectory import Trajectory
     from survey.adjust.drift import DriftCorrection
     from survey.adjust.helmert import HelmertResult
+    from survey.adjust.snooping import Snooping
 
-__all__ = ["drift_report", "helmert_report"]
+__all__ = ["ANGLE_UNITS", "drift_report", "helmert_report"]
 
 
-def helmert_report(res: HelmertResult, *, title: str = "Helmert adjustment") -> str:
-    """Markdown report of a ``HelmertResult``."""
+#: Angle units of the report's rotation table besides arcseconds.
+ANGLE_UNITS = {"deg": ("degrees", 1.0 / 3600.0), "gon": ("gon", 400.0 / (360.0 * 3600.0))}
+_MODEL_NAMES = {"7": "similarity", "6": "rigid", "9": "scale per source axis"}
+
+
+def helmert_report(res: HelmertResult, *, title: str = "Helmert adjustment",
+                   angles: str = "deg", snooping: Snooping | None = None,
+                   notes: Sequence[str] = ()) -> str:
+    """Markdown report of a ``HelmertResult``.
+
+    Parameters
+    ----------
+    res : HelmertResult, the (final) adjustment
+    title : str
+    angles : "deg" or "gon", the unit of the rotations beside arcseconds
+    snooping : Snooping, optional
+        Points excluded by hand and the steps of data snooping
+        (``survey.adjust.snooping.data_snooping``); ``res`` is then its ``result``.
+    notes : sequence of str
+        Lines shown near the top (warnings about the input, e.g. unmatched ids).
+    """
+    if angles not in ANGLE_UNITS:
+        raise HelmertError(f"Expected angles 'deg' or 'gon', got {angles!r}.")
+    basis = res.sigma_basis
+    why = ("from the given standard deviations of the points, σ0 = 1"
+           if basis == "a priori" else f"scaled by the estimated σ0 = {res.sigma0:.4g}")
     lines = [f"# {title}", "",
-             f"Model: {res.model}-parameter, PROJ form x_target = t + (1 + s·1e-6)·R·x_source, "
-             "R = Rx(rx)·Ry(ry)·Rz(rz) (position-vector convention, exact rotations).", "",
-             f"Points: {len(res.ids)}, redundancy {res.dof}, iterations {res.iterations}.", "",
-             "| parameter | value | std. dev. |", "|---|---:|---:|"]
+             f"Model: {res.model}-parameter ({_MODEL_NAMES[res.model]}): `{res.formula}` "
+             "(position-vector convention, EPSG 1033, exact rotations).", "",
+             f"Points: {len(res.ids)}, redundancy {res.dof}, iterations {res.iterations}.", ""]
+    lines += [f"- **Note:** {n}" for n in notes] + ([""] if notes else [])
+    lines += ["## Parameters", "",
+              f"Standard deviations **{basis}** ({why}).", "",
+              f"| parameter | value | std. dev. ({basis}) |", "|---|---:|---:|"]
     for k, name in enumerate("xyz"):
         lines.append(f"| t{name} (m) | {res.translation_m[k]:.4f} | "
                      f"{res.translation_sigma_m[k]:.4f} |")
-    for k, name in enumerate("xyz"):
-        lines.append(f"| r{name} (arcsec, position vector) | {res.rotation_arcsec[k]:.4f} | "
-                     f"{res.rotation_sigma_arcsec[k]:.4f} |")
     sc, ss = np.atleast_1d(res.scale_ppm), np.atleast_1d(res.scale_sigma_ppm)
     for k in range(len(sc)):
         lines.append(f"| scale{'' if len(sc) == 1 else ' ' + 'xyz'[k]} (ppm) | {sc[k]:.3f} | "
                      f"{ss[k]:.3f} |")
+    unit, per_arcsec = ANGLE_UNITS[angles]
+    lines += ["", f"| rotation (position vector) | arcsec | std. dev. (arcsec, {basis}) | "
+              f"{unit} | std. dev. ({unit}) |", "|---|---:|---:|---:|---:|"]
+    for k, name in enumerate("xyz"):
+        r, sd = res.rotation_arcsec[k], res.rotation_sigma_arcsec[k]
+        lines.append(f"| r{name} | {r:.4f} | {sd:.4f} | {r * per_arcsec:.8f} | "
+                     f"{sd * per_arcsec:.8f} |")
     cf = res.rotation_arcsec_cf
     lines += ["", f"Rotations in the coordinate-frame convention (EPSG 1032): "
               f"{cf[0]:.4f}, {cf[1]:.4f}, {cf[2]:.4f} arcsec.", "",
-              f"σ0 a posteriori: {res.sigma0:.4f}"]
+              f"PROJ: `{res.to_proj()}`", ""]
+    lines += _correlations(res)
+    lines += _tests(res)
+    if snooping is not None:
+        lines += _snooping(snooping)
+    lines += ["## Residuals", "",
+              "| point | vx (mm) | vy (mm) | vz (mm) | redundancy | test | MDB (mm) |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+    rank = {k: i + 1 for i, k in enumerate(res.outliers)}
+    for i, pid in enumerate(res.ids):
+        v = res.residuals[i] * 1000
+        flag = f" **({rank[pid]})**" if pid in rank else ""
+        lines.append(f"| {pid}{flag} | {v[0]:.2f} | {v[1]:.2f} | {v[2]:.2f} | "
+                     f"{res.redundancy[i].mean():.2f} | {res.w_tests[i]:.2f} | "
+                     f"{res.mdb_m[i] * 1000:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def _correlations(res: HelmertResult) -> list[str]:
+    """The correlation matrix and the warnings above |rho| = 0.95."""
+    names = res.parameter_names
+    lines = ["## Correlations of the parameters", "",
+             "Translations at the centroid of the points (the PROJ translation at the "
+             "origin is always correlated with the rotations).", "",
+             "| | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
+    for i, a in enumerate(names):
+        lines.append(f"| {a} | " + " | ".join(f"{res.correlation[i, k]:.3f}"
+                                              for k in range(len(names))) + " |")
+    lines.append("")
+    lines += [f"- **Warning:** {w}." for w in res.correlation_warnings]
+    return lines + ([""] if res.correlation_warnings else [])
+
+
+def _tests(res: HelmertResult) -> list[str]:
+    """sigma0, the global test and every point above the critical value."""
+    lines = ["## Tests", "", f"σ0 a posteriori: {res.sigma0:.4f}"]
     g = res.global_test
     if g.get("interval"):
         lo, hi = g["interval"]
@@ -49,18 +117,52 @@ def helmert_report(res: HelmertResult, *, title: str = "Helmert adjustment") -> 
     else:
         lines.append("Global test: not applicable (no a priori standard deviations; σ0 "
                      "estimated, τ-tests used).")
-    name = "Baarda w" if res.test == "w" else "Pope τ"
-    lines += ["", f"Outlier test: {name}, critical value {res.critical:.2f} (α = 0.001). "
-              f"Flagged: {', '.join(res.outliers) if res.outliers else 'none'}.", "",
-              "| point | vx (mm) | vy (mm) | vz (mm) | redundancy | test | MDB (mm) |",
-              "|---|---:|---:|---:|---:|---:|---:|"]
-    for i, pid in enumerate(res.ids):
-        v = res.residuals[i] * 1000
-        flag = " **" if pid in res.outliers else ""
-        lines.append(f"| {pid}{flag} | {v[0]:.2f} | {v[1]:.2f} | {v[2]:.2f} | "
-                     f"{res.redundancy[i].mean():.2f} | {res.w_tests[i]:.2f} | "
-                     f"{res.mdb_m[i] * 1000:.1f} |")
-    return "\n".join(lines) + "\n"
+    if res.test == "w":
+        name = ("Baarda w (Baarda 1968), critical value "
+                f"{res.critical:.2f} (α0 = 0.001, two-sided standard normal)")
+    else:
+        name = (f"Pope τ (σ0 estimated; Pope 1976), critical value {res.critical:.2f} "
+                f"(α0 = 0.001, {res.dof} degrees of freedom)")
+    sym = "w" if res.test == "w" else "τ"
+    lines += ["", f"Outlier test: {name}."]
+    if res.outliers:
+        ranked = ", ".join(f"{t['id']} {sym} = {t['statistic']:.2f}"
+                           for t in res.outlier_tests)
+        lines.append(f"Above the critical value, largest first ({len(res.outliers)}): "
+                     f"{ranked}.")
+        if len(res.outliers) > 1:
+            lines.append("Only the largest is an outlier for certain: one blunder raises "
+                         "its neighbours' tests too. Remove one point at a time (data "
+                         "snooping: `tunnelsim adjust --snoop`).")
+    else:
+        lines.append("Flagged: none.")
+    return lines + [""]
+
+
+def _snooping(sn: Snooping) -> list[str]:
+    """Points excluded by hand and every step of data snooping."""
+    lines = []
+    if sn.excluded:
+        lines += [f"Excluded by hand (--exclude): {', '.join(sn.excluded)}.", ""]
+    if not sn.snooped:
+        return lines
+    first = sn.initial
+    lines += ["## Data snooping (Baarda 1968)", "",
+              "Iterative: the point with the largest test above the critical value (w: "
+              "3.29 for α0 = 0.001, two-sided standard normal; τ when σ0 is estimated) is "
+              "removed and the network adjusted again, until no test exceeds it.", "",
+              "| step | removed | test | critical | σ0 after | points left | still above |",
+              "|---:|---|---:|---:|---:|---:|---:|",
+              f"| 0 | – | – | {first.critical:.2f} | {first.sigma0:.4f} | {len(first.ids)} | "
+              f"{len(first.outliers)} |"]
+    for k, st in enumerate(sn.steps, start=1):
+        sym = "w" if st.test == "w" else "τ"
+        lines.append(f"| {k} | {st.removed} | {sym} = {st.statistic:.2f} | "
+                     f"{st.critical:.2f} | {st.sigma0_after:.4f} | {st.points_left} | "
+                     f"{st.above_after} |")
+    gone = ", ".join(sn.removed) if sn.steps else "none"
+    lines += ["", f"Removed: {gone}. Ended: {sn.stopped}.", ""]
+    return lines
 
 
 def drift_report(corr: DriftCorrection, loo: NDArray[np.float64], *,

@@ -70,11 +70,14 @@ def test_noise_free_large_rotations_are_recovered_exactly(angles, model):
     assert np.abs(res.residuals).max() < 1e-8
 
 
-def test_reflection_is_not_fitted():
-    """Mirrored target: the closed form must not return a reflection (det R = +1)."""
+def test_reflection_is_refused_or_not_fitted():
+    """Mirrored target: refused (issue 21); with allow_reflection the closed form must
+    still not return a reflection (det R = +1)."""
     src = _pts(10, seed=4)
     dst = src * [1, -1, 1]
-    res = fit_helmert(src, dst)
+    with pytest.raises(HelmertError, match="mirror images"):
+        fit_helmert(src, dst)
+    res = fit_helmert(src, dst, allow_reflection=True)
     assert np.linalg.det(res.rotation_matrix) == pytest.approx(1.0)
     assert np.abs(res.residuals).max() > 1.0      # a rotation cannot fit a mirror image
 
@@ -127,13 +130,17 @@ def test_blunder_is_flagged_and_clean_points_are_not():
     dst = _proj(src, "position_vector", True) + rng.normal(0, 0.002, src.shape)
     dst[6, 2] += 10 * 0.002 * 2          # 20 sigma in z
     res = fit_helmert(src, dst, sigma_target_m=0.002, ids=[f"P{i}" for i in range(15)])
-    assert res.outliers == ["P6"] and res.test == "w"
+    # Every point above the critical value is listed, largest first (issue 21: not
+    # only the worst); the blunder leads, its neighbours smeared by it may follow.
+    assert res.outliers[0] == "P6" and res.test == "w"
+    above = [f"P{i}" for i in np.argsort(-res.w_tests) if res.w_tests[i] > res.critical]
+    assert res.outliers == above
     assert res.w_tests[6] > res.critical == pytest.approx(3.29)
     assert np.argmax(res.w_tests) == 6
     assert res.redundancy.sum() == pytest.approx(3 * 15 - 7, rel=1e-9)
     assert np.all(res.mdb_m > 0) and res.global_test["passed"] is False
     res2 = fit_helmert(src, dst, ids=[f"P{i}" for i in range(15)])      # no sigmas: tau
-    assert res2.test == "tau" and res2.outliers == ["P6"]
+    assert res2.test == "tau" and res2.outliers[0] == "P6"
 
 
 def test_bad_input_is_reported():
@@ -204,7 +211,11 @@ def test_textbook_example_with_errors_in_both_systems():
                    [8780.080, 4840.290, 782.620], [10185.800, 4700.210, 851.320]])
     s_src = np.array([[7, 8, 5], [11, 8, 9], [6, 5, 7], [5, 8, 9]]) * 0.001
     s_tgt = np.array([[5, 6, 5], [4, 6, 9], [2, 4, 2], [3, 5, 3]]) * 0.01
-    gh = fit_helmert(x, xt, sigma_source_m=s_src, sigma_target_m=s_tgt)
+    # A real scale of 0.95 (-50,000 ppm, a local system): beyond the unit guard, so
+    # it is allowed explicitly (issue 21).
+    with pytest.raises(HelmertError, match="same unit"):
+        fit_helmert(x, xt, sigma_source_m=s_src, sigma_target_m=s_tgt)
+    gh = fit_helmert(x, xt, sigma_source_m=s_src, sigma_target_m=s_tgt, allow_scale=True)
     assert 1 + gh.scale_ppm * 1e-6 == pytest.approx(0.9499549354, abs=5e-11)
-    target_only = fit_helmert(x, xt, sigma_target_m=s_tgt)
+    target_only = fit_helmert(x, xt, sigma_target_m=s_tgt, allow_scale=True)
     assert abs(1 + target_only.scale_ppm * 1e-6 - 0.9499549354) > 1e-7

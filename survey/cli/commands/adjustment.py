@@ -12,26 +12,45 @@ def register(commands: CommandSet) -> None:
         "adjust", cmd_adjust, help="Helmert adjustment between two control-point files",
         description="Least-squares Helmert transformation (PROJ form, position-vector "
                     "convention) between two CSV files of control points (id,x,y,z"
-                    "[,sigma|sx,sy,sz]) matched by id, with residuals, sigma0, global test "
-                    "and outlier tests.",
-        epilog="Example: tunnelsim adjust mls_cp.csv total_station.csv --model 7 --report "
-               "adjust.md --json helmert.json")
+                    "[,sigma|sx,sy,sz]) matched by id, with residuals, sigma0, global test, "
+                    "every w/tau-test above its critical value, correlations and the PROJ "
+                    "string. Refused unless meant: mirror images (swapped axes), a scale "
+                    "beyond 1,000 ppm (different units), no convergence.",
+        epilog="Example: tunnelsim adjust mls_cp.csv total_station.csv --model 7 --snoop "
+               "--report adjust.md --json helmert.json")
     c.option("source", path="in", help="control points in the source system (CSV)")
     c.option("target", path="in", help="control points in the target system (CSV)")
     c.option("--model", choices=["7", "6", "9"], default="7",
              help="7 similarity (default), 6 rigid, 9 scale per axis")
+    c.option("--exclude", metavar="ID,...", help="leave these control points out")
+    c.option("--snoop", action="store_true",
+             help="Baarda's data snooping: remove the point with the largest test above "
+                  "the critical value, adjust again, repeat until none is above")
+    c.option("--strict", action="store_true",
+             help="refuse ids found in only one file (default: a warning)")
+    c.option("--angles", choices=["deg", "gon"], default="deg",
+             help="rotations in arcsec and degrees (default) or gon")
+    c.option("--allow-reflection", action="store_true",
+             help="fit even when the two systems are mirror images")
+    c.option("--allow-scale", action="store_true",
+             help="accept a scale beyond 1,000 ppm")
+    c.option("--max-iter", type=int, default=50, metavar="N",
+             help="Gauss-Newton iterations at most (default 50)")
     c.option("--report", path="out", help="write the Markdown report here")
     c.option("--json", path="out", help="write the result (parameters and statistics) here")
     c.option("--quiet", action="store_true", help="do not print the report")
 
     c = commands.add(
         "transform", cmd_transform, help="apply a Helmert transform to a point cloud",
-        description="Apply the Helmert transform of 'tunnelsim adjust --json' to a LAS/LAZ "
-                    "or binary PLY cloud, chunk by chunk, keeping every other field.",
+        description="Apply the Helmert transform of 'tunnelsim adjust --json' (or its "
+                    "inverse) to a LAS/LAZ or binary PLY cloud, chunk by chunk, keeping "
+                    "every other field.",
         epilog="Example: tunnelsim transform --helmert helmert.json mls.laz -o mls_utm.laz")
     c.option("cloud", path="in", help="input cloud (.las, .laz, .ply)")
     c.option("--helmert", required=True, path="in",
              help="Helmert JSON from 'tunnelsim adjust'")
+    c.option("--inverse", action="store_true",
+             help="apply the inverse transform (target system back to the source system)")
     c.option("-o", "--output", required=True, path="out", help="output cloud (same kind)")
     c.option("--quiet", action="store_true", help="print nothing on success")
 
@@ -60,22 +79,30 @@ def register(commands: CommandSet) -> None:
 
 
 def cmd_adjust(args) -> int:
-    from survey.adjust.controlpoints import match, read_control_points
-    from survey.adjust.helmert import fit_helmert
+    from survey.adjust.controlpoints import match, read_control_points, unmatched_message
+    from survey.adjust.snooping import data_snooping
     from survey.report.adjustment import helmert_report
 
     a = read_control_points(args.source)
     b = read_control_points(args.target)
-    ia, ib = match(a, b)
-    res = fit_helmert(a.xyz[ia], b.xyz[ib], model=args.model,
-                      sigma_source_m=None if a.sigma is None else a.sigma[ia],
-                      sigma_target_m=None if b.sigma is None else b.sigma[ib],
-                      ids=[a.ids[i] for i in ia])
-    text = helmert_report(res)
+    names = (str(args.source), str(args.target))
+    ia, ib = match(a, b, unmatched_ids="error" if args.strict else "warn", names=names)
+    lost = unmatched_message(a, b, names)
+    exclude = [k.strip() for k in (args.exclude or "").split(",") if k.strip()]
+    sn = data_snooping(a.xyz[ia], b.xyz[ib], ids=[a.ids[i] for i in ia], model=args.model,
+                       sigma_source_m=None if a.sigma is None else a.sigma[ia],
+                       sigma_target_m=None if b.sigma is None else b.sigma[ib],
+                       exclude=exclude, snoop=args.snoop, max_iter=args.max_iter,
+                       allow_reflection=args.allow_reflection,
+                       allow_scale=args.allow_scale)
+    res = sn.result
+    notes = [f"control point ids not in both files, left out: {lost}."] if lost else []
+    text = helmert_report(res, angles=args.angles, snooping=sn, notes=notes)
     if args.report:
         write_text(args.report, text)
     if args.json:
-        write_json(args.json, res.to_dict())
+        write_json(args.json, {**res.to_dict(), **sn.to_dict(),
+                               "unmatched_ids": lost or None})
     if not args.quiet:
         print(text, end="")
     return 0
@@ -96,9 +123,11 @@ def cmd_transform(args) -> int:
         res = HelmertResult.from_dict(json.loads(p.read_text()))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise TunnelsimCLIError(f"Expected JSON in '{p}', got invalid text ({exc}).") from exc
-    n = map_cloud(args.cloud, args.output, lambda xyz, t: res.apply(xyz))
+    move = res.apply_inverse if args.inverse else res.apply
+    n = map_cloud(args.cloud, args.output, lambda xyz, t: move(xyz))
     if not args.quiet:
-        print(f"transformed {n:,} points -> {args.output}")
+        way = "inverse-transformed" if args.inverse else "transformed"
+        print(f"{way} {n:,} points -> {args.output}")
     return 0
 
 
