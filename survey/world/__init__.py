@@ -1,5 +1,5 @@
 """The world a scanner sees: alignments, cross-section profiles, features, deformation
-epochs, the tunnel mesh and its files, the generator and the presets."""
+epochs, the tunnel mesh and its files, the generator, rock relief and the presets."""
 
 from .alignment import Alignment, Element, arc, clothoid, curve, straight
 from .profiles import Profile, arched_rectangle, circle, horseshoe
@@ -8,10 +8,11 @@ from .deformation import Bulge, Convergence, Ovalisation
 from .mesh import LABELS, REFLECTIVITY, TunnelMesh, read_axis, read_ply, read_tunnel, write_ply, write_tunnel
 from .generator import edge_length_for, make_tunnel
 from .presets import PRESETS, preset
+from .rock import RockRelief
 
 __all__ = ["Alignment", "Element", "arc", "clothoid", "curve", "straight", "Profile",
            "arched_rectangle", "circle", "horseshoe", "Bolts", "Cable", "Drainage", "Niche",
            "Prisms", "WetFloor", "Bulge", "Convergence", "Ovalisation", "LABELS",
            "REFLECTIVITY", "TunnelMesh", "read_axis", "read_ply", "read_tunnel",
            "write_ply", "write_tunnel", "edge_length_for", "make_tunnel", "PRESETS",
-           "preset"]
+           "preset", "RockRelief"]

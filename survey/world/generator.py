@@ -7,15 +7,17 @@ the design profile, then moves along the profile's outward normal by
 
 - a recess depth inside a niche or drainage channel (the recess walls are one
   ``RECESS_EDGE_M`` wide ring/column of the grid: near-vertical, never degenerate), and
-- the lining roughness: a stationary Gaussian random field with Gaussian
-  autocorrelation exp(-d^2 / (2 L^2)) over the developed lining (chainage, t), made by
-  smoothing white noise on a fixed grid (L/4 cells) with a Gaussian kernel of standard
-  deviation L / sqrt(2), then interpolated to the vertices; it is independent of the
-  mesh resolution for a given seed, scaled to ``roughness_rms_m`` and clipped at
-  ``ROUGHNESS_CLIP`` standard deviations.
+- the surface relief (``survey.world.rock``): the lining roughness (a Gaussian texture,
+  ``roughness_rms_m``, clipped at ``ROUGHNESS_CLIP`` standard deviations) and, for a
+  drill-and-blast tunnel, the rock relief's overbreak (``relief``). Both are fields over
+  the developed lining sampled on fixed grids: the same seed gives the same surface at
+  every edge length.
 
-Cables, bolt plates and prisms are separate closed solids. Faces of the lining point
-into the tunnel (towards a scanner); faces of the closed solids point out of them.
+Cables, bolt plates and prisms are separate closed solids placed on the relieved
+surface: each is offset along the profile normal by the relief of the lining grid at its
+(chainage, t), interpolated on the grid's own triangles, so it sits on the rock whatever
+the relief. Faces of the lining point into the tunnel (towards a scanner); faces of the
+closed solids point out of them.
 Everything is vectorised NumPy: a 1M-triangle tunnel takes seconds.
 """
 
@@ -33,6 +35,7 @@ from survey.world import features as F
 from survey.world.alignment import Alignment
 from survey.world.mesh import LABEL, LABELS, REFLECTIVITY, TunnelMesh
 from survey.world.profiles import Profile
+from survey.world.rock import TEXTURE_CLIP, RockRelief, surface_relief
 
 __all__ = ["MAX_TRIANGLES", "RECESS_EDGE_M", "ROUGHNESS_CLIP", "edge_length_for",
            "fan_faces", "grid_faces", "make_tunnel"]
@@ -44,7 +47,10 @@ Ints = NDArray[np.int64]
 #: Width of the sloping wall of a recess (niche sides, sill and lintel; channel banks).
 RECESS_EDGE_M = 0.02
 #: Roughness is clipped at this many standard deviations (so it is bounded).
-ROUGHNESS_CLIP = 3.5
+ROUGHNESS_CLIP = TEXTURE_CLIP
+#: How far bolt plates and prism stalks reach into the rock behind their footprint's
+#: highest point, so that no gap opens under them (m).
+_EMBED_M = 0.005
 #: Largest mesh the generator will build (guards against a mistyped edge length).
 MAX_TRIANGLES = 60_000_000
 #: Sides of the stalk of a prism and its cross-section (m).
@@ -75,28 +81,6 @@ def _fill(breaks: ArrayLike, spacing: float) -> Floats:
     step = np.repeat(np.diff(b) / n, n)
     k = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
     return np.append(start + k * step, b[-1])
-
-
-def _roughness(s: Floats, t: Floats, s0: float, length: float, perimeter: float,
-               rms: float, corr: float, seed: int) -> Floats:
-    """Roughness field (len(s), len(t)) on the ring x profile grid (see module doc)."""
-    from scipy.ndimage import gaussian_filter, map_coordinates
-
-    g = corr / 4.0
-    ns = int(np.ceil(length / g)) + 1
-    nt = max(8, int(np.ceil(perimeter / g)))
-    gs, gt = length / (ns - 1), perimeter / nt
-    rng = np.random.default_rng(seed)
-    noise = rng.standard_normal((ns, nt))
-    sig = corr / np.sqrt(2.0)
-    fld = gaussian_filter(noise, (sig / gs, sig / gt), mode=("nearest", "wrap"))
-    fld /= max(fld.std(), 1e-300)
-    fld = np.concatenate([fld, fld[:, :1]], axis=1)  # periodic in t
-    ii = np.broadcast_to(((s - s0) / gs)[:, None], (len(s), len(t)))
-    jj = np.broadcast_to((t / gt)[None, :], (len(s), len(t)))
-    out = map_coordinates(fld, [ii.ravel(), jj.ravel()], order=1, mode="nearest")
-    out = out.reshape(len(s), len(t)) * rms
-    return np.clip(out, -ROUGHNESS_CLIP * rms, ROUGHNESS_CLIP * rms)
 
 
 def _rel(t: ArrayLike, t0: float, per: float) -> Any:
@@ -181,7 +165,7 @@ class _Tunnel(NamedTuple):
     profile: Profile
     c0: float
     c1: float
-    roughness_rms_m: float
+    reach_m: float          # farthest the relieved lining lies outside the design line
 
 
 def _span(f: Any, tun: _Tunnel) -> tuple[float, float]:
@@ -197,8 +181,11 @@ def _span(f: Any, tun: _Tunnel) -> tuple[float, float]:
 
 def _check_parameters(alignment: Alignment, profile: Profile, edge_length_m: float,
                       roughness_rms_m: float, roughness_corr_m: float,
-                      features: Sequence[object]) -> float:
+                      features: Sequence[object], relief: object) -> float:
     """Validate make_tunnel's arguments; the edge length as a float."""
+    if relief is not None and not isinstance(relief, RockRelief):
+        raise TunnelError(f"Expected `relief` as a RockRelief or None, got "
+                          f"{type(relief).__name__}.")
     if not isinstance(alignment, Alignment) or not isinstance(profile, Profile):
         raise TunnelError(f"Expected an Alignment and a Profile, got "
                           f"{type(alignment).__name__} and {type(profile).__name__}.")
@@ -276,8 +263,7 @@ def _check_fit(tun: _Tunnel, recesses: Sequence[_Recess], closed_ends: bool) -> 
     """The lining must not fold in curves, and fan caps need a star-shaped profile."""
     # A curve tighter than the tunnel is wide folds the lining on its inner side.
     left, right, _, _ = tun.profile.extent()
-    reach = max((r.depth for r in recesses), default=0.0) + \
-        ROUGHNESS_CLIP * tun.roughness_rms_m
+    reach = max((r.depth for r in recesses), default=0.0) + tun.reach_m
     r_left, r_right = tun.alignment.min_radius()
     for side, ext, rad, sgn in (("left", left, r_left, 1), ("right", right, r_right, -1)):
         if ext + reach >= rad:
@@ -295,12 +281,40 @@ def _check_fit(tun: _Tunnel, recesses: Sequence[_Recess], closed_ends: bool) -> 
 _GRID_TOL_M = 1e-7
 
 
+class _Grid(NamedTuple):
+    """The lining grid: ring chainages (nr,), profile parameters (k,) and the surface
+    relief (nr, k) of its vertices (recesses not included), m."""
+
+    s: Floats
+    t: Floats
+    relief: Floats
+
+
+def _on_grid(grid: _Grid, per: float, sq: ArrayLike, tq: ArrayLike) -> Floats:
+    """The relief at points (sq, tq) (same shape) as the lining mesh carries it:
+    linear on each grid triangle (cells split along the diagonal from (i, j + 1) to
+    (i + 1, j), as ``grid_faces`` does), so a feature offset by it sits on the mesh."""
+    s, t, f = grid
+    sq = np.asarray(sq, dtype=np.float64)
+    tq = np.mod(np.asarray(tq, dtype=np.float64), per)
+    i = np.clip(np.searchsorted(s, sq, side="right") - 1, 0, len(s) - 2)
+    j = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, len(t) - 1)
+    j1 = (j + 1) % len(t)
+    t_hi = np.where(j1 == 0, per, t[j1])
+    u = np.clip((sq - s[i]) / (s[i + 1] - s[i]), 0.0, 1.0)
+    v = np.clip((tq - t[j]) / (t_hi - t[j]), 0.0, 1.0)
+    fa, fb, fc, fd = f[i, j], f[i, j1], f[i + 1, j], f[i + 1, j1]
+    lower = fa + u * (fc - fa) + v * (fb - fa)
+    upper = fd + (1 - u) * (fb - fd) + (1 - v) * (fc - fd)
+    return np.asarray(np.where(u + v <= 1.0, lower, upper), dtype=np.float64)
+
+
 def _lining(b: _Builder, tun: _Tunnel, s: Floats, t: Floats,
             recesses: Sequence[_Recess], features: Sequence[F.Feature],
-            roughness_corr_m: float, seed: int, closed_ends: bool) -> None:
+            relief: Floats, closed_ends: bool) -> None:
     """The lining grid (rings at chainages ``s`` x profile parameters ``t``): vertices
-    pushed into recesses and by the roughness, faces labelled per cell, and the fan caps
-    of closed ends."""
+    pushed into recesses and by the surface ``relief`` (nr, k), faces labelled per cell,
+    and the fan caps of closed ends."""
     alignment, profile, c0, c1 = tun.alignment, tun.profile, tun.c0, tun.c1
     per, e, tol = profile.perimeter_m, RECESS_EDGE_M, _GRID_TOL_M
     k, nr = len(t), len(s)
@@ -312,9 +326,7 @@ def _lining(b: _Builder, tun: _Tunnel, s: Floats, t: Floats,
         rel = _rel(t, t0, per)
         cols = (rel >= e - tol) & (rel <= w - e + tol)
         push[np.ix_(rows, cols)] += depth
-    if tun.roughness_rms_m > 0:
-        push += _roughness(s, t, c0, c1 - c0, per, tun.roughness_rms_m, roughness_corr_m,
-                           seed)
+    push += relief
     yz += push[:, :, None] * n2[None, :, :]
     verts = alignment.to_world(s[:, None], yz[..., 0], yz[..., 1]).reshape(-1, 3)
     faces = grid_faces(nr, k, 0, outward=False)
@@ -347,19 +359,21 @@ def _lining(b: _Builder, tun: _Tunnel, s: Floats, t: Floats,
         b.n += 2
 
 
-def _cable(b: _Builder, tun: _Tunnel, f: F.Cable, s: Floats) -> None:
-    """A closed polygonal tube along the rings of the lining, capped at both ends."""
+def _cable(b: _Builder, tun: _Tunnel, f: F.Cable, grid: _Grid) -> None:
+    """A closed polygonal tube along the rings of the lining, ``gap_m`` clear of the
+    relieved surface at its profile point on every ring, capped at both ends."""
     profile, alignment, tol = tun.profile, tun.alignment, _GRID_TOL_M
     a, bb = _span(f, tun)
     tc = profile.t_at_height(f.side, f.height_m)
     p, n = profile.points(tc), profile.normals(tc)
-    centre = p - n * (f.gap_m + f.radius_m)
+    rs = grid.s[(grid.s >= a - tol) & (grid.s <= bb + tol)]
+    lift = _on_grid(grid, profile.perimeter_m, rs, np.full(len(rs), tc))
+    centre = p[None] - n[None] * (f.gap_m + f.radius_m - lift)[:, None]    # (nr, 2)
     phi = 2 * np.pi * np.arange(int(f.sides)) / int(f.sides)
-    ring = centre + f.radius_m * np.stack([np.cos(phi), np.sin(phi)], 1)
-    rs = s[(s >= a - tol) & (s <= bb + tol)]
-    m = len(ring)
-    cv = alignment.to_world(rs[:, None], ring[None, :, 0], ring[None, :, 1])
-    cc = alignment.to_world(np.array([rs[0], rs[-1]]), centre[0], centre[1])
+    ring = centre[:, None] + f.radius_m * np.stack([np.cos(phi), np.sin(phi)], 1)[None]
+    m = ring.shape[1]
+    cv = alignment.to_world(rs[:, None], ring[..., 0], ring[..., 1])
+    cc = alignment.to_world(rs[[0, -1]], centre[[0, -1], 0], centre[[0, -1], 1])
     verts_c = np.concatenate([cv.reshape(-1, 3), cc])
     nc = len(rs) * m
     fc = np.concatenate([grid_faces(len(rs), m, 0, outward=True),
@@ -369,40 +383,56 @@ def _cable(b: _Builder, tun: _Tunnel, f: F.Cable, s: Floats) -> None:
           tc)
 
 
-def _embedded_box(tun: _Tunnel, p: Floats, n: Floats, sc: float, size: float,
-                  height: float) -> Floats:
-    """The 8 world corners of a box ``size`` wide (along the tunnel and the profile)
-    standing ``height`` proud of the lining point p (normal n) at chainage sc, sunk a
-    little into the lining so that roughness never opens a gap under it."""
-    tau = np.array([-n[1], n[0]])
-    embed = ROUGHNESS_CLIP * tun.roughness_rms_m + 0.005
+def _embedded_boxes(tun: _Tunnel, grid: _Grid, tc: float, sc: Floats, size: float,
+                    height: float) -> tuple[Floats, Floats]:
+    """World corners (m, 8, 3) of boxes ``size`` wide (along the tunnel and the
+    profile) standing ``height`` proud of the relieved lining points at (sc (m,), tc),
+    and those points' relief (m,). Each box's back reaches ``_EMBED_M`` behind the
+    highest point of the relief under its footprint, so no gap opens under it."""
+    p, n = tun.profile.points(tc), tun.profile.normals(tc)
+    tau = np.array([-n[1], n[0]])            # direction of increasing t
+    per = tun.profile.perimeter_m
+    sc = np.asarray(sc, dtype=np.float64)
+    lift = _on_grid(grid, per, sc, np.full(len(sc), tc))
+    # The footprint sampled 5 x 5 (the grid's relief is piecewise linear; its maximum
+    # between samples exceeds theirs by a fraction of a millimetre at 0.1 m edges).
+    off = np.linspace(-0.5, 0.5, 5) * size
+    under = _on_grid(grid, per, sc[:, None, None] + off[None, :, None],
+                     np.broadcast_to(tc + off[None, None, :], (len(sc), 5, 5)))
+    embed = under.reshape(len(sc), -1).max(axis=1) - lift + _EMBED_M
     x, u, w = _CUBE_V.T
-    sl = sc + (x - 0.5) * size
-    lat = p[None] + ((u - 0.5) * size)[:, None] * tau - \
-        (w * (height + embed) - embed)[:, None] * n
-    return tun.alignment.to_world(sl, lat[:, 0], lat[:, 1])
+    sl = sc[:, None] + (x - 0.5)[None] * size                              # (m, 8)
+    depth = lift[:, None] - (w[None] * (height + embed[:, None]) - embed[:, None])
+    lat = p + ((u - 0.5) * size)[None, :, None] * tau + depth[..., None] * n
+    return tun.alignment.to_world(sl, lat[..., 0], lat[..., 1]), lift
 
 
-def _bolts(b: _Builder, tun: _Tunnel, f: F.Bolts,
+def _add_boxes(b: _Builder, boxes: Floats, label: int, sc: Floats, tc: float) -> None:
+    """Add boxes (m, 8, 3) as one part, each attached to the lining at (sc[i], tc)."""
+    m = len(boxes)
+    faces = (_CUBE_F[None] + 8 * np.arange(m)[:, None, None]).reshape(-1, 3)
+    b.add(boxes.reshape(-1, 3), faces, label, np.repeat(sc, 8), tc)
+
+
+def _bolts(b: _Builder, tun: _Tunnel, f: F.Bolts, grid: _Grid,
            in_niche: Callable[[float, float, float], bool]) -> None:
     """Bolt bearing plates: boxes every ``spacing_m`` at each angle (none in niches)."""
     a, bb = _span(f, tun)
     chain = np.arange(a + f.spacing_m / 2, bb - f.plate_m / 2, f.spacing_m)
     for ang in f.angles_rad:
         tb = tun.profile.t_at_angle(ang)
-        p, n = tun.profile.points(tb), tun.profile.normals(tb)
-        for sb in chain:
-            if in_niche(sb, tb, f.plate_m):
-                continue
-            b.add(_embedded_box(tun, p, n, sb, f.plate_m, f.thickness_m), _CUBE_F,
-                  LABEL["bolt"], sb, tb)
+        sb = np.array([c for c in chain if not in_niche(c, tb, f.plate_m)])
+        if len(sb):
+            boxes, _ = _embedded_boxes(tun, grid, tb, sb, f.plate_m, f.thickness_m)
+            _add_boxes(b, boxes, LABEL["bolt"], sb, tb)
 
 
-def _prisms(b: _Builder, tun: _Tunnel, f: F.Prisms,
+def _prisms(b: _Builder, tun: _Tunnel, f: F.Prisms, grid: _Grid,
             in_niche: Callable[[float, float, float], bool],
             control: list[dict[str, Any]]) -> None:
-    """Prisms (a sphere on a stalk) per cross-section and angle; their centres are
-    appended to ``control`` as control points."""
+    """Prisms (a sphere on a stalk ``standoff_m`` long, standing on the relieved
+    lining) per cross-section and angle; their centres are appended to ``control`` as
+    control points."""
     c0, c1, profile, alignment = tun.c0, tun.c1, tun.profile, tun.alignment
     sph_v, sph_f = icosphere(1, f.radius_m)
     for sc in f.chainages_m:
@@ -414,20 +444,22 @@ def _prisms(b: _Builder, tun: _Tunnel, f: F.Prisms,
             if in_niche(sc, tp, 0.05):
                 raise TunnelError(f"Expected prisms outside niches, got one at "
                                   f"chainage {sc:g} m, angle {ang:g} rad.")
+            stalk, lifts = _embedded_boxes(tun, grid, tp, np.array([sc]), _STALK_M,
+                                           f.standoff_m)
+            lift = float(lifts[0])
             p, n = profile.points(tp), profile.normals(tp)
-            ctr = p - n * f.standoff_m
+            ctr = p + n * (lift - f.standoff_m)
             cw = alignment.to_world(sc, ctr[0], ctr[1])
             b.add(cw + sph_v, sph_f, LABEL["prism"], sc, tp)
-            b.add(_embedded_box(tun, p, n, sc, _STALK_M, f.standoff_m), _CUBE_F,
-                  LABEL["prism"], sc, tp)
+            b.add(stalk[0], _CUBE_F, LABEL["prism"], sc, tp)
             th = alignment.heading(sc)
             nw = [float(-n[0] * np.sin(th)), float(n[0] * np.cos(th)), float(n[1])]
             control.append({"id": f"P{len(control) + 1:03d}", "chainage_m": sc,
                             "angle_rad": ang, "profile_t_m": float(tp),
-                            "xyz": cw.tolist(), "lining_normal": nw})
+                            "xyz": cw.tolist(), "lining_normal": nw, "relief_m": lift})
 
 
-def _solids(b: _Builder, tun: _Tunnel, features: Sequence[F.Feature], s: Floats,
+def _solids(b: _Builder, tun: _Tunnel, features: Sequence[F.Feature], grid: _Grid,
             recesses: Sequence[_Recess]) -> list[dict[str, Any]]:
     """Cables, bolt plates and prisms as closed solids, in the order given; returns the
     control points (the prism centres)."""
@@ -442,18 +474,19 @@ def _solids(b: _Builder, tun: _Tunnel, features: Sequence[F.Feature], s: Floats,
     control: list[dict[str, Any]] = []
     for f in features:
         if isinstance(f, F.Cable):
-            _cable(b, tun, f, s)
+            _cable(b, tun, f, grid)
         elif isinstance(f, F.Bolts):
-            _bolts(b, tun, f, in_niche)
+            _bolts(b, tun, f, grid, in_niche)
         elif isinstance(f, F.Prisms):
-            _prisms(b, tun, f, in_niche, control)
+            _prisms(b, tun, f, grid, in_niche, control)
     return control
 
 
 def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float = 0.1,
-                features: Iterable[F.Feature] = (), roughness_rms_m: float = 0.002,
-                roughness_corr_m: float = 0.3, closed_ends: bool = False, seed: int = 0,
-                name: str = "tunnel") -> TunnelMesh:
+                features: Iterable[F.Feature] = (), roughness_rms_m: float | None = None,
+                roughness_corr_m: float | None = None, relief: RockRelief | None = None,
+                closed_ends: bool = False, seed: int = 0, name: str = "tunnel"
+                ) -> TunnelMesh:
     """Generate a tunnel mesh.
 
     Parameters
@@ -466,12 +499,18 @@ def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float 
         Target edge length of the lining grid (see ``edge_length_for``).
     features : sequence
         ``Cable``, ``Niche``, ``Drainage``, ``WetFloor``, ``Bolts``, ``Prisms``.
-    roughness_rms_m, roughness_corr_m : float
-        Lining roughness (standard deviation, correlation length); 0 for a smooth lining.
+    roughness_rms_m, roughness_corr_m : float or None
+        Lining roughness, the fine texture everywhere (standard deviation, correlation
+        length); 0 for a smooth lining. None: the relief's ``texture_rms_m`` /
+        ``texture_corr_m`` when ``relief`` is given, else 0.002 m / 0.3 m (a smooth
+        segmental or shotcrete lining). Values given replace the relief's texture.
+    relief : RockRelief or None
+        Drill-and-blast overbreak on top of the roughness (``survey.world.rock``);
+        None for a smooth lining.
     closed_ends : bool
         Cap both portals (watertight) instead of leaving them open.
     seed : int
-        Seed of the roughness field.
+        Seed of the roughness and relief fields (>= 0).
     name : str
         Recorded in the metadata.
 
@@ -480,17 +519,29 @@ def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float 
     TunnelMesh
     """
     features = list(features)
+    # DECISION: roughness and relief add up (texture + overbreak); the roughness is the
+    # texture layer of the rock relief, so a relief brings its own unless one is given,
+    # and the texture of a given seed is the same surface with or without the relief.
+    if roughness_rms_m is None:
+        roughness_rms_m = relief.texture_rms_m if isinstance(relief, RockRelief) else 0.002
+    if roughness_corr_m is None:
+        roughness_corr_m = relief.texture_corr_m if isinstance(relief, RockRelief) else 0.3
     h = _check_parameters(alignment, profile, edge_length_m, roughness_rms_m,
-                          roughness_corr_m, features)
+                          roughness_corr_m, features, relief)
     c0, c1 = alignment.chainage_range
-    tun = _Tunnel(alignment, profile, c0, c1, roughness_rms_m)
+    reach = ROUGHNESS_CLIP * roughness_rms_m + (0.0 if relief is None
+                                                else relief.overbreak_max_m)
+    tun = _Tunnel(alignment, profile, c0, c1, reach)
     recesses, s_breaks, t_breaks = _plan_recesses(tun, features, closed_ends)
     _check_fit(tun, recesses, closed_ends)
     s = _fill(s_breaks, h)
     t = profile.sample(h, breaks=t_breaks)
+    grid = _Grid(s, t, surface_relief(profile, s, t, c0, c1, texture_rms_m=roughness_rms_m,
+                                      texture_corr_m=roughness_corr_m, relief=relief,
+                                      seed=seed))
     b = _Builder()
-    _lining(b, tun, s, t, recesses, features, roughness_corr_m, seed, closed_ends)
-    control = _solids(b, tun, features, s, recesses)
+    _lining(b, tun, s, t, recesses, features, grid.relief, closed_ends)
+    control = _solids(b, tun, features, grid, recesses)
     verts, faces, labels, vs, vt = b.result()
     counts = np.bincount(labels, minlength=len(LABELS))
     meta = {
@@ -501,7 +552,9 @@ def make_tunnel(alignment: Alignment, profile: Profile, *, edge_length_m: float 
         "parameters": {"edge_length_m": h, "roughness_rms_m": roughness_rms_m,
                        "roughness_corr_m": roughness_corr_m,
                        "roughness_clip_sigma": ROUGHNESS_CLIP, "closed_ends": closed_ends,
-                       "seed": int(seed), "recess_edge_m": RECESS_EDGE_M},
+                       "seed": int(seed), "recess_edge_m": RECESS_EDGE_M,
+                       "relief": None if relief is None else relief.to_dict(),
+                       "relief_reach_m": reach},
         "labels": {str(i): n for i, n in enumerate(LABELS)},
         "reflectivity": dict(REFLECTIVITY),
         "face_counts": {n: int(c) for n, c in zip(LABELS, counts) if c},

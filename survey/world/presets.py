@@ -4,16 +4,25 @@
 Observatory (BFO, Schiltach): an elongated, slightly curved, narrow gallery with cables
 along one wall, niches, a wet floor stretch and open portals. What the study states is
 kept (length ~300 m, width 2.5-3 m, a gentle curve, four cables on one wall, niches, a
-wet floor, open portals); everything else is ASSUMED and chosen to be typical of such
+wet floor, open portals); that it is an old drill-and-blast mine gallery with decimetre
+overbreak is from issue 15; everything else is ASSUMED and chosen to be typical of such
 galleries:
 
 - alignment: 120 m straight, a left curve of 300 m radius with 20 m clothoid
   transitions turning 0.25 rad (14.3 deg) in all, then straight to 300 m; a 1 % grade
   rising into the hill (drainage runs out of the portal);
 - profile: horseshoe of 2.8 m span, springline at 1.4 m, 2.8 m high, 2.05 m wide floor;
-- shotcrete roughness 3 mm rms with 0.3 m correlation length;
+- the rock relief of a drill-and-blast gallery (``survey.world.rock.RockRelief()``,
+  its defaults; sources and ASSUMED values listed there): decimetre overbreak (Gaussian,
+  mean 7 cm, rms 7 cm, 1.2 m correlation, underbreak clipped at 2 cm), a look-out
+  sawtooth of ~10 cm per 3 m blasting round (the round length of the rounds measured by
+  Dybeł et al. 2021), no overbreak on the levelled floor (0.3 m taper up the walls), and
+  a fine texture of 10 mm rms with 0.3 m correlation everywhere. Until issue 15 the
+  gallery had only a shotcrete-like roughness of 3 mm rms (0.3 m correlation), on which
+  LiDAR odometry (KISS-ICP) lost the motion along the axis; ``relief=None`` gives that
+  surface back;
 - four cables (12-20 mm radius) on the left wall between 1.50 and 1.74 m height, 3 cm
-  clear of the wall, from chainage 1 to 299 m;
+  clear of the rock (they follow its relief), from chainage 1 to 299 m;
 - three niches in the right wall at 75, 150 and 225 m: 1.5 m wide, 0.2-2.0 m high,
   0.8 m deep;
 - a drainage channel 25 cm wide, 15 cm deep along the right side of the floor;
@@ -24,6 +33,8 @@ galleries:
 - the monitoring epoch: 5 mm radial convergence between chainage 120 and 160 m
   (5 m tapers), the example of the generator's issue.
 
+``tbm`` is a bored tunnel: a smooth segmental lining (2 mm roughness), no rock relief.
+
 Coordinates are local (portal centreline at the origin, heading east) unless an
 ``origin`` (easting, northing, height) and ``heading_rad`` are given, e.g. UTM.
 """
@@ -31,7 +42,6 @@ Coordinates are local (portal centreline at the origin, heading east) unless an
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -43,8 +53,9 @@ from survey.world.deformation import Convergence, Deformation
 from survey.world.generator import make_tunnel
 from survey.world.mesh import TunnelMesh
 from survey.world.profiles import Profile, circle, horseshoe
+from survey.world.rock import RockRelief
 
-__all__ = ["PRESETS", "bfo_parts", "preset", "tbm_parts"]
+__all__ = ["PRESETS", "RELIEF", "bfo_parts", "preset", "tbm_parts"]
 
 #: (alignment, profile, features, deformations) of a preset world.
 Parts = tuple[Alignment, Profile, list[F.Feature], list[Deformation]]
@@ -99,25 +110,44 @@ def tbm_parts(origin: ArrayLike = (0.0, 0.0, 0.0), heading_rad: float = 0.0) -> 
 
 PRESETS: dict[str, Callable[[ArrayLike, float], Parts]] = {"bfo": bfo_parts,
                                                             "tbm": tbm_parts}
+#: The surface relief of each preset (None: a smooth lining).
+RELIEF: dict[str, RockRelief | None] = {"bfo": RockRelief(), "tbm": None}
+#: Lining roughness (m) of each preset without relief (the texture of a relief is its own).
+_SMOOTH_ROUGHNESS_M = {"bfo": 0.003, "tbm": 0.002}
 
 
 def preset(name: str, *, edge_length_m: float = 0.1, seed: int = 0,
            closed_ends: bool = False, roughness_rms_m: float | None = None,
+           relief: RockRelief | None | str = "preset",
            origin: ArrayLike = (0.0, 0.0, 0.0), heading_rad: float = 0.0
            ) -> tuple[TunnelMesh, list[Deformation]]:
     """Generate a preset tunnel ("bfo" or "tbm"); returns (TunnelMesh, its default
-    deformations). ``origin`` (3,) in m and ``heading_rad`` place it (e.g. in UTM)."""
+    deformations). ``origin`` (3,) in m and ``heading_rad`` place it (e.g. in UTM).
+
+    ``relief``: "preset" (default) for the preset's own (``RELIEF``: rock relief for
+    bfo, none for tbm), None for a smooth lining, or a ``RockRelief``.
+    ``roughness_rms_m``: the lining roughness, the Gaussian fine texture (standard
+    deviation, m), as it has always meant: without relief the same surface as before
+    for a seed (0.3 m correlation); with a relief it replaces the relief's texture rms
+    (its correlation length kept: 0.3 m for bfo), the overbreak staying. None: the
+    relief's texture, or without relief the preset's roughness (bfo 3 mm, tbm 2 mm).
+    """
     if name not in PRESETS:
         raise TunnelError(f"Expected a preset in {sorted(PRESETS)}, got {name!r}.")
+    if isinstance(relief, str):
+        if relief != "preset":
+            raise TunnelError(f"Expected `relief` as 'preset', None or a RockRelief, got "
+                              f"{relief!r}.")
+        relief = RELIEF[name]
     al, prof, feats, deform = PRESETS[name](origin, heading_rad)
-    kw: dict[str, Any] = {} if roughness_rms_m is None else {"roughness_rms_m": roughness_rms_m}
-    if name == "bfo" and roughness_rms_m is None:
-        kw["roughness_rms_m"] = 0.003
+    if roughness_rms_m is None and relief is None:
+        roughness_rms_m = _SMOOTH_ROUGHNESS_M[name]
     if closed_ends:  # recesses must stop short of closed ends
         feats = [f for f in feats if not isinstance(f, F.Drainage)] + \
             [F.Drainage(f.offset_m, f.width_m, f.depth_m, al.chainage_range[0] + 0.5,
                         al.chainage_range[1] - 0.5)
              for f in feats if isinstance(f, F.Drainage)]
     tun = make_tunnel(al, prof, edge_length_m=edge_length_m, features=feats, seed=seed,
-                      closed_ends=closed_ends, name=name, **kw)
+                      closed_ends=closed_ends, name=name, roughness_rms_m=roughness_rms_m,
+                      relief=relief)
     return tun, deform

@@ -18,6 +18,7 @@ from survey.world.mesh import LABEL, LABELS
 from survey.world.generator import ROUGHNESS_CLIP, edge_length_for, make_tunnel
 from survey.errors import TunnelError
 from survey.world.mesh import read_ply, read_tunnel
+from tests.naive import naive_cast
 
 ROUGH = 0.002
 
@@ -149,18 +150,59 @@ def test_recesses_have_their_depth(tun):
         assert d.max() == pytest.approx(depth, abs=ROUGHNESS_CLIP * ROUGH + 1e-6)
 
 
+def _lining_hit(tun, s, t, lift):
+    """Distance (n,) from the points lifted ``lift`` (n,) off the design lining at
+    chainages s, profile parameters t (inward positive) to the lining mesh, along the
+    outward design normal: all rays against the lining triangles near them."""
+    prof, al = tun.profile, tun.alignment
+    yz = prof.points(t) - prof.normals(t) * np.asarray(lift)[:, None]
+    origin = al.to_world(s, yz[:, 0], yz[:, 1])
+    tip = al.to_world(s, yz[:, 0] + prof.normals(t)[:, 0], yz[:, 1] + prof.normals(t)[:, 1])
+    grid = np.isin(tun.labels, [LABEL["lining"], LABEL["floor"], LABEL["wet_floor"]])
+    f = tun.faces[grid]
+    fs, ft = tun.vertex_chainage[f].mean(axis=1), tun.vertex_param[f].mean(axis=1)
+    out = np.empty(len(s))
+    for i in range(len(s)):
+        near = (np.abs(fs - s[i]) < 0.5) & (np.abs(ft - t[i]) < 0.5)
+        hit, *_ = naive_cast(tun.vertices, f[near], origin[i:i + 1],
+                             tip[i:i + 1] - origin[i:i + 1])
+        out[i] = hit[0]
+    return out
+
+
+#: How far a point placed at the lining grid's relief, interpolated in (chainage, t),
+#: can lie from the flat mesh triangles: the chord sagitta h^2 / (8 R) of a 0.1 m cell
+#: on the 1.4 m crown radius (0.9 mm), plus the relief (<= 3.5 x 2 mm) times the turn of
+#: the normal across the cell (0.1 / 1.4), plus rounding.
+ON_MESH_M = 0.1 ** 2 / (8 * 1.4) + ROUGHNESS_CLIP * ROUGH * 0.1 / 1.4 + 1e-4
+
+
 def test_cable_is_a_tube_of_its_radius_clear_of_the_wall(tun):
+    """Each ring of the tube is a circle of the cable's radius whose centre lies on the
+    design normal at the cable's height, gap + radius from the rough lining (ray cast
+    against the lining triangles)."""
     v = np.unique(tun.faces[tun.labels == LABEL["cable"]].ravel())
+    v = v[tun.vertex_param[v] == tun.vertex_param[v][0]]       # one cable's vertices
     s, off, h = tun.alignment.to_local(tun.vertices[v])
     prof = tun.profile
     t = prof.t_at_height("left", 1.5)
-    centre = prof.points(t) - prof.normals(t) * (0.03 + 0.02)
-    r = np.hypot(off - centre[0], h - centre[1])
-    ring = r > 1e-6                                   # cap centres sit on the axis
-    np.testing.assert_allclose(r[ring], 0.02, atol=1e-9)
-    assert s.min() == pytest.approx(2.0, abs=1e-9) and s.max() == pytest.approx(40.0, abs=1e-9)
-    gap = prof.distance(np.stack([off, h], 1))
-    assert gap.min() == pytest.approx(0.03, abs=1e-3)  # polygon chord vs circle
+    p, n = prof.points(t), prof.normals(t)
+    rings, inv = np.unique(np.round(s, 9), return_inverse=True)
+    assert rings.min() == pytest.approx(2.0, abs=1e-9)
+    assert rings.max() == pytest.approx(40.0, abs=1e-9)
+    yz = np.stack([off, h], 1)
+    ctr = np.array([yz[inv == i].mean(axis=0) for i in range(len(rings))])
+    r = np.linalg.norm(yz - ctr[inv], axis=1)
+    on_axis = r < 1e-9                                    # the two cap centres
+    assert on_axis.sum() == 2
+    np.testing.assert_allclose(r[~on_axis], 0.02, atol=1e-9)
+    across = (ctr - p) @ np.array([-n[1], n[0]])          # off the normal line
+    np.testing.assert_allclose(across, 0.0, atol=1e-9)
+    lift = -(ctr - p) @ n                                 # into the tunnel
+    assert np.abs(lift - 0.05).max() <= ROUGHNESS_CLIP * ROUGH + 1e-9
+    pick = np.linspace(0, len(rings) - 1, 12).astype(int)
+    clear = _lining_hit(tun, rings[pick], np.full(len(pick), t), lift[pick])
+    np.testing.assert_allclose(clear, 0.05, atol=ON_MESH_M)
 
 
 def test_prisms_are_control_points_at_their_standoff(tun):
@@ -169,7 +211,12 @@ def test_prisms_are_control_points_at_their_standoff(tun):
     xyz = np.array([c["xyz"] for c in cps])
     s, off, h = tun.alignment.to_local(xyz)
     np.testing.assert_allclose(s, [8.0, 8.0, 25.0, 25.0], atol=1e-9)
-    np.testing.assert_allclose(tun.profile.distance(np.stack([off, h], 1)), 0.1, atol=1e-9)
+    # The centre is the standoff from the rough lining along the design normal.
+    t = np.array([c["profile_t_m"] for c in cps])
+    lift = 0.1 - np.array([c["relief_m"] for c in cps])
+    assert np.abs(lift - 0.1).max() <= ROUGHNESS_CLIP * ROUGH
+    np.testing.assert_allclose(tun.profile.distance(np.stack([off, h], 1)), lift, atol=1e-9)
+    np.testing.assert_allclose(_lining_hit(tun, s, t, lift), 0.1, atol=ON_MESH_M)
     sph = tun.labels == LABEL["prism"]
     v = tun.vertices[np.unique(tun.faces[sph].ravel())]
     near = np.linalg.norm(v[:, None, :] - xyz[None], axis=2).min(axis=1)

@@ -33,7 +33,16 @@ def register(commands: CommandSet) -> None:
     c.option("--triangles", group=g, type=int, metavar="N",
              help="target number of lining triangles instead of an edge length")
     c.option("--roughness-mm", type=float, metavar="MM",
-             help="lining roughness, standard deviation in mm (preset default)")
+             help="lining roughness (the fine texture), standard deviation in mm; with "
+                  "rock relief it replaces the relief's texture (default: the preset's)")
+    c.option("--relief", choices=["none", "rock"],
+             help="surface relief: 'rock' for drill-and-blast overbreak (decimetre relief "
+                  "over metres, a look-out sawtooth per blasting round, none on the "
+                  "floor), 'none' for a smooth lining (default: the preset's, bfo rock, "
+                  "tbm none)")
+    c.option("--relief-scale", type=float, metavar="FACTOR",
+             help="multiply the rock relief's overbreak (mean, rms, underbreak, look-out) "
+                  "by FACTOR, e.g. 2 for a rougher gallery (default 1)")
     c.option("--closed-ends", action="store_true", help="cap both portals (watertight mesh)")
     c.option("--origin", metavar="E,N,H",
              help="coordinates of the first portal's centreline point, e.g. UTM")
@@ -46,7 +55,7 @@ def register(commands: CommandSet) -> None:
                   "for --epoch2: the preset's)")
     c.option("--bulge", action="append", default=[], metavar="CHAINAGE:ANGLE_DEG:RADIUS_M:MM",
              help="local inward bulge at a chainage and angle from the crown")
-    c.option("--seed", type=int, default=0, help="roughness seed (default 0)")
+    c.option("--seed", type=int, default=0, help="roughness and relief seed (default 0)")
     c.option("--quiet", action="store_true", help="print nothing on success")
 
     c = commands.add(
@@ -114,7 +123,8 @@ def cmd_tunnel(args) -> int:
 
     from survey.world.deformation import Bulge, Convergence
     from survey.world.generator import edge_length_for
-    from survey.world.presets import PRESETS, preset
+    from survey.world.presets import PRESETS, RELIEF, preset
+    from survey.world.rock import RockRelief
 
     out = Path(args.output)
     if out.suffix.lower() != ".ply":
@@ -136,11 +146,19 @@ def cmd_tunnel(args) -> int:
     for c in args.bulge:
         s, ang, r, mm = parse_window(c, "--bulge CHAINAGE:ANGLE_DEG:RADIUS_M:MM", 4)
         deformations.append(Bulge(s, np.deg2rad(ang), r, mm / 1000.0))
+    relief = RELIEF[args.preset] if args.relief is None else \
+        None if args.relief == "none" else (RELIEF[args.preset] or RockRelief())
+    if args.relief_scale is not None:
+        if relief is None:
+            raise TunnelsimCLIError("Expected --relief-scale with rock relief, got a "
+                                    f"smooth lining ({args.preset}, --relief "
+                                    f"{args.relief or 'default'}); add --relief rock.")
+        relief = relief.scaled(args.relief_scale)
     tun, default_def = preset(args.preset, edge_length_m=edge, seed=args.seed,
                               closed_ends=args.closed_ends,
                               roughness_rms_m=None if args.roughness_mm is None
-                              else args.roughness_mm / 1000.0, origin=origin,
-                              heading_rad=np.deg2rad(args.heading_deg))
+                              else args.roughness_mm / 1000.0, relief=relief,
+                              origin=origin, heading_rad=np.deg2rad(args.heading_deg))
     written = list(tun.write(out))
     if args.epoch2:
         epoch = tun.deformed(deformations or default_def)
@@ -150,7 +168,8 @@ def cmd_tunnel(args) -> int:
         counts = ", ".join(f"{k} {v:,}" for k, v in tun.metadata["face_counts"].items())
         print(f"{args.preset}: {len(tun.faces):,} triangles ({counts}), "
               f"{len(tun.vertices):,} vertices, edge length {edge:.4g} m, "
-              f"{len(tun.metadata['control_points'])} control points, {dt:.1f} s")
+              f"{len(tun.metadata['control_points'])} control points, relief "
+              f"{'none' if relief is None else 'rock'}, {dt:.1f} s")
         for p in written:
             print(f"wrote {p}")
     return 0
