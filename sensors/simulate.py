@@ -109,6 +109,10 @@ class Run:
     seed : int
     station : (position (3,) float64, scipy Rotation) or None
         The pose of a TLS station; None on a moving platform.
+    mount : Mount or None
+        Lever arm and boresight of the sensor on a moving platform (recorded in the
+        files it writes, so that LiDAR odometry can turn sensor poses into platform
+        poses); None for a station.
     t0 : float
         Trajectory time of the scan's start (s).
     stats : dict
@@ -123,8 +127,9 @@ class Run:
     def __init__(self, scene: Scene, sensor: SensorSpec, scan: Scan, poses: PoseFn, *,
                  settings: ph.Settings, seed: int, reflectivity: ArrayLike | None,
                  chunk_pulses: int, station: tuple[NDArray[np.float64], Rotation] | None
-                 = None, t0: float = 0.0) -> None:
+                 = None, t0: float = 0.0, mount: Mount | None = None) -> None:
         self.scene, self.sensor, self.scan = scene, sensor, scan
+        self.mount = mount
         self._poses = poses
         self.settings, self.seed = settings, _seed(seed)
         self._rho_faces, self._rho_default = _reflectivity(scene, reflectivity, settings)
@@ -189,7 +194,8 @@ class Run:
         from .writers import open_writer
 
         with open_writer(path, sensor=self.sensor.name, seed=self.seed, pose=self.station,
-                         fields=fields, fmt=fmt, expected_points=self.n_pulses) as w:
+                         fields=fields, fmt=fmt, expected_points=self.n_pulses,
+                         mount=self.mount) as w:
             for chunk in (self if points is None else points):
                 w.write_points(chunk)
                 if progress is not None:
@@ -528,4 +534,4 @@ def simulate_drive(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
         return trajectory.sensor_matrices(t, mnt)
 
     return Run(scene, spec, scan, poses, settings=st, seed=seed, reflectivity=reflectivity,
-               chunk_pulses=chunk_pulses, t0=a)
+               chunk_pulses=chunk_pulses, t0=a, mount=mnt)

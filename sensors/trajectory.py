@@ -201,6 +201,22 @@ class Trajectory:
         rot = Rotation.from_euler("ZYX", np.stack([yaw, pitch, 0 * yaw], 1))
         return cls(start_time + ss / speed_mps, pos, rot)
 
+    def with_standstill(self, before_s: float = 0.0, after_s: float = 0.0) -> Trajectory:
+        """The same path with the platform standing still for ``before_s`` at its first
+        pose (the path's times shift by ``before_s``) and ``after_s`` at its last, as a
+        real MLS run starts and ends: SLAM initialises on a still sensor."""
+        before_s = as_number(before_s, "before_s", TrajectoryError, unit="s", lo=0)
+        after_s = as_number(after_s, "after_s", TrajectoryError, unit="s", lo=0)
+        if len(self) < 2:
+            raise TrajectoryError("Expected a moving trajectory (2 poses or more), got a "
+                                  "static one; give a static platform a duration instead.")
+        t, p, q = self.times + before_s, self.positions, self.rotations.as_quat()
+        if before_s > 0:
+            t, p, q = np.r_[self.times[0], t], np.vstack([p[:1], p]), np.vstack([q[:1], q])
+        if after_s > 0:
+            t, p, q = np.r_[t, t[-1] + after_s], np.vstack([p, p[-1:]]), np.vstack([q, q[-1:]])
+        return Trajectory(t, p, q)
+
     # ------------------------------------------------------------------ access
     def __len__(self) -> int:
         return len(self.times)

@@ -19,7 +19,7 @@ written under a temporary name renamed into place on a clean close: an interrupt
   incidence, triangle, flag; the default for moving platforms) or the four a station
   cannot recompute (``"compact"``: channel, column, triangle, flag; the default for TLS
   stations, 3x faster to compress). A VLR (user "tunnelsim", record 1) holds the
-  sensor, seed and station pose as JSON. Coordinates: scale 0.1 mm, offset = the first
+  sensor, seed and station pose (or the platform mount of a drive) as JSON. Coordinates: scale 0.1 mm, offset = the first
   point rounded to a kilometre, so UTM coordinates keep 0.1 mm.
 - **PLY** (``sensors.ply``, binary little endian): every field as a vertex property;
   the vertex count in the header is patched at the end.
@@ -92,17 +92,19 @@ class PointWriter(Stream):
     """A stream of ``POINT_DTYPE`` chunks into one file (made by ``open_writer``).
 
     Attributes: ``path``, ``sensor`` (name), ``seed``, ``position`` (3,) and
-    ``quaternion_xyzw`` (4,) of a TLS station (None for a moving platform),
-    ``n_points`` written so far.
+    ``quaternion_xyzw`` (4,) of a TLS station (None for a moving platform), ``mount``
+    (the sensor's ``Mount`` on a moving platform, or None), ``n_points`` written so far.
     """
 
-    def __init__(self, path: Path, *, sensor: str, seed: int, pose: Any) -> None:
+    def __init__(self, path: Path, *, sensor: str, seed: int, pose: Any,
+                 mount: Any = None) -> None:
         self.path, self.sensor, self.seed = path, str(sensor), int(seed)
         self.position = self.quaternion_xyzw = None
         if pose is not None:
             pos, rot = pose
             self.position = np.asarray(pos, dtype=np.float64).reshape(3)
             self.quaternion_xyzw = _quaternion(rot)
+        self.mount = mount
         self.n_points = 0
         self._open = True
 
@@ -112,6 +114,9 @@ class PointWriter(Stream):
         if self.position is not None and self.quaternion_xyzw is not None:
             out["station_position"] = self.position.tolist()
             out["station_quaternion_xyzw"] = self.quaternion_xyzw.tolist()
+        if self.mount is not None:
+            out["mount_lever_arm_m"] = list(self.mount.lever_arm_m)
+            out["mount_boresight_xyzw"] = _quaternion(self.mount.boresight).tolist()
         return out
 
     def write_points(self, points: np.ndarray) -> None:
@@ -280,7 +285,7 @@ class _E57Points(PointWriter):
 
 def open_writer(path: str | os.PathLike[str], *, sensor: str, seed: int = 0,
                 pose: Any = None, fields: str | None = None, fmt: str | None = None,
-                expected_points: int | None = None) -> PointWriter:
+                expected_points: int | None = None, mount: Any = None) -> PointWriter:
     """A ``PointWriter`` for ``path`` (format from the suffix or ``fmt``: las, laz,
     ply, npz, e57).
 
@@ -299,6 +304,10 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str, seed: int = 0,
     expected_points : int, optional
         The most points the stream may bring (E57 refuses a scan too large to gather
         before any is simulated).
+    mount : sensors.Mount, optional
+        The sensor's lever arm and boresight on a moving platform, recorded (LAS/LAZ
+        VLR: ``mount_lever_arm_m``, ``mount_boresight_xyzw``) so that sensor poses
+        estimated from the file (LiDAR odometry) can be turned into platform poses.
     """
     path = Path(path)
     f = format_of(path, fmt)
@@ -309,7 +318,7 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str, seed: int = 0,
         fields = "compact" if pose is not None else "full"
     if fields not in ("full", "compact"):
         raise PointFileError(f"Expected fields 'full' or 'compact', got {fields!r}.")
-    kw: dict[str, Any] = {"sensor": sensor, "seed": seed, "pose": pose}
+    kw: dict[str, Any] = {"sensor": sensor, "seed": seed, "pose": pose, "mount": mount}
     if f in ("las", "laz"):
         return _LasPoints(path, compress=f == "laz", fields=fields, **kw)
     if f == "ply":

@@ -33,11 +33,15 @@ _EXPORTS = {
                           "read_tunnel", "write_ply", "write_tunnel"),
     "survey.world.generator": ("edge_length_for", "make_tunnel"),
     "survey.world.presets": ("PRESETS", "preset"),
+    "survey.world.rock": ("RockRelief",),
     "survey.adjust.helmert": ("HelmertResult", "fit_helmert", "from_parameters"),
-    "survey.adjust.controlpoints": ("ControlPoints", "match", "read_control_points"),
+    "survey.adjust.controlpoints": ("ControlPoints", "match", "read_control_points",
+                                    "unmatched", "unmatched_message"),
+    "survey.adjust.snooping": ("Snooping", "SnoopStep", "data_snooping"),
+    "survey.adjust.odometry": ("OdometryResult", "platform_trajectory", "run_odometry"),
     "survey.adjust.drift": ("DriftCorrection", "fit_drift", "leave_one_out"),
     "survey.adjust.slam": ("slam_trajectory", "to_slam_frame", "DriftedRun", "SlamObservation",
-                           "observe_slam"),
+                           "observe_slam", "observe_control"),
     "survey.clouds.cloudio": ("annotate_las", "cloud_bounds", "iter_points", "map_cloud",
                               "read_points", "read_reference",
                               "write_points_las"),
@@ -48,23 +52,29 @@ _EXPORTS = {
     "survey.clouds.reconstruct": ("ReconstructedTunnel", "poisson_tunnel",
                                   "reconstruct_tunnel", "reconstruct_within_budget"),
     "survey.clouds.detail": ("attachment_tubes", "DetailedMesh", "with_detail_layer"),
+    "survey.clouds.drives": ("DriveFile", "ScanFrame", "frames_from_points", "iter_frames",
+                             "open_drive", "replace_drive"),
     "survey.analysis.compare": ("Distances", "ReferenceCloud", "ReferenceMesh",
                                 "cloud_to_cloud", "cloud_to_mesh", "distance_stats"),
     "survey.analysis.planning": ("Plan", "Planner", "Thresholds", "axis_stations",
                                  "lining_cells"),
     "survey.analysis.study": ("Study", "StudyRow"),
+    "survey.analysis.trajectory": ("RelativeError", "TrajectoryErrors", "align_origin",
+                                   "path_pairs", "trajectory_errors"),
     "survey.report.adjustment": ("drift_report", "helmert_report"),
     "survey.report.compare": ("plot_histogram", "stats_csv", "stats_markdown"),
     "survey.report.planning": ("plan_csv", "plan_markdown", "plot_coverage", "plan_summary"),
     "survey.report.study": ("plot_study", "study_csv", "study_markdown"),
     "survey.report.reconstruct": ("plot_support",),
     "survey.report.demo": ("demo_summary", "summary_markdown", "cloud_c2m_rms"),
+    "survey.report.slam": ("plot_slam", "slam_report"),
     "survey.export.gazebo": ("export_gazebo", "lidar_sdf"),
     "survey.errors": ("TunnelsimError", "AlignmentError", "CloudFileError", "CompareError",
                       "ControlPointError", "DeformationError", "DriftError", "FeatureError",
-                      "GazeboExportError", "HelmertError", "PipelineError", "PlanningError",
-                      "PreprocessError", "ProfileError", "ReconstructionError",
-                      "StudyError", "TunnelError", "TunnelFileError", "TunnelsimCLIError"),
+                      "GazeboExportError", "HelmertError", "OdometryError", "PipelineError",
+                      "PlanningError", "PreprocessError", "ProfileError",
+                      "ReconstructionError", "StudyError", "TunnelError", "TunnelFileError",
+                      "TunnelsimCLIError"),
 }
 
 
@@ -78,11 +88,15 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
         read_tunnel, write_ply, write_tunnel)
     from survey.world.generator import edge_length_for, make_tunnel
     from survey.world.presets import PRESETS, preset
+    from survey.world.rock import RockRelief
     from survey.adjust.helmert import HelmertResult, fit_helmert, from_parameters
-    from survey.adjust.controlpoints import ControlPoints, match, read_control_points
+    from survey.adjust.controlpoints import (ControlPoints, match, read_control_points,
+        unmatched, unmatched_message)
+    from survey.adjust.snooping import Snooping, SnoopStep, data_snooping
+    from survey.adjust.odometry import OdometryResult, platform_trajectory, run_odometry
     from survey.adjust.drift import DriftCorrection, fit_drift, leave_one_out
     from survey.adjust.slam import (slam_trajectory, to_slam_frame, DriftedRun,
-        SlamObservation, observe_slam)
+        SlamObservation, observe_slam, observe_control)
     from survey.clouds.cloudio import (read_points, read_reference, annotate_las,
         cloud_bounds, iter_points, map_cloud, write_points_las)
     from survey.clouds.preprocess import (VoxelGrid, radius_outliers, statistical_outliers,
@@ -92,21 +106,26 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.clouds.reconstruct import (ReconstructedTunnel, poisson_tunnel,
         reconstruct_tunnel, reconstruct_within_budget)
     from survey.clouds.detail import attachment_tubes, DetailedMesh, with_detail_layer
+    from survey.clouds.drives import (DriveFile, ScanFrame, frames_from_points, iter_frames,
+        open_drive, replace_drive)
     from survey.analysis.compare import (Distances, ReferenceCloud, ReferenceMesh,
         cloud_to_cloud, cloud_to_mesh, distance_stats)
     from survey.analysis.planning import (Plan, Planner, Thresholds, axis_stations,
         lining_cells)
     from survey.analysis.study import Study, StudyRow
+    from survey.analysis.trajectory import (RelativeError, TrajectoryErrors, align_origin,
+        path_pairs, trajectory_errors)
     from survey.report.adjustment import drift_report, helmert_report
     from survey.report.compare import plot_histogram, stats_csv, stats_markdown
     from survey.report.planning import plan_csv, plan_markdown, plot_coverage, plan_summary
     from survey.report.study import plot_study, study_csv, study_markdown
     from survey.report.reconstruct import plot_support
     from survey.report.demo import demo_summary, summary_markdown, cloud_c2m_rms
+    from survey.report.slam import plot_slam, slam_report
     from survey.export.gazebo import export_gazebo, lidar_sdf
     from survey.errors import (TunnelsimError, AlignmentError, CloudFileError, CompareError,
         ControlPointError, DeformationError, DriftError, FeatureError, GazeboExportError,
-        HelmertError, PipelineError, PlanningError, PreprocessError, ProfileError,
+        HelmertError, OdometryError, PipelineError, PlanningError, PreprocessError, ProfileError,
         ReconstructionError, StudyError, TunnelError, TunnelFileError, TunnelsimCLIError)
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS, modules=SUBPACKAGES)

@@ -84,6 +84,11 @@ class ProfileError(TunnelsimError, ValueError):
 
 __all__ = ["TunnelsimError", "AlignmentError", "CloudFileError", "CompareError",
            "ControlPointError", "DeformationError", "DriftError", "FeatureError",
-           "GazeboExportError", "HelmertError", "PipelineError", "PlanningError",
+           "GazeboExportError", "HelmertError", "OdometryError", "PipelineError",
+           "PlanningError",
            "PreprocessError", "ProfileError", "ReconstructionError", "StudyError",
            "TunnelError", "TunnelFileError", "TunnelsimCLIError"]
+
+
+class OdometryError(TunnelsimError, ValueError):
+    """LiDAR odometry cannot run: a missing backend, a drive too short, bad settings."""

@@ -192,6 +192,30 @@ def observe_slam(run: Run, trajectory: Trajectory, control_ids: Iterable[str],
     same ``seed`` for both does not replay the drive's random stream (and the demo's
     numbers stay those of earlier versions).
     """
+    slam = slam_trajectory(trajectory, seed=seed + 1, **drift)
+    observed, world = observe_control(trajectory, slam, control_ids, control_xyz, seed=seed,
+                                      prism_sigma_m=prism_sigma_m,
+                                      control_sigma_m=control_sigma_m)
+    return SlamObservation(DriftedRun(run, trajectory, slam), trajectory, slam, observed,
+                           world)
+
+
+def observe_control(true: Trajectory, slam: Trajectory, control_ids: Iterable[str],
+                    control_xyz: ArrayLike, *, seed: int = 0,
+                    prism_sigma_m: float = PRISM_SIGMA_MLS_M,
+                    control_sigma_m: float = CONTROL_SIGMA_M
+                    ) -> tuple[ControlPoints, ControlPoints]:
+    """The control points a surveyor has for a cloud mapped with ``slam`` (a drifting
+    model or a real odometry's estimate): (observed, world).
+
+    observed : the prisms picked in the SLAM cloud - each point mapped into the SLAM
+        frame at the time the platform passed nearest to it (horizontal distance),
+        plus ``prism_sigma_m`` noise per axis, with that ``time``; only points the
+        path passes (nearest to neither of its ends) strictly inside both
+        trajectories' common time span.
+    world : every point by total station, ``control_sigma_m`` noise and that sigma.
+    Noise from ``seed + 2`` (the offset ``observe_slam`` has always used).
+    """
     g = np.asarray(control_xyz, dtype=np.float64).reshape(-1, 3)
     ids = [str(i) for i in control_ids]
     if len(ids) != len(g) or not np.isfinite(g).all():
@@ -200,21 +224,24 @@ def observe_slam(run: Run, trajectory: Trajectory, control_ids: Iterable[str],
     for name, v in (("prism_sigma_m", prism_sigma_m), ("control_sigma_m", control_sigma_m)):
         if not (np.isfinite(v) and v >= 0):
             raise DriftError(f"Expected `{name}` >= 0, got {v}.")
-    slam = slam_trajectory(trajectory, seed=seed + 1, **drift)
-    t = trajectory.times
-    near = np.argmin(np.linalg.norm(trajectory.positions[None, :, :2] - g[:, None, :2],
+    t, p = true.times, true.positions
+    near = np.argmin(np.linalg.norm(p[None, :, :2] - g[:, None, :2],
                                     axis=2), axis=1) if len(g) else np.zeros(0, dtype=int)
     tau = t[near]
-    inside = (tau > t[0]) & (tau < t[-1])
+    lo, hi = max(t[0], slam.start_s), min(t[-1], slam.end_s)
+    # Passed: nearest to a point of the path other than its two ends (a platform
+    # standing still at an end must not "pass" every prism beyond it).
+    ends = np.minimum(np.linalg.norm(p[near] - p[0], axis=1),
+                      np.linalg.norm(p[near] - p[-1], axis=1))
+    inside = (tau > lo) & (tau < hi) & (ends > 1e-6)
     rng = np.random.default_rng(seed + 2)
-    seen = to_slam_frame(trajectory, slam, g[inside], tau[inside]) + \
+    seen = to_slam_frame(true, slam, g[inside], tau[inside]) + \
         rng.normal(0, prism_sigma_m, (int(inside.sum()), 3))
     observed = ControlPoints([i for i, k in zip(ids, inside) if k], seen, time=tau[inside])
     world = ControlPoints(ids, g + rng.normal(0, control_sigma_m, g.shape),
                           sigma=np.full(g.shape, float(control_sigma_m)))
-    return SlamObservation(DriftedRun(run, trajectory, slam), trajectory, slam, observed,
-                           world)
+    return observed, world
 
 
 __all__ = ["CONTROL_SIGMA_M", "PRISM_SIGMA_MLS_M", "DriftedRun", "SlamObservation",
-           "observe_slam", "slam_trajectory", "to_slam_frame"]
+           "observe_control", "observe_slam", "slam_trajectory", "to_slam_frame"]

@@ -1,9 +1,12 @@
-"""Analysis: cloud-to-cloud and cloud-to-mesh distances, station planning, MLS studies."""
+"""Analysis: cloud-to-cloud and cloud-to-mesh distances, station planning, MLS studies,
+trajectory errors (as evo computes them)."""
 
 from .compare import Distances, ReferenceCloud, ReferenceMesh, cloud_to_cloud, cloud_to_mesh, distance_stats
 from .planning import Plan, Planner, Thresholds, axis_stations, lining_cells
 from .study import Study, StudyRow
+from .trajectory import RelativeError, TrajectoryErrors, align_origin, path_pairs, trajectory_errors
 
 __all__ = ["Distances", "ReferenceCloud", "ReferenceMesh", "cloud_to_cloud",
            "cloud_to_mesh", "distance_stats", "Plan", "Planner", "Thresholds",
-           "axis_stations", "lining_cells", "Study", "StudyRow"]
+           "axis_stations", "lining_cells", "Study", "StudyRow", "RelativeError",
+           "TrajectoryErrors", "align_origin", "path_pairs", "trajectory_errors"]

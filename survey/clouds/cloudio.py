@@ -299,7 +299,8 @@ def _bounds(chunks: Iterable[NDArray[np.float64]]
 
 
 # ---------------------------------------------------------------------- rewriting
-XyzFn = Callable[[NDArray[np.float64], "NDArray[np.float64] | None"], Any]
+#: fn(xyz (n, 3), time (n,) or None[, fields]) -> new xyz (n, 3).
+XyzFn = Callable[..., Any]
 
 
 def _new_xyz(fn: XyzFn, xyz: NDArray[np.float64], t: NDArray[np.float64] | None,
@@ -311,10 +312,15 @@ def _new_xyz(fn: XyzFn, xyz: NDArray[np.float64], t: NDArray[np.float64] | None,
     return new
 
 
-def map_cloud(src: PathLike, dst: PathLike, fn: XyzFn, *, chunk: int = CHUNK) -> int:
+def map_cloud(src: PathLike, dst: PathLike, fn: XyzFn, *, chunk: int = CHUNK,
+              fields: tuple[str, ...] = ()) -> int:
     """Write ``dst`` = ``src`` with x, y, z replaced by ``fn(xyz (n, 3), time (n,) or
     None)``; every other field, VLR and EVLR is kept (a COPC file becomes a plain LAZ).
-    LAS/LAZ (by suffix) or binary PLY. Atomic. Returns the point count."""
+    LAS/LAZ (by suffix) or binary PLY. Atomic. Returns the point count.
+
+    With ``fields`` (LAS/LAZ dimension names, e.g. extra bytes ``sensor_x``), ``fn`` is
+    called as ``fn(xyz, time, {name: (n,) array})``; a file without one of them is a
+    ``CloudFileError``."""
     src, dst = _existing(src), Path(dst)
     if not dst.parent.exists():
         raise CloudFileError(f"Expected an existing output folder, got '{dst.parent}'.")
@@ -323,8 +329,8 @@ def map_cloud(src: PathLike, dst: PathLike, fn: XyzFn, *, chunk: int = CHUNK) ->
         if kind in (".las", ".laz"):
             if dst.suffix.lower() not in (".las", ".laz"):
                 raise CloudFileError(f"Expected a .las/.laz output for '{src}', got '{dst}'.")
-            n = _map_las(src, dst, fn, chunk)
-        elif kind == ".ply":
+            n = _map_las(src, dst, fn, chunk, fields)
+        elif kind == ".ply" and not fields:
             if dst.suffix.lower() != ".ply":
                 raise CloudFileError(f"Expected a .ply output for '{src}', got '{dst}'.")
             n = _map_ply(src, dst, fn, chunk)
@@ -362,17 +368,27 @@ def _rewrite_las(source: LasSource, dst: Path, chunk: int, step: LasStep) -> int
     return n
 
 
-def _map_las(src: Path, dst: Path, fn: XyzFn, chunk: int) -> int:
+def _map_las(src: Path, dst: Path, fn: XyzFn, chunk: int, fields: tuple[str, ...] = ()
+             ) -> int:
     import laspy
 
     with LasSource(src) as source:
-        has_time = "gps_time" in source.header.point_format.dimension_names
+        names = set(source.header.point_format.dimension_names)
+        has_time = "gps_time" in names
+        missing = [f for f in fields if f not in names]
+        if missing:
+            raise CloudFileError(f"Expected the fields {list(fields)} in '{src}', got a "
+                                 f"file without {missing}.")
         # A finer scale never loses what the input held; 0.1 mm at most.
         scales = np.minimum(LAS_SCALE, np.asarray(source.header.scales, dtype=np.float64))
 
         def step(rec: Any, first: int) -> tuple[dict[str, Any], Callable[[Any], Any]]:
-            new = _new_xyz(fn, _las_xyz(rec), np.asarray(rec.gps_time) if has_time else None,
-                           src)
+            t = np.asarray(rec.gps_time) if has_time else None
+            if fields:
+                extra = {f: np.asarray(rec[f]) for f in fields}
+                new = _new_xyz(lambda xyz, tt: fn(xyz, tt, extra), _las_xyz(rec), t, src)
+            else:
+                new = _new_xyz(fn, _las_xyz(rec), t, src)
             _check_finite(new, dst, first)
 
             def records(head: Any) -> Any:

@@ -6,8 +6,9 @@ from .planning import plan_csv, plan_markdown, plot_coverage, plan_summary
 from .study import plot_study, study_csv, study_markdown
 from .reconstruct import plot_support
 from .demo import cloud_c2m_rms, demo_summary, summary_markdown
+from .slam import plot_slam, slam_report
 
 __all__ = ["cloud_c2m_rms", "plan_summary", "drift_report", "helmert_report", "plot_histogram", "stats_csv",
            "stats_markdown", "plan_csv", "plan_markdown", "plot_coverage", "plot_study",
            "study_csv", "study_markdown", "plot_support", "demo_summary",
-           "summary_markdown"]
+           "summary_markdown", "plot_slam", "slam_report"]

@@ -14,7 +14,7 @@ from survey.cli.main import build_parser, main
 from survey.cli.pipeline import demo_text, load_pipeline, step_argv
 
 #: Commands that draw random numbers (they take --seed).
-SEEDED = {"tunnel", "scan", "drive", "study", "demo", "run"}
+SEEDED = {"tunnel", "scan", "drive", "slam", "study", "demo", "run"}
 #: Commands that only print (no --quiet, no --threads).
 PRINTING = {"info", "sensors"}
 

@@ -65,6 +65,9 @@ def register(commands: CommandSet) -> None:
     c.option("--rate", type=float, metavar="HZ",
              help="rotation (profile) rate in Hz instead of the spec's; the firing rate "
                   "stays, so points per turn (per profile) change")
+    c.option("--standstill", type=float, default=0.0, metavar="S",
+             help="with --along: stand still S seconds before and after the drive, as a "
+                  "real MLS run does (SLAM initialises on a still sensor; default 0)")
     c.option("--slam-drift", action="store_true",
              help="with --along: write the cloud in a drifting SLAM frame, with the SLAM "
                   "and true trajectories (_trajectory.txt, _true_trajectory.txt) and the "
@@ -203,6 +206,8 @@ def cmd_drive(args) -> int:
                                     "--speed V, got neither.")
         meta = _tunnel_meta(args.mesh)
         traj = _centreline(args, meta)
+        if args.standstill:
+            traj = traj.with_standstill(args.standstill, args.standstill)
     mount = Mount.pointing_down(lever) if args.mount == "down" else Mount(lever)
     t_end = None if args.duration is None else traj.start_s + args.duration
     run = simulate_drive(scene, spec, traj, mount, settings=_settings(args), seed=args.seed,
@@ -210,7 +215,20 @@ def cmd_drive(args) -> int:
                          t_end=t_end)
     if args.slam_drift:
         run = _slam_files(args, run, traj, meta)
+    elif meta is not None:
+        _true_trajectory(args, traj)
     return _finish_run(args, run, f"{spec.name} drive {run.duration_s:.1f} s")
+
+
+def _true_trajectory(args, traj) -> None:
+    """The platform's true trajectory of a drive along the centreline, beside the cloud
+    (``_true_trajectory.txt``, TUM): the ground truth a SLAM estimate is judged by."""
+    from pathlib import Path
+
+    out = Path(args.output)
+    path = traj.write(out.with_name(f"{out.stem}_true_trajectory.txt"))
+    if not args.quiet:
+        print(f"true trajectory: {len(traj)} poses -> {path.name}")
 
 
 def _slam_files(args, run, traj, meta):

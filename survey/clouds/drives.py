@@ -1,0 +1,195 @@
+"""Simulated drives read back: the scan frames LiDAR odometry consumes, and the drive
+re-placed along another trajectory (the cloud a SLAM estimate implies).
+
+A drive file is what ``tunnelsim drive --fields full`` writes (LAS/LAZ): per point the
+GPS time (the pulse time), the point in the sensor frame (extra bytes ``sensor_x``,
+``sensor_y``, ``sensor_z``) and the scan ``frame`` (one turn of a spinning LiDAR, one
+profile of a profiler); the "tunnelsim" VLR records the sensor and its mount on the
+platform (lever arm and boresight). A real MLS log carries the same things (a
+timestamped sensor-frame point stream and the calibrated mount).
+
+Points are written in pulse order, so a frame is a contiguous run of records; the
+reader streams chunks and yields each frame once it is complete, so memory stays
+bounded by one frame plus one chunk.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from sensors import Mount, Trajectory
+from sensors.las import LasSource
+from survey.clouds.cloudio import CHUNK, map_cloud
+from survey.errors import CloudFileError
+
+__all__ = ["DRIVE_FIELDS", "DriveFile", "ScanFrame", "frames_from_points", "iter_frames",
+           "open_drive", "replace_drive"]
+
+#: LAS dimensions a drive file needs for odometry and re-placing.
+DRIVE_FIELDS = ("gps_time", "sensor_x", "sensor_y", "sensor_z", "frame")
+_SENSOR_XYZ = ("sensor_x", "sensor_y", "sensor_z")
+
+
+class ScanFrame(NamedTuple):
+    """One scan frame: ``frame`` (the file's frame number), ``points`` (m, 3) float64 in
+    the sensor frame (m), ``times`` (m,) float64 (s)."""
+
+    frame: int
+    points: NDArray[np.float64]
+    times: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class DriveFile:
+    """A checked drive file (``open_drive``).
+
+    path : Path
+    sensor : str
+        The simulated sensor's name (from the tunnelsim VLR; "unknown" without one).
+    mount : sensors.Mount
+        The sensor's lever arm and boresight on the platform (identity when the file
+        records none: then platform poses are sensor poses).
+    mount_recorded : bool
+        Whether the file recorded the mount.
+    n_points : int
+    time_span_s : (float, float)
+        First and last GPS time (from the points, read once).
+    """
+
+    path: Path
+    sensor: str
+    mount: Mount
+    mount_recorded: bool
+    n_points: int
+    time_span_s: tuple[float, float]
+
+
+def _info(source: LasSource) -> dict[str, Any]:
+    for v in source.header.vlrs:
+        if v.user_id == "tunnelsim" and v.record_id == 1:
+            try:
+                info = json.loads(bytes(v.record_data).decode())
+            except (UnicodeDecodeError, json.JSONDecodeError):
+                return {}
+            return info if isinstance(info, dict) else {}
+    return {}
+
+
+def open_drive(path: str | os.PathLike[str]) -> DriveFile:
+    """Check that ``path`` is a drive with what odometry needs; returns a ``DriveFile``.
+
+    Raises
+    ------
+    CloudFileError
+        For a file that is not LAS/LAZ, has no points, lacks per-point times or
+        sensor-frame fields (``DRIVE_FIELDS``), or whose times do not increase.
+    """
+    p = Path(path)
+    if p.suffix.lower() not in (".las", ".laz"):
+        raise CloudFileError(f"Expected a drive as .las/.laz (tunnelsim drive --fields full "
+                             f"-o drive.laz), got '{p}'.")
+    if not p.is_file():
+        raise CloudFileError(f"Expected a drive file, got '{p}' which does not exist.")
+    with LasSource(p) as src:
+        names = set(src.header.point_format.dimension_names)
+        missing = [f for f in DRIVE_FIELDS if f not in names]
+        if missing:
+            raise CloudFileError(
+                f"Expected per-point times and sensor-frame fields {list(DRIVE_FIELDS)} in "
+                f"'{p}', got a file without {missing}; simulate the drive with "
+                "'tunnelsim drive --fields full'.")
+        if src.point_count == 0:
+            raise CloudFileError(f"Expected points in '{p}', got a valid file with 0 points.")
+        info = _info(src)
+        lo, hi, last = np.inf, -np.inf, -np.inf
+        for rec in src.chunks(CHUNK):
+            t = np.asarray(rec.gps_time, dtype=np.float64)
+            if len(t) and (t[0] < last or (np.diff(t) < 0).any()):
+                raise CloudFileError(f"Expected points in time order in '{p}' (as a drive "
+                                     "is written), got times that go back.")
+            if len(t):
+                lo, hi, last = min(lo, t[0]), max(hi, t[-1]), t[-1]
+    lever = info.get("mount_lever_arm_m")
+    quat = info.get("mount_boresight_xyzw")
+    recorded = lever is not None and quat is not None
+    mount = Mount(tuple(lever or ()), Rotation.from_quat(quat)) if recorded else Mount()
+    return DriveFile(p, str(info.get("sensor", "unknown")), mount, recorded,
+                     int(src.point_count), (float(lo), float(hi)))
+
+
+def frames_from_points(chunks: Iterable[np.ndarray]) -> Iterator[ScanFrame]:
+    """Scan frames from chunks of ``sensors.POINT_DTYPE`` records in time order (a
+    ``Run`` iterated, without a file): fields ``sx``, ``sy``, ``sz``, ``time``,
+    ``frame``; a frame split over chunks is joined."""
+    return _group(((np.asarray(c["frame"], dtype=np.int64),
+                    np.stack([c["sx"], c["sy"], c["sz"]], 1).astype(np.float64),
+                    np.asarray(c["time"], dtype=np.float64)) for c in chunks))
+
+
+def iter_frames(drive: DriveFile, *, chunk: int = CHUNK) -> Iterator[ScanFrame]:
+    """The drive file's scan frames in time order (a frame split over chunks is
+    joined)."""
+    with LasSource(drive.path) as src:
+        yield from _group(
+            (np.asarray(rec["frame"], dtype=np.int64),
+             np.stack([np.asarray(rec[n], dtype=np.float64) for n in _SENSOR_XYZ], 1),
+             np.asarray(rec.gps_time, dtype=np.float64)) for rec in src.chunks(chunk))
+
+
+def _group(parts: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]]
+           ) -> Iterator[ScanFrame]:
+    """(frame (n,), points (n, 3), times (n,)) chunks -> whole frames."""
+    pts: list[np.ndarray] = []
+    tms: list[np.ndarray] = []
+    current = None
+    for fr, xyz, t in parts:
+        cuts = np.flatnonzero(np.diff(fr)) + 1
+        for a, b in zip(np.r_[0, cuts], np.r_[cuts, len(fr)]):
+            if a == b:
+                continue
+            f = int(fr[a])
+            if current is not None and f != current:
+                yield ScanFrame(current, np.concatenate(pts), np.concatenate(tms))
+                pts, tms = [], []
+            current = f
+            pts.append(xyz[a:b])
+            tms.append(t[a:b])
+    if current is not None:
+        yield ScanFrame(current, np.concatenate(pts), np.concatenate(tms))
+
+
+def replace_drive(drive: DriveFile, dst: str | os.PathLike[str], trajectory: Trajectory,
+                  *, chunk: int = CHUNK) -> int:
+    """Write ``dst``: the drive with every point re-placed from its sensor-frame
+    coordinates by the sensor pose of ``trajectory`` (platform poses, e.g. a SLAM
+    estimate) at the point's own time, through the drive's mount; every other field is
+    kept. Atomic. Returns the point count.
+
+    Raises
+    ------
+    CloudFileError
+        When the trajectory does not span the drive's times.
+    """
+    a, b = drive.time_span_s
+    if len(trajectory) < 2 or trajectory.start_s > a or trajectory.end_s < b:
+        raise CloudFileError(f"Expected a trajectory spanning the drive's times [{a:.6f}, "
+                             f"{b:.6f}] s, got [{trajectory.start_s:.6f}, "
+                             f"{trajectory.end_s:.6f}] s.")
+
+    def place(xyz: NDArray[np.float64], t: NDArray[np.float64] | None,
+              extra: dict[str, np.ndarray]) -> NDArray[np.float64]:
+        assert t is not None        # DRIVE_FIELDS include gps_time (checked on open)
+        s = np.stack([extra[n].astype(np.float64) for n in _SENSOR_XYZ], 1)
+        pos, mat = trajectory.sensor_matrices(t, drive.mount)
+        return pos + np.einsum("nij,nj->ni", mat, s)
+
+    return map_cloud(drive.path, dst, place, chunk=chunk, fields=_SENSOR_XYZ)
