@@ -113,6 +113,9 @@ class Run:
         Lever arm and boresight of the sensor on a moving platform (recorded in the
         files it writes, so that LiDAR odometry can turn sensor poses into platform
         poses); None for a station.
+    trajectory : Trajectory or None
+        The platform's trajectory of a drive (a ROS 2 bag writes its /tf, ground-truth
+        odometry and IMU from it); None for a station.
     t0 : float
         Trajectory time of the scan's start (s).
     stats : dict
@@ -127,9 +130,10 @@ class Run:
     def __init__(self, scene: Scene, sensor: SensorSpec, scan: Scan, poses: PoseFn, *,
                  settings: ph.Settings, seed: int, reflectivity: ArrayLike | None,
                  chunk_pulses: int, station: tuple[NDArray[np.float64], Rotation] | None
-                 = None, t0: float = 0.0, mount: Mount | None = None) -> None:
+                 = None, t0: float = 0.0, mount: Mount | None = None,
+                 trajectory: Trajectory | None = None) -> None:
         self.scene, self.sensor, self.scan = scene, sensor, scan
-        self.mount = mount
+        self.mount, self.trajectory = mount, trajectory
         self._poses = poses
         self.settings, self.seed = settings, _seed(seed)
         self._rho_faces, self._rho_default = _reflectivity(scene, reflectivity, settings)
@@ -193,9 +197,10 @@ class Run:
         ``stats`` plus the path."""
         from .writers import open_writer
 
-        with open_writer(path, sensor=self.sensor.name, seed=self.seed, pose=self.station,
+        span = None if self.station is not None else (self.t0, self.t0 + self.duration_s)
+        with open_writer(path, sensor=self.sensor, seed=self.seed, pose=self.station,
                          fields=fields, fmt=fmt, expected_points=self.n_pulses,
-                         mount=self.mount) as w:
+                         mount=self.mount, trajectory=self.trajectory, span_s=span) as w:
             for chunk in (self if points is None else points):
                 w.write_points(chunk)
                 if progress is not None:
@@ -534,4 +539,4 @@ def simulate_drive(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
         return trajectory.sensor_matrices(t, mnt)
 
     return Run(scene, spec, scan, poses, settings=st, seed=seed, reflectivity=reflectivity,
-               chunk_pulses=chunk_pulses, t0=a, mount=mnt)
+               chunk_pulses=chunk_pulses, t0=a, mount=mnt, trajectory=trajectory)

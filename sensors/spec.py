@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import difflib
 import os
+import re
 import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -33,8 +34,9 @@ from numpy.typing import NDArray
 
 from .errors import SensorSpecError
 
-__all__ = ["KINDS", "SPEC_DIR", "TABLE_KEYS", "Pattern", "Physics", "ProfilerPattern", "SensorSpec",
-           "SpinningPattern", "TLSPattern", "list_sensors", "load_sensor", "with_rate"]
+__all__ = ["KINDS", "POINT_LAYOUTS", "RING_ORDERS", "SPEC_DIR", "TABLE_KEYS", "Driver",
+           "Pattern", "Physics", "ProfilerPattern", "SensorSpec", "SpinningPattern",
+           "TLSPattern", "list_sensors", "load_sensor", "with_rate"]
 
 SPEC_DIR: Final = Path(__file__).resolve().parent / "specs"
 #: Device kinds; each has a pattern table of the same name in its TOML file.
@@ -43,7 +45,7 @@ KINDS: Final = ("tls", "spinning", "profiler")
 #: Keys each table of a sensor file may hold; anything else is refused on load.
 #: ``tls.resolutions_deg`` is free-form (preset name -> step) and not listed.
 TABLE_KEYS: Final[Mapping[str, tuple[str, ...]]] = {
-    "": ("device", "range", "detection", "noise", "beam", *KINDS),
+    "": ("device", "range", "detection", "noise", "beam", "driver", *KINDS),
     "device": ("name", "vendor", "model", "kind", "wavelength_nm", "sources"),
     "range": ("min_m", "max_m"),
     "detection": ("range_m", "reflectivity", "softness"),
@@ -57,7 +59,15 @@ TABLE_KEYS: Final[Mapping[str, tuple[str, ...]]] = {
                  "firing_offsets_us", "firing_group_size", "firing_group_step_us",
                  "clockwise"),
     "profiler": ("profile_rate_hz", "points_per_profile", "blind_sector_deg"),
+    "driver": ("package", "point_layout", "frame_id", "topic", "ring_order",
+               "intensity_max", "beam_origin_offset_mm"),
 }
+
+#: Point layouts of ``[driver] point_layout`` (``sensors.bag`` documents and writes them).
+POINT_LAYOUTS: Final = ("velodyne", "ouster", "robosense")
+#: ``[driver] ring_order``: ring 0 is the lowest beam (ascending), the highest
+#: (descending), or the pattern's channel index.
+RING_ORDERS: Final = ("elevation_ascending", "elevation_descending", "channel")
 
 #: Power of a white target at normal incidence at this range, at the least: the
 #: saturation power of the intensity scale for devices with a shorter minimum range.
@@ -233,6 +243,51 @@ class ProfilerPattern:
                 f"points per profile, blind {b0:g}-{b1:g} deg)")
 
 
+@dataclass(frozen=True)
+class Driver:
+    """How the device's common ROS 2 driver publishes its points (the optional
+    ``[driver]`` table): what ``sensors.bag`` follows so that a bag reads like a
+    recording. Scan direction and azimuth zero stay the pattern's own
+    (``SpinningPattern.clockwise``, ``azimuth_offsets_rad``), set to the driver's where
+    the model follows it (each file says).
+
+    Attributes
+    ----------
+    package : str
+        The driver (``velodyne_pointcloud``, ``ouster-ros``, ``rslidar_sdk``).
+    point_layout : {"velodyne", "ouster", "robosense"}
+        Field layout of its PointCloud2 (``sensors.bag.LAYOUTS``).
+    frame_id, topic : str
+        The driver's default cloud frame and topic.
+    ring_order : {"elevation_ascending", "elevation_descending", "channel"}
+        How the driver numbers rings; the simulated ``channel`` stays the firing order.
+    intensity_max : float
+        The driver's intensity for a return of simulated intensity 1.
+    beam_origin_offset_m : float
+        Radial distance of the beam origin from the rotation axis in the driver's
+        default model (m); documented, not simulated (beams leave the sensor origin).
+    """
+
+    package: str
+    point_layout: str
+    frame_id: str
+    topic: str
+    ring_order: str
+    intensity_max: float
+    beam_origin_offset_m: float
+
+    def rings(self, elevations_rad: NDArray[np.float64]) -> NDArray[np.uint16]:
+        """Ring of each channel (channels, firing order): its rank by elevation, ties
+        sharing a ring, as rs_driver's ``genUserChan`` and velodyne_pointcloud's
+        calibration sort them; the channel itself for ``"channel"``."""
+        el = np.asarray(elevations_rad, dtype=np.float64)
+        if self.ring_order == "channel":
+            return np.arange(len(el), dtype=np.uint16)
+        sign = 1.0 if self.ring_order == "elevation_ascending" else -1.0
+        key = sign * el
+        return (key[None, :] < key[:, None]).sum(axis=1).astype(np.uint16)
+
+
 Pattern = TLSPattern | SpinningPattern | ProfilerPattern
 _PATTERN_OF_KIND: Final[Mapping[str, type]] = {
     "tls": TLSPattern, "spinning": SpinningPattern, "profiler": ProfilerPattern}
@@ -254,6 +309,8 @@ class SensorSpec:
         The one that matches ``kind``.
     path : str
         The file it was read from.
+    driver : Driver or None
+        The ROS 2 driver's conventions (``[driver]``), if the file gives them.
     """
 
     name: str
@@ -265,6 +322,7 @@ class SensorSpec:
     physics: Physics
     pattern: Pattern
     path: str
+    driver: Driver | None = None
 
     def __post_init__(self) -> None:
         want = _PATTERN_OF_KIND.get(self.kind)
@@ -490,6 +548,31 @@ def _profiler(p: _Table) -> ProfilerPattern:
                            p.whole("points_per_profile", 8), (b0, b1))
 
 
+_ROS_NAME = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+def _driver(root: _Table) -> Driver | None:
+    if "driver" not in root.data:
+        return None
+    d = root.sub("driver")
+    layout, order = d.text("point_layout"), d.text("ring_order")
+    for key, got, valid in (("point_layout", layout, POINT_LAYOUTS),
+                            ("ring_order", order, RING_ORDERS)):
+        if got not in valid:
+            raise d.err(key, f"one of {valid}", got)
+    frame, topic = d.text("frame_id"), d.text("topic")
+    # ROS 2 names (design.ros2.org "Topic and Service names"); tf2 frame ids take no
+    # leading slash (tf2 dropped tf's "/" prefix).
+    if not _ROS_NAME.match(frame) or frame.startswith("/"):
+        raise d.err("frame_id", "a tf2 frame name (letters, digits, _ and /, no "
+                    "leading /)", frame)
+    if not _ROS_NAME.match(topic):
+        raise d.err("topic", "a ROS 2 topic name", topic)
+    return Driver(d.text("package"), layout, frame, topic, order,
+                  d.num("intensity_max", positive=True),
+                  d.num("beam_origin_offset_mm", lo=0.0) * 1e-3)
+
+
 def _load(path: Path) -> SensorSpec:
     try:
         data = tomllib.loads(path.read_text())
@@ -520,7 +603,7 @@ def _load(path: Path) -> SensorSpec:
         pattern = _profiler(root.sub("profiler"))
     return SensorSpec(dev.text("name"), dev.text("vendor"), dev.text("model"), kind,
                       dev.num("wavelength_nm", positive=True), dev.texts("sources"), phys,
-                      pattern, str(path))
+                      pattern, str(path), _driver(root))
 
 
 def _registry() -> dict[str, str]:

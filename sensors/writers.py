@@ -29,6 +29,11 @@ written under a temporary name renamed into place on a clean close: an interrupt
   indices (channel = row along the vertical sweep, column = line), sensor-frame
   Cartesian coordinates and the station pose. pye57 writes a scan in one call, so the
   scan is gathered in memory first; ``E57_MAX_POINTS`` guards the machine.
+- **ROS 2 bags** (``sensors.bag``, moving platforms only; needs ``rosbags``): ``.mcap``
+  is one MCAP file, a path without a suffix a rosbag2 folder (format "rosbag2", as
+  ``ros2 bag record -o NAME`` makes): one PointCloud2 per whole sweep in the sensor's
+  ROS 2 driver layout, /tf_static, and with ``trajectory`` /tf, ground-truth odometry
+  and an IMU. Memory stays bounded by one sweep and one chunk.
 """
 
 from __future__ import annotations
@@ -45,17 +50,20 @@ import numpy as np
 
 from raytrace.fileio import atomic_writer
 
+from .bag import RosbagStream
 from .e57 import E57_MAX_POINTS, write_e57_scan
 from .errors import PointFileError
 from .fields import FIELD_NAMES, POINT_DTYPE
 from .las import LAS_SCALE, LasWriter, offsets_near, point_records
 from .ply import PlyWriter
+from .spec import SensorSpec, load_sensor
 from .stream import Stream
+from .trajectory import Trajectory
 
 __all__ = ["E57_MAX_POINTS", "FORMATS", "LAS_SCALE", "PointWriter", "format_of",
            "open_writer"]
 
-FORMATS = ("las", "laz", "ply", "npz", "e57")
+FORMATS = ("las", "laz", "ply", "npz", "e57", "mcap", "rosbag2")
 
 #: LAS extra bytes: (LAS name, POINT_DTYPE field, stored type).
 _EXTRA = [("sensor_x", "sx", "f8"), ("sensor_y", "sy", "f8"), ("sensor_z", "sz", "f8"),
@@ -71,8 +79,10 @@ _COMPACT = ("channel", "column", "triangle", "flag")
 
 
 def format_of(path: str | os.PathLike[str], fmt: str | None = None) -> str:
-    """The output format: ``fmt``, else the path's suffix; one of ``FORMATS``."""
-    f = (fmt or Path(path).suffix.lstrip(".")).lower()
+    """The output format: ``fmt``, else the path's suffix; one of ``FORMATS``. A path
+    without a suffix is a rosbag2 folder ("rosbag2")."""
+    # DECISION: no suffix means a bag folder, as `ros2 bag record -o NAME` names one.
+    f = (fmt or Path(path).suffix.lstrip(".") or "rosbag2").lower()
     if f not in FORMATS:
         raise PointFileError(f"Expected an output format in {FORMATS} (from the suffix or "
                              f"`fmt`), got {f!r} for '{path}'.")
@@ -96,9 +106,10 @@ class PointWriter(Stream):
     (the sensor's ``Mount`` on a moving platform, or None), ``n_points`` written so far.
     """
 
-    def __init__(self, path: Path, *, sensor: str, seed: int, pose: Any,
+    def __init__(self, path: Path, *, sensor: str | SensorSpec, seed: int, pose: Any,
                  mount: Any = None) -> None:
-        self.path, self.sensor, self.seed = path, str(sensor), int(seed)
+        name = sensor.name if isinstance(sensor, SensorSpec) else str(sensor)
+        self.path, self.sensor, self.seed = path, name, int(seed)
         self.position = self.quaternion_xyzw = None
         if pose is not None:
             pos, rot = pose
@@ -283,16 +294,42 @@ class _E57Points(PointWriter):
         self._parts = []
 
 
-def open_writer(path: str | os.PathLike[str], *, sensor: str, seed: int = 0,
+class _BagPoints(PointWriter):
+    """A ROS 2 bag: the chunks go to ``sensors.bag.RosbagStream``."""
+
+    def __init__(self, path, *, spec: SensorSpec, single_file: bool,
+                 trajectory: Trajectory | None, span_s, **kw) -> None:
+        super().__init__(path, **kw)
+        if self.position is not None:
+            raise PointFileError("Expected a moving platform for a ROS 2 bag, got a TLS "
+                                 "station; write LAZ or E57 instead.")
+        self._w = RosbagStream(path, spec, single_file=single_file, seed=self.seed,
+                               mount=self.mount, trajectory=trajectory, span_s=span_s,
+                               info=self.info())
+
+    def _write(self, c):
+        self._w.write_points(c)
+
+    def _finish(self):
+        self._w.close()
+
+    def _discard(self, exc):
+        self._w.abort()
+
+
+def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed: int = 0,
                 pose: Any = None, fields: str | None = None, fmt: str | None = None,
-                expected_points: int | None = None, mount: Any = None) -> PointWriter:
+                expected_points: int | None = None, mount: Any = None,
+                trajectory: Trajectory | None = None,
+                span_s: tuple[float, float] | None = None) -> PointWriter:
     """A ``PointWriter`` for ``path`` (format from the suffix or ``fmt``: las, laz,
-    ply, npz, e57).
+    ply, npz, e57, mcap; no suffix: a rosbag2 folder).
 
     Parameters
     ----------
-    sensor : str
-        The sensor's name, recorded in the file.
+    sensor : str or SensorSpec
+        The sensor (its name is recorded in the file). A ROS 2 bag needs the spec (a
+        name is loaded with ``load_sensor``) for its driver conventions and sweep rate.
     seed : int
         The simulation seed, recorded in LAS/LAZ and PLY.
     pose : (position (3,), rotation) or None
@@ -308,12 +345,22 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str, seed: int = 0,
         The sensor's lever arm and boresight on a moving platform, recorded (LAS/LAZ
         VLR: ``mount_lever_arm_m``, ``mount_boresight_xyzw``) so that sensor poses
         estimated from the file (LiDAR odometry) can be turned into platform poses.
+    trajectory : Trajectory, optional
+        The platform's true poses: a ROS 2 bag writes /tf, ground-truth odometry and
+        an IMU from them (other formats ignore it).
+    span_s : (float, float), optional
+        The scan's time window (trajectory time base): a ROS 2 bag stamps sweep k at
+        ``span_s[0] + k / rate`` and drops a last sweep that ends after ``span_s[1]``.
     """
     path = Path(path)
     f = format_of(path, fmt)
     if not path.parent.exists():
         raise PointFileError(f"Expected an existing output folder, got '{path.parent}'; "
                              "create it first.")
+    if f in ("mcap", "rosbag2"):
+        spec = sensor if isinstance(sensor, SensorSpec) else load_sensor(sensor)
+        return _BagPoints(path, spec=spec, single_file=f == "mcap", trajectory=trajectory,
+                          span_s=span_s, sensor=spec, seed=seed, pose=pose, mount=mount)
     if fields is None:
         fields = "compact" if pose is not None else "full"
     if fields not in ("full", "compact"):

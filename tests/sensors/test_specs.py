@@ -82,6 +82,7 @@ MISSPELT = [
     ("velodyne_vlp16", "spinning", "rotaton_hz", "rotation_hz"),
     ("zf_imager_5016", "tls", "head_sweep", "head_sweep_deg"),
     ("zf_profiler_9012", "profiler", "profile_rate", "profile_rate_hz"),
+    ("velodyne_vlp16", "driver", "ring_ordr", "ring_order"),
 ]
 
 

@@ -1,0 +1,649 @@
+"""ROS 2 bags of a drive: rosbag2 with MCAP storage, in the conventions of the sensor's
+common ROS 2 driver, written as a stream with the pure-Python ``rosbags`` (an optional
+dependency: ``pip install 'tunnelsim[ros]'``).
+
+``sensors.writers.open_writer`` makes one for ``drive.mcap`` (one MCAP file, the
+rosbag2 metadata inside it) or for a path without a suffix (a rosbag2 folder:
+``metadata.yaml`` and ``<name>.mcap``, as ``ros2 bag record -o <name>`` makes).
+
+Topics (frames ``map``, ``odom``, ``base_link`` and the driver's cloud frame):
+
+- the driver's cloud topic (``[driver] topic``; ``/points`` for a sensor without a
+  ``[driver]`` table): ``sensor_msgs/msg/PointCloud2``, one per whole sweep (a sweep
+  is one ``frame`` value of the points: a revolution, or a profile), in the sensor
+  frame (``sx, sy, sz``), unorganised (height 1, returns only, ``is_dense``), in the
+  driver's field layout (``LAYOUTS``).
+- ``/tf_static``: ``map -> odom`` (the trajectory's local origin, so that ``odom``
+  coordinates stay small where ``map`` holds UTM ones) and ``base_link -> <cloud
+  frame>`` (the mount: lever arm and boresight).
+- ``/tf``: ``odom -> base_link`` at ``POSE_RATE_HZ``; ``/odometry/ground_truth``
+  (``nav_msgs/msg/Odometry``): the same true platform poses with their twist.
+- ``/imu/data_raw`` (REP 145's name for an IMU without orientation):
+  ``sensor_msgs/msg/Imu`` at ``ImuModel.rate_hz`` in ``base_link``, the trajectory's
+  derivatives (``platform_motion``) plus the noise and bias of ``ImuModel``, seeded.
+
+Stamps are the trajectory's time base (s -> ns; negative times are refused). A cloud's
+header stamp is its sweep's start (``t0 + k / rate``) and its per-point times are
+measured from it (the robosense layout's are absolute); its log time is the sweep's
+end, when a driver would publish it, so that a player has the poses of the whole sweep
+before the cloud. Pose and IMU messages are logged at their stamps; the bag is written
+in log-time order.
+
+DECISION: only whole sweeps are published, as a driver publishes a cloud when its
+revolution completes; the points of a last, partial sweep are dropped and counted
+(``RosbagStream.dropped_points``, and ``dropped_partial_sweep_points`` in the bag's
+custom data). A whole sweep without any return is published empty, so that the clouds
+are one per sweep. Memory: one sweep plus the chunk being split.
+
+DECISION: a TLS station is refused (one structured scan without motion is not a
+recording a robotics stack replays; write LAZ or E57).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from functools import partial
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial.transform import Rotation
+
+from .errors import PointFileError
+from .fields import POINT_DTYPE
+from .spec import Driver, ProfilerPattern, SensorSpec, SpinningPattern
+from .stream import Stream
+from .trajectory import Mount, Trajectory
+
+__all__ = ["DEFAULT_IMU", "FRAMES", "GENERIC_DRIVER", "IMU_TOPIC", "INSTALL_HINT",
+           "LAYOUTS", "ODOMETRY_TOPIC", "POSE_RATE_HZ", "STANDARD_GRAVITY", "ImuModel",
+           "PointLayout", "RosbagStream", "cloud_points", "platform_motion"]
+
+INSTALL_HINT: Final = "pip install 'tunnelsim[ros]' (or: pip install rosbags)"
+#: The tf tree: global frame, odometry frame, platform frame (REP 105).
+FRAMES: Final = ("map", "odom", "base_link")
+#: Rate of /tf and the ground-truth odometry (Hz); a choice, not a device value.
+POSE_RATE_HZ: Final = 100.0
+ODOMETRY_TOPIC: Final = "/odometry/ground_truth"
+IMU_TOPIC: Final = "/imu/data_raw"
+#: Standard gravity (m/s^2, 3rd CGPM 1901); the IMU's specific force adds it along +z.
+STANDARD_GRAVITY: Final = 9.80665
+#: Pose and IMU messages are made this many seconds of trajectory at a time.
+MOTION_BLOCK_S: Final = 2.0
+#: Random stream of the IMU noise, apart from the simulation's streams (0-4).
+_IMU_STREAM: Final = 101
+_IMU_BLOCK: Final = 1 << 14
+
+
+# ---------------------------------------------------------------------- point layouts
+@dataclass(frozen=True)
+class PointLayout:
+    """One driver's PointCloud2 point: (name, byte offset, little-endian NumPy type) per
+    field and the point step, as the driver's own code lays them out."""
+
+    name: str
+    package: str
+    source: str
+    fields: tuple[tuple[str, int, str], ...]
+    point_step: int
+
+    @property
+    def dtype(self) -> np.dtype:
+        """The point as a NumPy structured dtype (offsets and item size kept)."""
+        return np.dtype({"names": [f[0] for f in self.fields],
+                         "formats": [np.dtype("<" + f[2]) for f in self.fields],
+                         "offsets": [f[1] for f in self.fields],
+                         "itemsize": self.point_step})
+
+
+LAYOUTS: Final[dict[str, PointLayout]] = {
+    # ros-drivers/velodyne (ROS 2), velodyne_pointcloud/src/lib/pointcloudXYZIRT.cpp:
+    # six fields given to PointCloud2Modifier::setPointCloud2Fields, which packs them
+    # (offset += count * size; point_step = the sum). time: s after the cloud's stamp.
+    "velodyne": PointLayout(
+        "velodyne", "velodyne_pointcloud",
+        "ros-drivers/velodyne velodyne_pointcloud/src/lib/pointcloudXYZIRT.cpp",
+        (("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 12, "f4"),
+         ("ring", 16, "u2"), ("time", 18, "f4")), 22),
+    # ouster-lidar/ouster-ros, include/ouster_ros/os_point.h (ouster_ros::Point):
+    # PCL_ADD_POINT4D pads x y z to 16 bytes, EIGEN_ALIGN16 rounds the struct to 48;
+    # pcl::toROSMsg keeps the C++ offsets. intensity = signal, t: ns after the cloud's
+    # stamp, ring = pixel row, ambient = near-IR, range in mm.
+    "ouster": PointLayout(
+        "ouster", "ouster-ros", "ouster-lidar/ouster-ros include/ouster_ros/os_point.h",
+        (("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 16, "f4"),
+         ("t", 20, "u4"), ("reflectivity", 24, "u2"), ("ring", 26, "u2"),
+         ("ambient", 28, "u2"), ("range", 32, "u4")), 48),
+    # RoboSense-LiDAR/rslidar_sdk, src/source/source_pointcloud_ros.hpp toRosMsg with
+    # POINT_TYPE_XYZIRT: addPointField packs the fields; timestamp: absolute s.
+    "robosense": PointLayout(
+        "robosense", "rslidar_sdk",
+        "RoboSense-LiDAR/rslidar_sdk src/source/source_pointcloud_ros.hpp",
+        (("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 12, "f4"),
+         ("ring", 16, "u2"), ("timestamp", 18, "f8")), 26),
+}
+
+#: For a sensor file without a ``[driver]`` table (a profiler, a user's lidar): the
+#: velodyne layout, which most LiDAR odometry reads, with ring = the pattern's channel.
+GENERIC_DRIVER: Final = Driver("tunnelsim", "velodyne", "lidar", "/points", "channel",
+                               255.0, 0.0)
+
+#: sensor_msgs/msg/PointField datatype of each NumPy type.
+_ROS_TYPE: Final = {"i1": 1, "u1": 2, "i2": 3, "u2": 4, "i4": 5, "u4": 6, "f4": 7, "f8": 8}
+
+
+def cloud_points(layout: PointLayout, sweep: NDArray[np.void], stamp_s: float,
+                 rings: NDArray[np.uint16], intensity_max: float) -> NDArray[np.void]:
+    """One sweep's ``POINT_DTYPE`` records (n,) as the layout's points (n,).
+
+    x, y, z are the sensor-frame point (sx, sy, sz) as float32; ring = ``rings`` of
+    the channel; intensity-like fields = intensity x ``intensity_max`` (rounded for
+    integer fields); times relative to ``stamp_s`` (s) except robosense's absolute
+    ``timestamp``. ouster's ambient (near-IR) is 0: no ambient light is simulated.
+    """
+    out = np.zeros(len(sweep), dtype=layout.dtype)
+    for a, b in (("x", "sx"), ("y", "sy"), ("z", "sz")):
+        out[a] = sweep[b]
+    level = sweep["intensity"].astype(np.float64) * intensity_max
+    out["intensity"] = level
+    out["ring"] = rings[sweep["channel"]]
+    dt = sweep["time"] - stamp_s
+    if layout.name == "velodyne":
+        out["time"] = dt
+    elif layout.name == "ouster":
+        out["t"] = np.round(dt * 1e9)
+        # ASSUMED: the 8-bit calibrated reflectivity carries the same level as the
+        # signal; signal photon counts are not modelled.
+        out["reflectivity"] = np.round(level)
+        out["range"] = np.round(sweep["range"] * 1e3)
+    else:
+        out["timestamp"] = sweep["time"]
+    return out
+
+
+# ---------------------------------------------------------------------- platform motion
+def platform_motion(trajectory: Trajectory, t: ArrayLike, step_s: float | None = None
+                    ) -> tuple[NDArray[np.float64], Rotation, NDArray[np.float64],
+                               NDArray[np.float64], NDArray[np.float64]]:
+    """True platform motion at times t (n,): positions (n, 3) world, body-to-world
+    Rotation (n), world velocity (n, 3) m/s, body angular rate (n, 3) rad/s and world
+    acceleration (n, 3) m/s^2.
+
+    Central differences of the interpolated poses over ``step_s`` (default: the
+    trajectory's median pose spacing): the interpolant is piecewise linear (positions)
+    and piecewise constant-rate (SLERP), so a shorter step would see its kinks as
+    spikes; over the pose spacing a uniformly sampled parabola gives its exact second
+    derivative. Within ``step_s`` of the ends the nearest interior difference is used.
+    Angular rate: rotvec(R(t - h)^T R(t + h)) / 2h (body frame).
+    """
+    tq = np.atleast_1d(np.asarray(t, dtype=np.float64))
+    pos, rot = trajectory.interpolate(tq)
+    n = len(tq)
+    zero = np.zeros((n, 3))
+    if len(trajectory) < 2:
+        return pos, rot, zero, zero.copy(), zero.copy()
+    h = float(np.median(np.diff(trajectory.times))) if step_s is None else float(step_s)
+    lo, hi = trajectory.start_s, trajectory.end_s
+    h = min(h, 0.5 * (hi - lo))
+    tc = np.clip(tq, lo + h, hi - h)
+    (pm, rm), (p0, _), (pp, rp) = (trajectory.interpolate(tc + d, local=True)
+                                   for d in (-h, 0.0, h))
+    vel = (pp - pm) / (2 * h)
+    acc = (pp - 2 * p0 + pm) / h ** 2
+    omega = (rm.inv() * rp).as_rotvec() / (2 * h)
+    return pos, rot, vel, omega, acc
+
+
+@dataclass(frozen=True)
+class ImuModel:
+    """Noise and bias of the simulated IMU (Kalibr's continuous-time model; Kalibr wiki
+    "IMU Noise Model"): per sample, white noise sigma = density sqrt(rate_hz); the bias
+    starts at N(0, bias_sigma) per axis and takes random-walk steps of sigma =
+    random_walk / sqrt(rate_hz). Densities in rad/s/sqrt(Hz) and m/s^2/sqrt(Hz),
+    random walks in rad/s^2/sqrt(Hz) and m/s^3/sqrt(Hz), bias sigmas in rad/s and m/s^2.
+
+    Defaults: the EuRoC MAV dataset's VI-Sensor IMU (ADIS16448, imu0/sensor.yaml) for
+    the densities and random walks; rate and turn-on biases ASSUMED.
+    """
+
+    rate_hz: float = 200.0                 # EuRoC imu0 rate
+    gyro_noise_density: float = 1.6968e-4
+    gyro_random_walk: float = 1.9393e-5
+    accel_noise_density: float = 2.0e-3
+    accel_random_walk: float = 3.0e-3
+    gyro_bias_sigma: float = 1.0e-3        # ASSUMED (0.06 deg/s turn-on bias, 1 sigma)
+    accel_bias_sigma: float = 0.02         # ASSUMED (2 mg turn-on bias, 1 sigma)
+
+    def __post_init__(self) -> None:
+        for name, v in asdict(self).items():
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and \
+                np.isfinite(v) and (v > 0 if name == "rate_hz" else v >= 0)
+            if not ok:
+                least = "> 0" if name == "rate_hz" else ">= 0"
+                raise PointFileError(f"Expected `ImuModel.{name}` to be a finite number "
+                                     f"{least}, got {v!r}.")
+
+    def sample_sigmas(self) -> tuple[float, float, float, float]:
+        """Per-sample sigmas: gyro white noise (rad/s), accel white noise (m/s^2), gyro
+        bias step (rad/s), accel bias step (m/s^2)."""
+        r = np.sqrt(self.rate_hz)
+        return (self.gyro_noise_density * r, self.accel_noise_density * r,
+                self.gyro_random_walk / r, self.accel_random_walk / r)
+
+
+DEFAULT_IMU: Final = ImuModel()
+
+
+def _normals(seed: int, first: int, n: int, width: int,
+             cache: list[tuple[int, NDArray[np.float64]]] | None = None
+             ) -> NDArray[np.float64]:
+    """Standard normals (n, width) for samples [first, first + n), the same however
+    they are asked for: block b of ``_IMU_BLOCK`` samples comes from
+    ``default_rng([seed, _IMU_STREAM, b])``. ``cache`` (a one-item list) keeps the
+    last block drawn."""
+    if n <= 0:
+        return np.empty((0, width))
+    b0, b1 = first // _IMU_BLOCK, (first + n - 1) // _IMU_BLOCK
+    parts = []
+    for b in range(b0, b1 + 1):
+        if cache and cache[0][0] == b:
+            parts.append(cache[0][1])
+            continue
+        block = np.random.default_rng([seed, _IMU_STREAM, b]).standard_normal(
+            (_IMU_BLOCK, width))
+        if cache is not None:
+            cache[:] = [(b, block)]
+        parts.append(block)
+    off = first - b0 * _IMU_BLOCK
+    return np.concatenate(parts)[off:off + n]
+
+
+def _ns(t_s: float) -> int:
+    if not t_s >= 0:
+        raise PointFileError(f"Expected times >= 0 s for ROS stamps, got {t_s!r} s; shift "
+                             "the trajectory's time base (e.g. start_time=...).")
+    return int(round(t_s * 1e9))
+
+
+# ---------------------------------------------------------------------- the stream
+class RosbagStream(Stream):
+    """A drive's points into a rosbag2 (MCAP), sweep by sweep (see the module notes).
+
+    Parameters
+    ----------
+    path : path-like
+        ``*.mcap`` with ``single_file``, else a new folder.
+    spec : SensorSpec
+        A spinning lidar or a profiler; its ``driver`` table picks layout, frame, topic,
+        rings and intensity scale (``GENERIC_DRIVER`` without one).
+    single_file : bool
+    seed : int
+        Seeds the IMU noise.
+    mount : Mount, optional
+        base_link -> sensor (/tf_static); identity if None.
+    trajectory : Trajectory, optional
+        The platform's true poses: /tf, odometry and IMU; without it the bag holds the
+        clouds and /tf_static only.
+    span_s : (float, float), optional
+        The scan's time window (trajectory time base). Sweep k starts at
+        ``span_s[0] + k / rate``; sweeps ending after ``span_s[1]`` are partial. Without
+        it each sweep is stamped at its first point and every sweep is published.
+    imu : ImuModel or None
+        None: no IMU topic.
+    info : dict, optional
+        JSON-ready origin of the data, stored in the bag's custom data.
+    compress : bool
+        zstd chunk compression (MCAP readers decompress it transparently).
+
+    Raises
+    ------
+    PointFileError
+        For a TLS sensor, a missing ``rosbags``, an existing bag folder, or a driver
+        table that does not fit the pattern.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], spec: SensorSpec, *, single_file: bool,
+                 seed: int = 0, mount: Mount | None = None,
+                 trajectory: Trajectory | None = None,
+                 span_s: tuple[float, float] | None = None,
+                 imu: ImuModel | None = DEFAULT_IMU, info: dict[str, Any] | None = None,
+                 compress: bool = True) -> None:
+        self.path = Path(path)
+        pat = spec.pattern
+        if not isinstance(pat, (SpinningPattern, ProfilerPattern)):
+            raise PointFileError(f"Expected a spinning lidar or a profiler on a moving "
+                                 f"platform for a ROS 2 bag, got {spec.name} ({spec.kind});"
+                                 " write a TLS station to LAZ or E57.")
+        try:
+            from rosbags.rosbag2 import StoragePlugin, Writer
+            from rosbags.typesys import Stores, get_typestore
+        except ImportError as exc:
+            raise PointFileError(f"Expected the `rosbags` package for ROS 2 bag output, "
+                                 f"got none ({exc}); {INSTALL_HINT}.") from None
+        self.driver = spec.driver or GENERIC_DRIVER
+        self.layout = LAYOUTS[self.driver.point_layout]
+        if isinstance(pat, SpinningPattern):
+            self.period_s = 1.0 / pat.rotation_hz
+            self._rings = self.driver.rings(pat.elevations_rad)
+        else:
+            if self.driver.ring_order != "channel":
+                raise PointFileError(f"Expected ring_order 'channel' for a profiler's "
+                                     f"driver table, got {self.driver.ring_order!r} in "
+                                     f"{spec.path}.")
+            self.period_s = 1.0 / pat.profile_rate_hz
+            self._rings = np.arange(pat.points_per_profile, dtype=np.uint16)
+        if single_file and not self.path.parent.is_dir():
+            raise PointFileError(f"Expected an existing output folder, got "
+                                 f"'{self.path.parent}'; create it first.")
+        if not single_file and (self.path.exists() or not self.path.parent.is_dir()):
+            raise PointFileError(f"Expected a new bag folder in an existing folder, got "
+                                 f"'{self.path}'; remove it or choose another name.")
+        self.mount, self.trajectory, self.imu, self.seed = mount, trajectory, imu, int(seed)
+        self.span_s = None if span_s is None else (float(span_s[0]), float(span_s[1]))
+        if trajectory is None:
+            self.imu = None
+        self.messages: dict[str, int] = {}
+        self.dropped_points = 0
+        self._info = dict(info or {})
+        self._single = single_file
+        self._parts: list[NDArray[np.void]] = []
+        self._frame: int | None = None            # frame being gathered
+        self._next = 0                            # next frame index to publish
+        self._t0 = None if self.span_s is None else self.span_s[0]
+        self._last_log = -1
+        self._pose_i = self._imu_j = 0
+        self._bias = np.zeros(6)
+        self._ready: float | None = None          # motion messages made up to this time
+        self._pending: list[tuple[float, int, Callable[[], None]]] = []
+        self._noise: list[tuple[int, NDArray[np.float64]]] = []
+        self._ts = get_typestore(Stores.ROS2_HUMBLE)
+        self._tmp = Path(tempfile.mkdtemp(prefix="." + self.path.name + ".", suffix=".part",
+                                          dir=self.path.parent))
+        try:
+            inner = self.path.stem if single_file else self.path.name
+            self._bag = Writer(self._tmp / inner, version=8,
+                               storage_plugin=StoragePlugin.MCAP)
+            if compress:
+                from rosbags.rosbag2 import CompressionFormat, CompressionMode
+                self._bag.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+            self._bag.open()
+            self._open_topics()
+            if self._t0 is not None:
+                self._write_static(self._t0)
+        except BaseException:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            raise
+
+    # ------------------------------------------------------------------ topics
+    def _open_topics(self) -> None:
+        from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
+                                        QosReliability, QosTime)
+
+        latched = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE,
+                      QosDurability.TRANSIENT_LOCAL, QosTime(0, 0), QosTime(0, 0),
+                      QosLiveliness.AUTOMATIC, QosTime(0, 0), False)
+        topics = [(self.driver.topic, "sensor_msgs/msg/PointCloud2", ()),
+                  ("/tf_static", "tf2_msgs/msg/TFMessage", (latched,))]
+        if self.trajectory is not None:
+            topics += [("/tf", "tf2_msgs/msg/TFMessage", ()),
+                       (ODOMETRY_TOPIC, "nav_msgs/msg/Odometry", ())]
+        if self.imu is not None:
+            topics.append((IMU_TOPIC, "sensor_msgs/msg/Imu", ()))
+        self._conn = {name: self._bag.add_connection(name, kind, typestore=self._ts,
+                                                     offered_qos_profiles=list(qos))
+                      for name, kind, qos in topics}
+
+    def _put(self, topic: str, log_s: float, msg: Any) -> None:
+        ns = _ns(log_s)
+        if ns < self._last_log:
+            raise PointFileError(f"Expected messages in time order, got {topic} at "
+                                 f"{log_s} s after a later one; feed the points in time "
+                                 "order.")
+        self._last_log = ns
+        self._bag.write(self._conn[topic], ns,
+                        self._ts.serialize_cdr(msg, msg.__msgtype__))
+        self.messages[topic] = self.messages.get(topic, 0) + 1
+
+    def _header(self, t_s: float, frame: str) -> Any:
+        T = self._ts.types
+        ns = _ns(t_s)
+        return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
+            sec=ns // 10 ** 9, nanosec=ns % 10 ** 9), frame_id=frame)
+
+    def _transform(self, t_s: float, parent: str, child: str, xyz: ArrayLike,
+                   q_xyzw: ArrayLike) -> Any:
+        T = self._ts.types
+        x, y, z = (float(v) for v in np.asarray(xyz, dtype=np.float64))
+        qx, qy, qz, qw = (float(v) for v in np.asarray(q_xyzw, dtype=np.float64))
+        return T["geometry_msgs/msg/TransformStamped"](
+            header=self._header(t_s, parent), child_frame_id=child,
+            transform=T["geometry_msgs/msg/Transform"](
+                translation=T["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                rotation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw)))
+
+    def _write_static(self, t_s: float) -> None:
+        mount = self.mount or Mount()
+        origin = self.trajectory.origin if self.trajectory is not None else np.zeros(3)
+        tfs = [self._transform(t_s, "map", "odom", origin, (0, 0, 0, 1)),
+               self._transform(t_s, "base_link", self.driver.frame_id, mount.lever_arm_m,
+                               mount.boresight.as_quat())]
+        msg = self._ts.types["tf2_msgs/msg/TFMessage"](transforms=tfs)
+        self._put("/tf_static", t_s, msg)
+
+    # ------------------------------------------------------------------ points
+    def write_points(self, points: NDArray[np.void]) -> None:
+        """Append ``POINT_DTYPE`` records (n,) in time order; a sweep is published when
+        the next one begins (or on ``close``)."""
+        if not len(points):
+            return
+        frames = np.asarray(points["frame"])
+        if (np.diff(frames) < 0).any() or (self._frame is not None and
+                                           frames[0] < self._frame):
+            raise PointFileError("Expected points in time order (frame never decreasing), "
+                                 "got an earlier sweep after a later one.")
+        for part in np.split(points, np.flatnonzero(np.diff(frames)) + 1):
+            f = int(part["frame"][0])
+            if self._frame is not None and f != self._frame:
+                self._flush()
+            self._frame = f
+            self._parts.append(part)
+
+    def _whole(self) -> int | None:
+        """Number of whole sweeps of the scan (None without ``span_s``)."""
+        if self.span_s is None:
+            return None
+        a, b = self.span_s
+        return int(np.floor((b - a) / self.period_s + 1e-9))
+
+    def _flush(self) -> None:
+        sweep = np.concatenate(self._parts) if self._parts else None
+        self._parts = []
+        k, self._frame = self._frame, None
+        if sweep is None or k is None:
+            return
+        whole = self._whole()
+        if whole is not None and k >= whole:
+            self.dropped_points += len(sweep)
+            return
+        if whole is not None:
+            for empty in range(self._next, k):
+                self._publish(empty, sweep[:0])
+        self._publish(k, sweep)
+
+    def _publish(self, k: int, sweep: NDArray[np.void]) -> None:
+        if self._t0 is None:                      # no span: the first sweep sets t0
+            self._t0 = float(sweep["time"].min()) - k * self.period_s
+            self._write_static(self._t0)
+        stamp = self._t0 + k * self.period_s
+        if self.span_s is None:
+            stamp = float(sweep["time"].min())
+        log = stamp + self.period_s
+        self._motion_until(log)
+        pts = cloud_points(self.layout, sweep, stamp, self._rings,
+                           self.driver.intensity_max)
+        T = self._ts.types
+        field = T["sensor_msgs/msg/PointField"]
+        fields = [field(name=n, offset=o, datatype=_ROS_TYPE[f], count=1)
+                  for n, o, f in self.layout.fields]
+        msg = T["sensor_msgs/msg/PointCloud2"](
+            header=self._header(stamp, self.driver.frame_id), height=1, width=len(pts),
+            fields=fields, is_bigendian=False, point_step=self.layout.point_step,
+            row_step=self.layout.point_step * len(pts),
+            data=np.ascontiguousarray(pts).view(np.uint8).reshape(-1), is_dense=True)
+        self._put(self.driver.topic, log, msg)
+        self._next = k + 1
+
+    # ------------------------------------------------------------------ poses and IMU
+    def _limit(self, t_s: float) -> float:
+        """``t_s`` clipped to the scan's window and the trajectory's end."""
+        assert self.trajectory is not None
+        end = t_s if self.span_s is None else min(t_s, self.span_s[1])
+        return min(end, self.trajectory.end_s) if len(self.trajectory) > 1 else end
+
+    def _motion_until(self, until_s: float) -> None:
+        """Write the /tf, odometry and IMU messages stamped up to ``until_s`` (and within
+        the scan's window) that are not written yet, in time order. They are made
+        ``MOTION_BLOCK_S`` at a time (scipy's SLERP costs per call, not per pose)."""
+        if self.trajectory is None or self._t0 is None:
+            return
+        last = self._limit(until_s)
+        if self._ready is None or last > self._ready:
+            start = self._t0 if self._ready is None else self._ready
+            hi = max(last, min(start + MOTION_BLOCK_S, self._limit(np.inf)))
+            self._make_motion(hi)
+            self._ready = hi
+        eps = 1e-9 * max(1.0, abs(last))
+        n = 0
+        while n < len(self._pending) and self._pending[n][0] <= last + eps:
+            n += 1
+        for _t, _order, put in self._pending[:n]:
+            put()
+        del self._pending[:n]
+
+    def _make_motion(self, hi: float) -> None:
+        """Messages of the pose and IMU samples stamped up to ``hi`` not made yet."""
+        assert self._t0 is not None
+        eps = 1e-9 * max(1.0, abs(hi))
+        n_pose = int(np.floor((hi - self._t0) * POSE_RATE_HZ + eps)) + 1
+        tp = self._t0 + np.arange(self._pose_i, n_pose) / POSE_RATE_HZ
+        self._pose_i = max(self._pose_i, n_pose)
+        made: list[tuple[float, int, Callable[[], None]]] = []
+        if len(tp):
+            made += self._pose_messages(tp)
+        if self.imu is not None:
+            n_imu = int(np.floor((hi - self._t0) * self.imu.rate_hz + eps)) + 1
+            ti = self._t0 + np.arange(self._imu_j, n_imu) / self.imu.rate_hz
+            if len(ti):
+                made += self._imu_messages(ti)
+        self._pending += sorted(made, key=lambda w: (w[0], w[1]))
+
+    def _pose_messages(self, t: NDArray[np.float64]) -> list[tuple[float, int,
+                                                                  Callable[[], None]]]:
+        assert self.trajectory is not None
+        pos, rot, vel, omega, _acc = platform_motion(self.trajectory, t)
+        local = pos - self.trajectory.origin
+        q = rot.as_quat()
+        v_body = rot.inv().apply(vel)
+        T = self._ts.types
+        out: list[tuple[float, int, Callable[[], None]]] = []
+        for i, ti in enumerate(t.tolist()):
+            tf = self._transform(ti, "odom", "base_link", local[i], q[i])
+            pose = T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=float(local[i, 0]),
+                                                      y=float(local[i, 1]),
+                                                      z=float(local[i, 2])),
+                orientation=tf.transform.rotation)
+            twist = T["geometry_msgs/msg/Twist"](linear=self._vec(v_body[i]),
+                                                 angular=self._vec(omega[i]))
+            odo = T["nav_msgs/msg/Odometry"](
+                header=self._header(ti, "odom"), child_frame_id="base_link",
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                    pose=pose, covariance=np.zeros(36)),
+                twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=twist, covariance=np.zeros(36)))
+            tfm = T["tf2_msgs/msg/TFMessage"](transforms=[tf])
+            out.append((ti, 0, partial(self._put, "/tf", ti, tfm)))
+            out.append((ti, 1, partial(self._put, ODOMETRY_TOPIC, ti, odo)))
+        return out
+
+    def _vec(self, v: NDArray[np.float64]) -> Any:
+        return self._ts.types["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]),
+                                                           z=float(v[2]))
+
+    def _imu_messages(self, t: NDArray[np.float64]) -> list[tuple[float, int,
+                                                                 Callable[[], None]]]:
+        assert self.trajectory is not None and self.imu is not None
+        imu = self.imu
+        _pos, rot, _vel, omega, acc = platform_motion(self.trajectory, t)
+        # Specific force in the body frame: R^T (a - g), g = (0, 0, -G) (REP 145:
+        # a level IMU at rest reads +G along z).
+        force = rot.inv().apply(acc + np.array([0.0, 0.0, STANDARD_GRAVITY]))
+        sg, sa, sbg, sba = imu.sample_sigmas()
+        if self._imu_j == 0:     # turn-on bias, drawn once per seed
+            z0 = np.random.default_rng([self.seed, _IMU_STREAM + 1]).standard_normal(6)
+            self._bias = z0 * np.repeat([imu.gyro_bias_sigma, imu.accel_bias_sigma], 3)
+        z = _normals(self.seed, self._imu_j, len(t), 12, self._noise)
+        steps = z[:, 6:] * np.repeat([sbg, sba], 3)
+        # Bias of sample j: the turn-on bias plus the steps before j.
+        bias = self._bias + np.cumsum(steps, axis=0) - steps
+        self._bias = bias[-1] + steps[-1]
+        gyro = omega + bias[:, :3] + sg * z[:, :3]
+        accel = force + bias[:, 3:] + sa * z[:, 3:6]
+        self._imu_j += len(t)
+        T = self._ts.types
+        cov_g = np.diag(np.full(3, sg ** 2)).ravel()
+        cov_a = np.diag(np.full(3, sa ** 2)).ravel()
+        no_orientation = np.zeros(9)
+        no_orientation[0] = -1.0      # sensor_msgs/Imu: no orientation estimate
+        out: list[tuple[float, int, Callable[[], None]]] = []
+        for i, ti in enumerate(t.tolist()):
+            msg = T["sensor_msgs/msg/Imu"](
+                header=self._header(ti, "base_link"),
+                orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+                orientation_covariance=no_orientation,
+                angular_velocity=self._vec(gyro[i]), angular_velocity_covariance=cov_g,
+                linear_acceleration=self._vec(accel[i]),
+                linear_acceleration_covariance=cov_a)
+            out.append((ti, 2, partial(self._put, IMU_TOPIC, ti, msg)))
+        return out
+
+    # ------------------------------------------------------------------ end
+    def _finish(self) -> None:
+        if self._frame is not None:
+            self._flush()
+        whole = self._whole()
+        if whole is not None:
+            for empty in range(self._next, whole):
+                self._publish(empty, np.empty(0, dtype=POINT_DTYPE))
+            assert self.span_s is not None
+            self._motion_until(self.span_s[1])
+        if self._t0 is None:      # nothing at all: the static frames at t = 0
+            self._write_static(0.0)
+        self._bag.set_custom_data("tunnelsim", json.dumps(dict(
+            self._info, driver=asdict(self.driver), point_layout_source=self.layout.source,
+            sweep_period_s=self.period_s, dropped_partial_sweep_points=self.dropped_points,
+            imu=None if self.imu is None else asdict(self.imu))))
+        self._bag.close()
+        inner = self._bag.path
+        try:
+            if self._single:
+                os.replace(inner / f"{inner.name}.mcap", self.path)
+            else:
+                os.rename(inner, self.path)
+        except OSError as exc:
+            raise PointFileError(f"Expected to move the finished bag to '{self.path}', got "
+                                 f"{type(exc).__name__}: {exc}.") from exc
+        finally:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+
+    def _discard(self, exc: BaseException) -> None:
+        try:
+            self._bag.abort()
+        finally:
+            shutil.rmtree(self._tmp, ignore_errors=True)
