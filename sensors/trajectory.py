@@ -11,8 +11,11 @@ A ``Mount`` is the lever arm (platform frame, metres) and boresight rotation fro
 platform to the sensor frame: sensor-to-world = platform-to-world * mount.
 
 File formats: TUM (``t x y z qx qy qz qw``, space separated, '#' comments; Sturm et al.
-2012) and CSV with the header ``t,x,y,z,qx,qy,qz,qw``. Quaternions are scalar-last,
-as in scipy.
+2012) and CSV, written with the header ``t,x,y,z,qx,qy,qz,qw`` and read by its header
+names in any order (``CSV_COLUMNS``; a headerless CSV is 8 numbers a row in TUM order).
+Quaternions are scalar-last, as in scipy. Times are seconds: stamps that can only be
+nanoseconds, microseconds or milliseconds are refused on reading
+(``looks_like_time_unit``).
 
 >>> traj = Trajectory.along_polyline([[0.0, 0, 0], [12.0, 0, 0]], 1.0, rate_hz=10)
 >>> traj
@@ -36,7 +39,8 @@ from raytrace.fileio import atomic_writer
 from ._checks import as_number, as_points
 from .errors import TrajectoryError
 
-__all__ = ["Mount", "Trajectory"]
+__all__ = ["CSV_COLUMNS", "MAX_SPAN_S", "MAX_STAMP_S", "MAX_STEP_S", "Mount", "Trajectory",
+           "csv_column_order", "looks_like_time_unit", "time_base_hint"]
 
 
 @dataclass(frozen=True)
@@ -93,6 +97,23 @@ class Mount:
         rpy = self.boresight.as_euler("xyz", degrees=True)
         rpy = [round(float(a), 9) + 0.0 for a in rpy]      # no -0 or 1e-15 in the text
         return f"Mount({arm}, roll/pitch/yaw {', '.join(f'{a:.6g}' for a in rpy)} deg)"
+
+
+def _trapezoid(length_m: float, speed_mps: float, accel_mps2: float, rate_hz: float
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(times, distances) sampled at ``rate_hz`` of a trip of ``length_m`` from rest to
+    rest: accelerate at ``accel_mps2`` to ``speed_mps``, cruise, brake alike."""
+    v = min(speed_mps, float(np.sqrt(accel_mps2 * length_m)))   # peak (triangular)
+    ta = v / accel_mps2
+    da = 0.5 * v * ta
+    tc = (length_m - 2 * da) / v
+    total = 2 * ta + tc
+    t = np.linspace(0.0, total, max(3, int(np.ceil(total * rate_hz)) + 1))
+    d = np.where(t < ta, 0.5 * accel_mps2 * t ** 2,
+                 np.where(t < ta + tc, da + v * (t - ta),
+                          length_m - 0.5 * accel_mps2 * np.maximum(total - t, 0.0) ** 2))
+    d[-1] = length_m
+    return t, np.maximum.accumulate(np.clip(d, 0.0, length_m))
 
 
 class Trajectory:
@@ -171,9 +192,13 @@ class Trajectory:
 
     @classmethod
     def along_polyline(cls, points: ArrayLike, speed_mps: float, *, rate_hz: float = 100.0,
-                       start_time: float = 0.0, follow_grade: bool = False) -> Trajectory:
+                       start_time: float = 0.0, follow_grade: bool = False,
+                       accel_mps2: float | None = None) -> Trajectory:
         """Constant speed along a polyline (n, 3), heading along it (x forward, z up;
-        level unless ``follow_grade``), sampled at ``rate_hz``."""
+        level unless ``follow_grade``), sampled at ``rate_hz``. With ``accel_mps2`` the
+        platform starts and ends at rest, accelerating and braking at that rate
+        (trapezoidal speed profile; triangular when the path is too short to reach
+        ``speed_mps``); otherwise it moves at ``speed_mps`` from the first instant."""
         pts = as_points(points, "points", TrajectoryError)
         if len(pts) < 2:
             raise TrajectoryError(f"Expected at least 2 polyline points of shape (n, 3), "
@@ -190,8 +215,14 @@ class Trajectory:
             raise TrajectoryError("Expected distinct consecutive polyline points, got a "
                                   f"repeated point at row {int(np.argmax(seg <= 0)) + 1}.")
         s = np.concatenate([[0.0], np.cumsum(seg)])
-        n = max(2, int(np.ceil(s[-1] / speed_mps * rate_hz)) + 1)
-        ss = np.linspace(0.0, s[-1], n)
+        if accel_mps2 is None:
+            n = max(2, int(np.ceil(s[-1] / speed_mps * rate_hz)) + 1)
+            ss = np.linspace(0.0, s[-1], n)
+            tt = ss / speed_mps
+        else:
+            accel_mps2 = as_number(accel_mps2, "accel_mps2", TrajectoryError, unit="m/s^2",
+                                   lo=0, lo_open=True)
+            tt, ss = _trapezoid(s[-1], speed_mps, accel_mps2, rate_hz)
         pos = np.stack([np.interp(ss, s, q[:, k]) for k in range(3)], 1) + origin
         # Heading from the segment each sample lies on.
         iseg = np.clip(np.searchsorted(s, ss, side="right") - 1, 0, len(seg) - 1)
@@ -199,7 +230,7 @@ class Trajectory:
         yaw = np.arctan2(d[:, 1], d[:, 0])
         pitch = -np.arctan2(d[:, 2], np.hypot(d[:, 0], d[:, 1])) if follow_grade else 0 * yaw
         rot = Rotation.from_euler("ZYX", np.stack([yaw, pitch, 0 * yaw], 1))
-        return cls(start_time + ss / speed_mps, pos, rot)
+        return cls(start_time + tt, pos, rot)
 
     def with_standstill(self, before_s: float = 0.0, after_s: float = 0.0) -> Trajectory:
         """The same path with the platform standing still for ``before_s`` at its first
@@ -260,7 +291,8 @@ class Trajectory:
         eps = 1e-9 * max(1.0, abs(hi))
         if len(self) > 1 and len(q) and not (q.min() >= lo - eps and q.max() <= hi + eps):
             raise TrajectoryError(f"Expected times within the trajectory [{lo}, {hi}] s, "
-                                  f"got [{np.min(q)}, {np.max(q)}].")
+                                  f"got [{np.min(q)}, {np.max(q)}]"
+                                  f"{time_base_hint(self.times, q)}.")
         return q
 
     def interpolate(self, t: ArrayLike, *, local: bool = False
@@ -320,12 +352,18 @@ class Trajectory:
 
     @classmethod
     def read(cls, path: str | os.PathLike[str]) -> Trajectory:
-        """Read TUM text or CSV (by suffix).
+        """Read a TUM text file or a CSV file (``.csv``), chosen by the suffix.
+
+        TUM: ``t x y z qx qy qz qw`` separated by spaces, '#' comments (Sturm et al.
+        2012). CSV: see ``CSV_COLUMNS`` for the header names and the headerless rule.
+        Times must be seconds: stamps that look like nanoseconds, microseconds or
+        milliseconds (``looks_like_time_unit``) are refused with the factor to divide by.
 
         Raises
         ------
         TrajectoryError
-            For a missing or unreadable file, or rows that are not 8 numbers.
+            For a missing or unreadable file, rows that are not 8 numbers, an unknown,
+            missing or repeated CSV column, or stamps that are not seconds.
         """
         path = Path(path)
         if not path.is_file():
@@ -333,13 +371,191 @@ class Trajectory:
                                   "exist.")
         try:
             if path.suffix.lower() == ".csv":
-                data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+                data = _read_csv(path)
             else:
                 data = np.loadtxt(path, comments="#", ndmin=2)
         except (ValueError, UnicodeDecodeError) as exc:
+            if isinstance(exc, TrajectoryError):
+                raise
             raise TrajectoryError(f"Expected rows of 8 numbers (t x y z qx qy qz qw) in "
                                   f"'{path}', got unreadable text ({exc}).") from exc
         if data.shape[1] != 8:
             raise TrajectoryError(f"Expected 8 columns (t x y z qx qy qz qw) in '{path}', got "
                                   f"{data.shape[1]}.")
+        if len(data) and np.isfinite(data[:, 0]).all():
+            _check_seconds(data[:, 0], path)
         return cls(data[:, 0], data[:, 1:4], data[:, 4:8])
+
+
+# ---------------------------------------------------------------------- reading files
+#: The fields of a pose in TUM order, and the CSV header names each may go by
+#: (case-insensitive, in any column order; a leading '#' on the header is dropped, as
+#: EuRoC writes "#timestamp"). ``tx, ty, tz`` are translations (ROS, evo), not times.
+#: DECISION: a CSV header is required to name all 8 columns and nothing else: a column
+#: read by its position would put ``qw`` where ``qx`` is meant without a word (a
+#: ``timestamp,px,py,pz,qw,qx,qy,qz`` file turned the spin axis horizontal).
+#: Headerless rule: when every field of the first line is a number, the file has no
+#: header and each row is 8 numbers in TUM order ``t, x, y, z, qx, qy, qz, qw``; the
+#: first line is then the first pose.
+CSV_COLUMNS: dict[str, tuple[str, ...]] = {
+    "t": ("t", "timestamp", "time"), "x": ("x", "px", "tx"), "y": ("y", "py", "ty"),
+    "z": ("z", "pz", "tz"), "qx": ("qx",), "qy": ("qy",), "qz": ("qz",), "qw": ("qw",)}
+
+_ALIAS = {name: field for field, names in CSV_COLUMNS.items() for name in names}
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def csv_column_order(header: list[str]) -> list[int]:
+    """The column of each pose field (TUM order) in a CSV header's names.
+
+    Parameters
+    ----------
+    header : list of str
+        The header's names, in file order.
+
+    Returns
+    -------
+    list of int, (8,)
+        The file's column index of t, x, y, z, qx, qy, qz, qw.
+
+    Raises
+    ------
+    TrajectoryError
+        For a name not in ``CSV_COLUMNS``, a field named twice or a field missing.
+    """
+    names = [h.strip().strip("'\"").strip().lower() for h in header]
+    if names:
+        names[0] = names[0].lstrip("#").strip()
+    unknown = [h.strip() for h, n in zip(header, names) if n not in _ALIAS]
+    if unknown:
+        known = ", ".join("|".join(v) for v in CSV_COLUMNS.values())
+        raise TrajectoryError(f"Expected CSV trajectory columns named {known} (any order), "
+                              f"got unknown {', '.join(repr(u) for u in unknown)}; rename "
+                              "or remove those columns.")
+    where: dict[str, list[int]] = {}
+    for i, n in enumerate(names):
+        where.setdefault(_ALIAS[n], []).append(i)
+    twice = {f: cols for f, cols in where.items() if len(cols) > 1}
+    if twice:
+        f, cols = next(iter(twice.items()))
+        raise TrajectoryError(f"Expected one column for {f}, got "
+                              f"{' and '.join(repr(header[i].strip()) for i in cols)}; "
+                              "keep one of them.")
+    missing = [f for f in CSV_COLUMNS if f not in where]
+    if missing:
+        raise TrajectoryError(f"Expected the 8 columns t, x, y, z, qx, qy, qz, qw in a CSV "
+                              f"trajectory header, got none for {', '.join(missing)}.")
+    return [where[f][0] for f in CSV_COLUMNS]
+
+
+def _read_csv(path: Path) -> NDArray[np.float64]:
+    """(n, 8) float64 rows in TUM order from a CSV trajectory (``CSV_COLUMNS``)."""
+    lines = path.read_text().splitlines()
+    # Blank lines and comments without a comma (a title line) are skipped; the first
+    # line left is the header, or the first pose when it is all numbers.
+    body = [ln for ln in lines
+            if ln.strip() and not (ln.lstrip().startswith("#") and "," not in ln)]
+    if not body:
+        raise TrajectoryError(f"Expected poses in the CSV trajectory '{path}', got none.")
+    first = [f.strip() for f in body[0].split(",")]
+    if all(_is_number(f) for f in first):
+        if len(first) != 8:
+            raise TrajectoryError(f"Expected a header, or 8 numbers t,x,y,z,qx,qy,qz,qw a "
+                                  f"row, in the CSV trajectory '{path}', got a first line "
+                                  f"of {len(first)} numbers and no header; add a header "
+                                  "naming the columns.")
+        order = list(range(8))
+    else:
+        order = csv_column_order(first)
+        body = body[1:]
+        if not body:
+            raise TrajectoryError(f"Expected poses below the header of '{path}', got none.")
+    data = np.loadtxt(body, delimiter=",", comments="#", ndmin=2)
+    if data.shape[1] != len(first):
+        raise TrajectoryError(f"Expected {len(first)} numbers a row in '{path}', as its "
+                              f"first line has, got {data.shape[1]}.")
+    return data[:, order]
+
+
+#: Stamps read as seconds must stay within these (ASSUMED, generous): a trajectory of a
+#: survey spans less than a day, has a pose at least every hour, and has no stamp above
+#: 1e11 s (the year 5138 as Unix time). Nanoseconds (ROS ``stamp.to_nsec()``, 1.7e18
+#: since 1970), microseconds and milliseconds break at least one of them for any drive
+#: longer than a few seconds.
+MAX_SPAN_S = 86_400.0
+MAX_STEP_S = 3_600.0
+MAX_STAMP_S = 1e11
+#: Units a stamp might be in instead of seconds, with their factor to seconds.
+_TIME_UNITS = (("nanoseconds", 1e-9), ("microseconds", 1e-6), ("milliseconds", 1e-3))
+#: Unix times (s) of plausible survey dates, 1973 to 2286, to recognise epoch stamps.
+_EPOCH_S = (1e8, 1e10)
+#: The pose interval (s) a unit is judged by: the geometric middle of 1 Hz and 1 kHz,
+#: so that each unit is named right for any pose rate between the two.
+_TYPICAL_STEP_S = 10 ** -1.5
+
+
+def looks_like_time_unit(times: ArrayLike) -> tuple[str, float] | None:
+    """The unit that stamps (n,) float64 seem to be in when they cannot be seconds:
+    (name, factor to seconds), or None when they can be seconds.
+
+    Seconds are ruled out by ``MAX_SPAN_S``, ``MAX_STEP_S`` or ``MAX_STAMP_S``. The unit
+    named is the one that turns the first stamp into a Unix time of 1973-2286 when the
+    stamps are that large (epoch stamps), else the one that puts the median step
+    nearest (in ratio) 32 ms, the middle of pose rates from 1 Hz to 1 kHz.
+
+    >>> looks_like_time_unit([1.7e18, 1.7e18 + 1e7])
+    ('nanoseconds', 1e-09)
+    >>> looks_like_time_unit([0.0, 1e4, 2e4]) is None, looks_like_time_unit([0.0, 0.01])
+    (False, None)
+    """
+    t = np.atleast_1d(np.asarray(times, dtype=np.float64))
+    step = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    big = float(np.abs(t).max()) > MAX_STAMP_S
+    if not (big or t[-1] - t[0] > MAX_SPAN_S or step > MAX_STEP_S):
+        return None
+    if big:
+        for name, f in _TIME_UNITS:
+            if _EPOCH_S[0] <= abs(t[0]) * f <= _EPOCH_S[1]:
+                return name, f
+    if step <= 0:
+        return _TIME_UNITS[0]
+    return min(_TIME_UNITS, key=lambda u: abs(np.log10(step * u[1] / _TYPICAL_STEP_S)))
+
+
+def _check_seconds(t: NDArray[np.float64], path: Path) -> None:
+    unit = looks_like_time_unit(t)
+    if unit is None:
+        return
+    name, f = unit
+    if len(t) > 1:
+        step = float(np.median(np.diff(t)))
+        got = (f"stamps from {t[0]:.6g} spanning {t[-1] - t[0]:.6g} with a median step of "
+               f"{step:.6g}, which look like {name} (a pose every {1e3 * f * step:.3g} ms)")
+    else:
+        got = f"the stamp {t[0]:.6g}, which looks like {name}"
+    raise TrajectoryError(f"Expected trajectory times in seconds in '{path}', got {got}; "
+                          "convert the time column to seconds (divide it by "
+                          f"1e{round(-np.log10(f))}).")
+
+
+def time_base_hint(times_s: ArrayLike, other_s: ArrayLike) -> str:
+    """A hint for two sets of times (s) that do not meet: '' unless one starts like an
+    epoch time (``_EPOCH_S``: Unix time, or GPS time less 1e9 as LAS 1.4 stores it)
+    and the other like seconds from a start (below ``_EPOCH_S[0]``); then the clause
+    that says so and how to give both one time base."""
+    a = float(np.min(times_s)) if np.size(times_s) else 0.0
+    b = float(np.min(other_s)) if np.size(other_s) else 0.0
+    if (a >= _EPOCH_S[0]) == (b >= _EPOCH_S[0]):
+        return ""
+    epoch, rel = ("the trajectory's", "the others") if a >= b else \
+        ("the others", "the trajectory's")
+    return (f"; {epoch} look like epoch seconds (from {max(a, b):.10g}) and {rel} like "
+            f"seconds from a start (from {min(a, b):.6g}): give both one time base, e.g. "
+            f"subtract {max(a, b) - min(a, b):.10g} s from the epoch ones")

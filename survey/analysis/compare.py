@@ -15,6 +15,10 @@ per scan (the seed's Table 1), a histogram and the distance as a LAS scalar fiel
   keeps the search exact). Sign as CloudCompare: positive on the side the closest
   triangle's right-hand normal (b - a) x (c - a) points to.
 
+Two clouds far apart are not compared: ``check_overlap`` refuses bounding boxes more
+than ``OVERLAP_TOL_M`` apart (two clouds 2,863 km apart once gave a mean distance of
+-2,863,484,478 mm); the references carry their ``bounds``.
+
 Arguments follow one order, the cloud measured first and the reference second
 (``cloud_to_cloud(compared, reference)``, ``cloud_to_mesh(compared, vertices, faces)``),
 as ``fit_helmert(source, target)`` does. Points may be (n, 3), a single (3,) point or a
@@ -34,11 +38,21 @@ from scipy.spatial import cKDTree
 from raytrace.checks import as_points
 from survey.errors import CompareError
 
-__all__ = ["BLOCK", "STAT_FIELDS", "Distances", "ReferenceCloud", "ReferenceMesh",
-           "cloud_to_cloud", "cloud_to_mesh", "distance_stats"]
+__all__ = ["BLOCK", "OVERLAP_TOL_M", "STAT_FIELDS", "Distances", "ReferenceCloud",
+           "ReferenceMesh", "box_gap", "check_overlap", "cloud_to_cloud", "cloud_to_mesh",
+           "distance_stats"]
 
 #: Points per block in the distance loops (bounds the candidate lists' memory).
 BLOCK = 200_000
+
+#: Largest gap (m) between the bounding boxes of a compared cloud and its reference.
+#: DECISION: a gap, not "the boxes intersect": a wall that moved 2 cm off a planar
+#: reference has a box beside the reference's, and is a comparison. 1 m (ASSUMED) is
+#: far above the deformations, overbreak and as-built deviations a comparison measures
+#: (mm to dm) and far below the gap of a frame or unit mistake (a local frame against a
+#: national grid: km to thousands of km). Every compared point lies at least the gap
+#: from the reference.
+OVERLAP_TOL_M = 1.0
 
 
 def _max_distance(value: float | None) -> float | None:
@@ -53,6 +67,70 @@ def _max_distance(value: float | None) -> float | None:
         raise CompareError(f"Expected a positive max distance `max_distance_m`, got "
                            f"{value!r}; leave it None for no limit.")
     return v
+
+
+def box_gap(box_a: ArrayLike, box_b: ArrayLike) -> float:
+    """The distance (m) between two axis-aligned boxes, 0 when they touch or overlap.
+
+    Parameters
+    ----------
+    box_a, box_b : (2, 3) array_like of float
+        (min, max) rows, as ``Scene.bounds`` and the references' ``bounds``.
+    """
+    a, b = _box(box_a, "box_a"), _box(box_b, "box_b")
+    gap = np.maximum(np.maximum(a[0] - b[1], b[0] - a[1]), 0.0)
+    return float(np.linalg.norm(gap))
+
+
+def _box(box: ArrayLike, name: str) -> NDArray[np.float64]:
+    try:
+        b = np.asarray(box, dtype=np.float64)
+    except (TypeError, ValueError):
+        b = np.empty(0)
+    if b.shape != (2, 3) or not np.isfinite(b).all() or (b[0] > b[1]).any():
+        raise CompareError(f"Expected `{name}` as (2, 3) finite (min, max) rows, got "
+                           f"{np.shape(box)}.")
+    return b
+
+
+def _box_text(box: NDArray[np.float64]) -> str:
+    return "-".join("(" + ", ".join(f"{round(float(c), 3) + 0.0:.10g}" for c in row) + ")"
+                    for row in box)
+
+
+def _length_text(m: float) -> str:
+    return f"{m / 1000:,.1f} km" if m >= 10_000 else f"{m:,.3f} m"
+
+
+def check_overlap(box: ArrayLike, reference_box: ArrayLike, *,
+                  names: tuple[str, str] = ("the compared cloud", "the reference"),
+                  tolerance_m: float = OVERLAP_TOL_M) -> float:
+    """Refuse a comparison of clouds whose bounding boxes lie more than
+    ``tolerance_m`` apart: every distance would be at least that gap, which means
+    different frames or units, not a deviation. Returns the gap (m).
+
+    Parameters
+    ----------
+    box, reference_box : (2, 3) array_like of float
+        (min, max) rows of the compared cloud and of the reference, metres.
+    names : (str, str)
+        What the message calls them (file names).
+    tolerance_m : float
+        Largest gap accepted, m (``OVERLAP_TOL_M``).
+
+    Raises
+    ------
+    CompareError
+        For boxes more than ``tolerance_m`` apart, naming both boxes.
+    """
+    a, b = _box(box, "box"), _box(reference_box, "reference_box")
+    gap = box_gap(a, b)
+    if gap > tolerance_m:
+        raise CompareError(f"Expected {names[0]} to overlap {names[1]} (bounding boxes "
+                           f"within {tolerance_m:g} m), got {_box_text(a)} and "
+                           f"{_box_text(b)}, {_length_text(gap)} apart; are they in "
+                           "different coordinate systems or units?")
+    return gap
 
 
 @dataclass(repr=False)
@@ -101,6 +179,8 @@ class ReferenceCloud:
         self.points, _ = as_points(reference, "reference", CompareError)
         if len(self.points) == 0:
             raise CompareError("Expected a reference cloud with points, got none.")
+        #: (2, 3) float64 (min, max) rows of the reference, m.
+        self.bounds = np.stack([self.points.min(axis=0), self.points.max(axis=0)])
         # Local origin: the tree works on small numbers (UTM-sized inputs keep mm).
         self.origin = self.points.mean(axis=0)
         self.tree = cKDTree(self.points - self.origin)
@@ -192,6 +272,9 @@ class ReferenceMesh:
         if f.min() < 0 or f.max() >= len(v):
             raise CompareError(f"Expected `faces` (m, 3) of vertex indices below {len(v)}, "
                                f"got indices from {f.min()} to {f.max()}.")
+        #: (2, 3) float64 (min, max) rows of the vertices used by a face, m.
+        used = v[np.unique(f)]
+        self.bounds = np.stack([used.min(axis=0), used.max(axis=0)])
         self.origin = v.mean(axis=0)
         self.tris = np.ascontiguousarray((v - self.origin)[f])          # (m, 3, 3)
         n = np.cross(self.tris[:, 1] - self.tris[:, 0], self.tris[:, 2] - self.tris[:, 0])

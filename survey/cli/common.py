@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import math
 import re
 import shutil
 import sys
 import time
+import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from importlib import metadata
@@ -418,13 +420,48 @@ def physics_options(cmd: Command) -> None:
       help="output points: .laz, .las, .ply, .npz (or .e57 for stations)")
 
 
-class Progress:
-    """A one-line progress bar of rays on stderr (only on a terminal); call it with
-    (done, total) after each chunk and ``close`` it at the end."""
+#: Tolerance (rad) of ``radian_like``: a value typed to 3 or more decimals (0.524,
+#: 0.5236) matches its multiple of pi/12; one of 2 decimals (0.52) does not.
+RADIAN_TOL = 1e-3
 
-    def __init__(self, quiet: bool) -> None:
+
+def radian_like(value_deg: float) -> int | None:
+    """The angle in whole degrees (a multiple of 15) whose radian value ``value_deg``
+    seems to be, or None.
+
+    DECISION: a degree value looks like radians when it is not a whole number, lies
+    within 2 pi of 0 and is within ``RADIAN_TOL`` of k pi / 12, k != 0 (pi/6 = 0.5236,
+    pi/4, pi/3, pi/2, pi...: the radian values people type). Any other radian value
+    (an atan2 output) cannot be told from degrees, and whole degrees never warn. A
+    degree value of 3+ decimals lands this close to k pi / 12 by chance for about
+    0.8 % of values below 2 pi (2 * 1e-3 / (pi / 12)).
+    """
+    v = float(value_deg)
+    if not math.isfinite(v) or v == round(v) or abs(v) > 2 * math.pi + RADIAN_TOL:
+        return None
+    k = round(v / (math.pi / 12))
+    return 15 * k if k != 0 and abs(v - k * math.pi / 12) <= RADIAN_TOL else None
+
+
+def warn_radian_like(value_deg: float | None, flag: str) -> None:
+    """The CLI's one-line warning when option ``flag``'s degree value looks like
+    radians (``radian_like``)."""
+    deg = None if value_deg is None else radian_like(value_deg)
+    if deg is not None:
+        warnings.warn(f"{flag} {value_deg:g} looks like radians ({deg} deg); the option "
+                      f"takes degrees: give {flag} {deg} if {deg} deg was meant.",
+                      UserWarning, stacklevel=2)
+
+
+class Progress:
+    """A one-line progress bar on stderr (only on a terminal), counting ``unit`` (rays
+    for simulations, points for comparisons); call it with (done, total) after each
+    chunk and ``close`` it at the end."""
+
+    def __init__(self, quiet: bool, unit: str = "rays") -> None:
         self.on = not quiet and sys.stderr.isatty()
         self.t0 = time.perf_counter()
+        self.unit = unit
 
     def __call__(self, done: int, total: int) -> None:
         if not self.on:
@@ -433,9 +470,10 @@ class Progress:
         frac = done / max(total, 1)
         eta = dt / frac - dt if frac > 0 else 0.0
         bar = "#" * int(30 * frac)
+        u = self.unit
         sys.stderr.write(f"\r[{bar:<30}] {100 * frac:5.1f} %  {done / 1e6:.1f}M/"
-                         f"{total / 1e6:.1f}M rays  {done / max(dt, 1e-9) / 1e6:.2f} "
-                         f"Mrays/s  ETA {eta:.0f} s ")
+                         f"{total / 1e6:.1f}M {u}  {done / max(dt, 1e-9) / 1e6:.2f} "
+                         f"M{u}/s  ETA {eta:.0f} s ")
         sys.stderr.flush()
 
     def close(self) -> None:
@@ -443,7 +481,8 @@ class Progress:
             sys.stderr.write("\n")
 
 
-__all__ = ["EXIT_INTERRUPTED", "EXIT_USAGE", "NUMBER_LIST", "Command", "CommandSet",
+__all__ = ["EXIT_INTERRUPTED", "EXIT_USAGE", "NUMBER_LIST", "RADIAN_TOL", "Command",
+           "CommandSet", "radian_like", "warn_radian_like",
            "Option", "Parser", "Progress", "UsageError", "floats", "numbers", "out_dir", "pair",
            "parse_window", "physics_options", "removed_on_failure", "run_command", "say",
            "version", "write_json", "write_text", "xyz"]

@@ -151,6 +151,13 @@ def cmd_correct(args) -> int:
                                 "control point was observed by the MLS), got none.")
     ia, ib = match(seen, world)
     m, t, g = seen.xyz[ia], seen.time[ia], world.xyz[ib]
+    if len(t) and (t.min() < traj.start_s - 1.0 or t.max() > traj.end_s + 1.0):
+        from sensors.trajectory import time_base_hint
+
+        raise TunnelsimCLIError(
+            f"Expected the control points' times within the trajectory's "
+            f"[{traj.start_s:g}, {traj.end_s:g}] s, got [{t.min():g}, {t.max():g}] s"
+            f"{time_base_hint(traj.times, t)}.")
     sw = None if world.sigma is None else world.sigma[ib].mean(axis=1)
     ids = [seen.ids[i] for i in ia]
     corr = fit_drift(m, t, g, model=args.model, sigma_world_m=sw, ids=ids)

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 
 from survey.cli.common import (
     CommandSet,
+    Progress,
     floats,
     out_dir,
     pair,
@@ -40,9 +42,12 @@ def register(commands: CommandSet) -> None:
     c.option("--model", choices=["plane"],
              help="local model of the reference: least-squares plane of --k points")
     c.option("--k", type=int, default=6, help="neighbours for --model (default 6)")
+    c.option("--allow-disjoint", action="store_true",
+             help="compare clouds whose bounding boxes lie more than 1 m apart (refused "
+                  "by default: different frames or units)")
     c.option("--threads", type=int, help="Numba threads (default: all cores)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
-    c.option("--quiet", action="store_true", help="print nothing on success")
+    c.option("--quiet", action="store_true", help="no progress bar or summary")
 
     c = commands.add(
         "plan", cmd_plan,
@@ -126,11 +131,32 @@ def _load_reference(path):
     return (ReferenceMesh(v, f), "mesh") if f is not None else (ReferenceCloud(v), "cloud")
 
 
-def cmd_compare(args) -> int:
+def _compared_boxes(args, compared, ref) -> int:
+    """Refuse (unless --allow-disjoint) a compared cloud whose bounding box lies more
+    than ``OVERLAP_TOL_M`` from the reference's; one pass over each cloud (bounds from
+    the points, not a header). Returns the number of compared points."""
     import numpy as np
 
-    from survey.analysis.compare import distance_stats
-    from survey.clouds.cloudio import annotate_las, iter_points, write_points_las
+    from survey.analysis.compare import check_overlap
+    from survey.clouds.cloudio import cloud_bounds
+    from survey.errors import CompareError
+
+    total = 0
+    for c in compared:
+        lo, hi, n = cloud_bounds(c)
+        total += n
+        if args.allow_disjoint:
+            continue
+        try:
+            check_overlap(np.stack([lo, hi]), ref.bounds,
+                          names=(f"'{c}'", f"the reference '{args.clouds[-1]}'"))
+        except CompareError as exc:
+            raise CompareError(f"{str(exc).rstrip('?.')}? Pass --allow-disjoint if you "
+                               "mean it.") from exc
+    return total
+
+
+def cmd_compare(args) -> int:
     from survey.report.compare import plot_histogram, stats_csv, stats_markdown
 
     if len(args.clouds) < 2:
@@ -145,34 +171,13 @@ def cmd_compare(args) -> int:
     if kind == "mesh" and (args.split or args.model):
         raise TunnelsimCLIError("Expected --split/--model only with a reference cloud, got "
                                 "a mesh (cloud-to-mesh distances are signed, not split).")
+    total = _compared_boxes(args, compared, ref)
     out = out_dir(args.output, args.force)
-    rows, hist = {}, {}
-    for c in compared:
-        name = Path(c).stem
-        got: list = []
-
-        def dist(xyz, got=got):
-            if kind == "mesh":
-                r = ref.distances(xyz, max_distance_m=args.max_dist)
-            else:
-                r = ref.distances(xyz, max_distance_m=args.max_dist, split=args.split,
-                                  model=args.model, k=args.k)
-            got.append(r.distance)
-            extra = {"distance": r.distance.astype(np.float32)}
-            if args.split:
-                extra.update(dx=r.dx.astype(np.float32), dy=r.dy.astype(np.float32),
-                             dz=r.dz.astype(np.float32))
-            return extra
-
-        dst = out / f"{name}_distance.laz"
-        if Path(c).suffix.lower() in (".las", ".laz"):
-            # Streamed, and every input field (intensity, time, classes...) kept.
-            annotate_las(c, dst, dist)
-        else:
-            pts = np.concatenate(list(iter_points(c)))
-            write_points_las(dst, pts, dist(pts))
-        rows[name] = distance_stats(np.concatenate(got))
-        hist[name] = np.concatenate(got)
+    prog = Progress(args.quiet, unit="points")
+    try:
+        rows, hist = _distances(args, compared, ref, kind, out, lambda n: prog(n, total))
+    finally:
+        prog.close()
     title = "C2M (signed)" if kind == "mesh" else "C2C"
     write_text(out / "stats.csv", stats_csv(rows))
     md = stats_markdown(rows, title=title)
@@ -184,6 +189,52 @@ def cmd_compare(args) -> int:
     say(args, md.rstrip() + f"\n-> {out}/ (stats.csv, stats.md, histogram.png, "
                             "*_distance.laz with scalar field 'distance')")
     return 0
+
+
+def _distances(args, compared, ref, kind, out, progress):
+    """Write each compared cloud with its distances (``NAME_distance.laz``), block by
+    block (``progress(points done)`` after each); returns (stats rows, distances) by
+    cloud name."""
+    import numpy as np
+
+    from survey.analysis.compare import BLOCK, distance_stats
+    from survey.clouds.cloudio import annotate_las, iter_points, write_points_las
+
+    rows, hist = {}, {}
+    done = 0
+    for c in compared:
+        name = Path(c).stem
+        got: list = []
+
+        def dist(xyz, got=got):
+            nonlocal done
+            if kind == "mesh":
+                r = ref.distances(xyz, max_distance_m=args.max_dist)
+            else:
+                r = ref.distances(xyz, max_distance_m=args.max_dist, split=args.split,
+                                  model=args.model, k=args.k)
+            got.append(r.distance)
+            extra = {"distance": r.distance.astype(np.float32)}
+            if args.split:
+                extra.update(dx=r.dx.astype(np.float32), dy=r.dy.astype(np.float32),
+                             dz=r.dz.astype(np.float32))
+            done += len(xyz)
+            progress(done)
+            return extra
+
+        dst = out / f"{name}_distance.laz"
+        if Path(c).suffix.lower() in (".las", ".laz"):
+            # Streamed, and every input field (intensity, time, classes...) kept; blocks
+            # of BLOCK points for the progress bar.
+            annotate_las(c, dst, dist, chunk=BLOCK)
+        else:
+            parts = list(iter_points(c, chunk=BLOCK))
+            extras = [dist(p) for p in parts]
+            write_points_las(dst, np.concatenate(parts),
+                             {k: np.concatenate([e[k] for e in extras]) for k in extras[0]})
+        rows[name] = distance_stats(np.concatenate(got))
+        hist[name] = np.concatenate(got)
+    return rows, hist
 
 
 # ---------------------------------------------------------------------------- plan
@@ -200,6 +251,9 @@ def cmd_plan(args) -> int:
         plot_coverage,
     )
 
+    from survey.cli.common import warn_radian_like
+
+    warn_radian_like(args.incidence_deg, "--incidence-deg")
     spec = load_sensor(args.sensor)
     cell_m, cell_deg = pair(args.cell, "--cell as M,DEG")
     spacings = floats(args.spacing, "--spacing")
@@ -265,4 +319,4 @@ def cmd_study(args) -> int:
     return 0
 
 
-__all__ = ["cmd_compare", "cmd_plan", "cmd_study", "register"]
+__all__ = ["PointProgress", "cmd_compare", "cmd_plan", "cmd_study", "register"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import sys
 
-from survey.cli.common import CommandSet, numbers, parse_window, version
+from survey.cli.common import CommandSet, numbers, parse_window, version, warn_radian_like
 from survey.errors import TunnelsimCLIError
 
 
@@ -154,6 +154,7 @@ def cmd_tunnel(args) -> int:
                                     f"smooth lining ({args.preset}, --relief "
                                     f"{args.relief or 'default'}); add --relief rock.")
         relief = relief.scaled(args.relief_scale)
+    warn_radian_like(args.heading_deg, "--heading-deg")
     tun, default_def = preset(args.preset, edge_length_m=edge, seed=args.seed,
                               closed_ends=args.closed_ends,
                               roughness_rms_m=None if args.roughness_mm is None
