@@ -12,6 +12,8 @@
     expect_s = 3                 # estimate for the progress line (optional)
     figures = ["coverage.png"]   # files the report shows (optional)
     tables = ["plan/plan.md"]    # Markdown files the report includes (optional)
+    requires = "slam"            # run only when this optional extra is installed (optional)
+    unless = "slam"              # run only when it is not: the fallback (optional)
     [steps.options]              # --key value; true -> --key; a list -> repeated
     output = "tunnel.ply"
     edge-length = 0.1
@@ -30,15 +32,22 @@ never describes other numbers than the ones it ran: ``{speed:g}``, ``{cell[0]:cm
 (a number list is indexed), and the forms ``cm``, ``mm`` and ``%`` (the value times
 100, 1000, 100 with the unit), ``range`` ("5,60" -> "5-60") and ``list`` ("0,1,3" ->
 "0, 1 and 3"). Write ``{{`` and ``}}`` for braces.
+
+``requires`` and ``unless`` name an optional extra (``EXTRAS``: ``slam``, installed when
+``genz_icp`` can be imported; the demo's odometry): a pipeline carries a step that needs the extra and its
+fallback, and runs one of them (``active_steps``). The report numbers and lists the
+steps that ran; every step, run or not, is checked when the pipeline is loaded.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import statistics
 import string
 import sys
 import time
 import tomllib
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar
@@ -47,7 +56,38 @@ from survey.cli.common import NUMBER_LIST, Command, UsageError, out_dir, run_com
 from survey.errors import PipelineError, TunnelsimError
 
 _STEP_KEYS = {"name", "command", "about", "args", "options", "quick", "expect_s", "figures",
-              "tables"}
+              "tables", "requires", "unless"}
+
+#: Optional extras a step may name in ``requires`` / ``unless``, and the module whose
+#: presence means the extra is installed (pyproject's ``[project.optional-dependencies]``).
+EXTRAS = {"slam": "genz_icp"}
+
+
+def extra_available(name: str) -> bool:
+    """Whether the optional extra ``name`` (a key of ``EXTRAS``) is installed: its module
+    can be found (not imported: finding it is cheap and has no side effects)."""
+    if name not in EXTRAS:
+        raise PipelineError(f"Expected an optional extra ({', '.join(sorted(EXTRAS))}), got "
+                            f"{name!r}.")
+    try:
+        return importlib.util.find_spec(EXTRAS[name]) is not None
+    except (ImportError, ValueError):   # a broken install counts as none
+        return False
+
+
+def step_runs(step: dict, available: Callable[[str], bool] | None = None) -> bool:
+    """Whether a step runs: its ``requires`` extra is installed and its ``unless`` extra
+    is not (``available`` tells; default ``extra_available``)."""
+    have = extra_available if available is None else available
+    if "requires" in step and not have(step["requires"]):
+        return False
+    return not ("unless" in step and have(step["unless"]))
+
+
+def active_steps(pipe: dict, *, available: Callable[[str], bool] | None = None) -> list[dict]:
+    """The steps of a loaded pipeline that run here, in order (``step_runs``): the ones
+    the report numbers and lists."""
+    return [st for st in pipe["steps"] if step_runs(st, available)]
 
 
 def demo_text() -> str:
@@ -87,6 +127,11 @@ def load_pipeline(text: str, source: str = "<pipeline>", *,
         if st["command"] not in commands:
             raise PipelineError(f"Expected a tunnelsim command in {where} "
                                 f"({', '.join(sorted(commands))}), got {st['command']!r}.")
+        for key in ("requires", "unless"):
+            if key in st and not (isinstance(st[key], str) and st[key] in EXTRAS):
+                raise PipelineError(f"Expected '{key}' to name an optional extra "
+                                    f"({', '.join(sorted(EXTRAS))}) in {where}, got "
+                                    f"{st[key]!r}.")
         st.setdefault("name", st["command"])
         for quick in (False, True):
             step_argv(st, quick=quick, commands=commands)
@@ -243,17 +288,18 @@ class _Bar:
 
 
 def run_pipeline(pipe: dict, out_dir_path, *, quick=False, seed=None, threads=None,
-                 quiet=False, force=False, commands: dict[str, Command] | None = None
-                 ) -> list:
-    """Run every step in ``out_dir_path`` (created; a non-empty one only with
-    ``force``). Returns [(step, argv, seconds)] with each step's ``about`` filled in and
-    its command line as the report shows it. A failing step raises ``PipelineError``
-    naming it."""
+                 quiet=False, force=False, commands: dict[str, Command] | None = None,
+                 available: Callable[[str], bool] | None = None) -> list:
+    """Run the steps that run here (``active_steps``; ``available`` as there) in
+    ``out_dir_path`` (created; a non-empty one only with ``force``). Returns
+    [(step, argv, seconds)] with each step's ``about`` filled in and its command line as
+    the report shows it. A failing step raises ``PipelineError`` naming it (numbered as
+    the report numbers the steps that run)."""
     commands = _commands(commands)
     out = out_dir(out_dir_path, force)
     base = out.resolve()
     seed = pipe["pipeline"].get("seed") if seed is None else seed
-    steps = pipe["steps"]
+    steps = active_steps(pipe, available=available)
     bar = _Bar(steps, quick, quiet)
     done = []
     for i, st in enumerate(steps):
@@ -279,8 +325,9 @@ def run_pipeline(pipe: dict, out_dir_path, *, quick=False, seed=None, threads=No
 
 
 def pipeline_report(pipe: dict, done: list, out_dir_path, *, intro: str = "") -> str:
-    """report.md text: per step what it does, its command, time, tables and figures
-    (links relative to the folder; only files that exist)."""
+    """report.md text: per step that ran (``done``, from ``run_pipeline``) what it does,
+    its command, time, tables and figures (links relative to the folder; only files that
+    exist). Steps left out by ``requires`` / ``unless`` are not in it."""
     out = Path(out_dir_path)
     total = sum(d for _, _, d in done)
     lines = [f"# {pipe['pipeline'].get('name', 'tunnelsim pipeline')}", ""]
@@ -305,5 +352,6 @@ def pipeline_report(pipe: dict, done: list, out_dir_path, *, intro: str = "") ->
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["demo_text", "load_pipeline", "pipeline_report", "run_pipeline", "step_about",
-           "step_argv", "step_options"]
+__all__ = ["EXTRAS", "active_steps", "demo_text", "extra_available", "load_pipeline",
+           "pipeline_report", "run_pipeline", "step_about", "step_argv", "step_options",
+           "step_runs"]

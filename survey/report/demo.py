@@ -53,17 +53,77 @@ def cloud_c2m_rms(clouds: list[str | os.PathLike[str]], mesh: str | os.PathLike[
     return out
 
 
-def demo_summary(folder: str | os.PathLike[str]) -> dict[str, Any]:
-    """Key numbers of a finished demo folder (missing pieces are left out)."""
+#: The demo's MLS files (its pipeline's names): the raw trajectory both branches write,
+#: the evaluation the slam step writes beside it, and each branch's true trajectory.
+RAW_TRAJECTORY = "mls_raw_trajectory.txt"
+SLAM_EVALUATION = "mls_raw_trajectory.json"
+TRUE_TRAJECTORY = {True: "slam_lidar_true_trajectory.txt",
+                   False: "mls_raw_true_trajectory.txt"}
+#: summary.json's ``drift_model`` for the fallback branch.
+DRIFT_MODEL = "random walk (model; the slam extra is not installed)"
+#: The slam step's figures summary.json carries (names of its JSON).
+SLAM_KEYS = ("final_error_m", "final_error_pct", "ate_rms_m", "path_length_m")
+
+
+def ran_slam(folder: str | os.PathLike[str]) -> bool:
+    """Whether a demo folder's raw MLS run came from real SLAM (the slam step) rather
+    than the drift model: the slam step's evaluation is there and not older than the
+    raw trajectory (a folder rerun with ``--force`` on the other branch keeps the other
+    branch's files; the newer trajectory tells which branch wrote it)."""
+    d = Path(folder)
+    ev, raw = d / SLAM_EVALUATION, d / RAW_TRAJECTORY
+    return ev.is_file() and raw.is_file() and ev.stat().st_mtime >= raw.stat().st_mtime
+
+
+def _position_errors(est, truth) -> tuple[np.ndarray, np.ndarray]:
+    """Times (n,) of the estimate within the truth's span and |p_est - p_true| (n,) m
+    there, the truth interpolated at the estimate's times (the SLAM estimate is stamped
+    per frame, the truth per pose of the drive; the drift model shares the truth's
+    times, where this is the pose-by-pose difference)."""
+    t = est.times
+    ok = (t >= truth.start_s) & (t <= truth.end_s)
+    p, _ = truth.interpolate(t[ok])
+    return t[ok], np.linalg.norm(est.positions[ok] - p, axis=1)
+
+
+def demo_summary(folder: str | os.PathLike[str], *, slam: bool | None = None
+                 ) -> dict[str, Any]:
+    """Key numbers of a finished demo folder (missing pieces are left out).
+
+    Parameters
+    ----------
+    folder : path
+        The demo's output folder.
+    slam : bool, optional
+        Whether the demo ran the real SLAM branch (its steps with ``requires = "slam"``)
+        or the drift-model fallback; by default told from the files (``ran_slam``).
+
+    Returns
+    -------
+    dict
+        JSON-ready figures; with ``slam``: ``slam`` (odometry, final error, ATE RMS,
+        path length of the odometry against the truth) and ``drift_model``, the
+        odometry's name or ``DRIFT_MODEL``.
+    """
     from sensors import Trajectory
 
     d = Path(folder)
+    slam = ran_slam(d) if slam is None else slam
     out: dict[str, Any] = {}
-    if (d / "mls_raw_trajectory.txt").is_file():
-        slam = Trajectory.read(d / "mls_raw_trajectory.txt")
-        true = Trajectory.read(d / "mls_raw_true_trajectory.txt")
-        out["raw_drift_max_m"] = float(np.linalg.norm(slam.positions - true.positions,
-                                                      axis=1).max())
+    raw, true_path = d / RAW_TRAJECTORY, d / TRUE_TRAJECTORY[slam]
+    ev = json.loads((d / SLAM_EVALUATION).read_text()) \
+        if slam and (d / SLAM_EVALUATION).is_file() else None
+    if ev is not None:
+        out["drift_model"] = ev.get("odometry", "kiss-icp")
+        out["slam"] = {"odometry": out["drift_model"], **{k: ev.get(k) for k in SLAM_KEYS}}
+    elif raw.is_file() and not slam:
+        out["drift_model"] = DRIFT_MODEL
+    if raw.is_file() and true_path.is_file():
+        est = Trajectory.read(raw)
+        true = Trajectory.read(true_path)
+        _, err = _position_errors(est, true)
+        if len(err):
+            out["raw_drift_max_m"] = float(err.max())
         fixed = d / "mls_corrected_trajectory.txt"
         seen = d / "mls_raw_cp_observed.csv"
         if fixed.is_file() and seen.is_file():
@@ -72,12 +132,11 @@ def demo_summary(folder: str | os.PathLike[str]) -> dict[str, Any]:
             # Between the first and the last control point the correction is constrained;
             # beyond them it extrapolates.
             tau = read_control_points(seen).time
-            ok = np.zeros(len(true.times), dtype=bool) if tau is None or not len(tau) else \
-                (true.times >= tau.min()) & (true.times <= tau.max())
+            t, err = _position_errors(Trajectory.read(fixed), true)
+            ok = np.zeros(len(t), dtype=bool) if tau is None or not len(tau) else \
+                (t >= tau.min()) & (t <= tau.max())
             if ok.any():
-                fx = Trajectory.read(fixed)
-                out["corrected_drift_max_m"] = float(np.linalg.norm(
-                    fx.positions[ok] - true.positions[ok], axis=1).max())
+                out["corrected_drift_max_m"] = float(err[ok].max())
     if all((d / f).is_file() for f in ("mls_raw.laz", "mls_corrected.laz", "tunnel.ply")):
         # The drift of the cloud itself, on its points (issue 15): the trajectory
         # figures above do not show a cloud that was written without its drift.
@@ -114,8 +173,21 @@ def demo_summary(folder: str | os.PathLike[str]) -> dict[str, Any]:
 def summary_markdown(s: dict) -> str:
     """The report's opening table of key numbers."""
     rows = []
+    if "slam" in s:
+        q = s["slam"]
+        rows.append(("source of the MLS drift", f"real LiDAR odometry "
+                     f"({q['odometry']}) on the Airy; the profiler placed with it"))
+        if all(q.get(k) is not None for k in SLAM_KEYS):
+            rows.append((f"{q['odometry']} over {q['path_length_m']:.1f} m against the "
+                         "truth: final error / ATE RMS",
+                         f"{100 * q['final_error_m']:.1f} cm = "
+                         f"{q['final_error_pct']:.2f} % of the path / "
+                         f"{100 * q['ate_rms_m']:.1f} cm"))
+    elif "drift_model" in s:
+        rows.append(("source of the MLS drift", s["drift_model"]))
     if "raw_drift_max_m" in s:
-        rows.append(("SLAM drift of the raw MLS run (max)", f"{1000 * s['raw_drift_max_m']:.0f} mm"))
+        rows.append(("drift of the raw MLS trajectory against the truth (max)",
+                     f"{1000 * s['raw_drift_max_m']:.0f} mm"))
     if "corrected_drift_max_m" in s:
         rows.append(("trajectory error after correction, between the first and last "
                      "control point (max)", f"{1000 * s['corrected_drift_max_m']:.1f} mm"))
@@ -155,4 +227,6 @@ def summary_markdown(s: dict) -> str:
                      [f"| {a} | {b} |" for a, b in rows]) + "\n"
 
 
-__all__ = ["C2M_SAMPLE", "cloud_c2m_rms", "demo_summary", "summary_markdown"]
+__all__ = ["C2M_SAMPLE", "DRIFT_MODEL", "RAW_TRAJECTORY", "SLAM_EVALUATION", "SLAM_KEYS",
+           "TRUE_TRAJECTORY", "cloud_c2m_rms", "demo_summary", "ran_slam",
+           "summary_markdown"]
