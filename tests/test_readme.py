@@ -91,12 +91,24 @@ def check_helmert(ns, out, tmp_path):
     assert "+proj=helmert" in out
 
 
+def check_slam(ns, out, tmp_path):
+    # GenZ-ICP tracks 8 m of the rock gallery (standing still 1 s at each end) to a few
+    # cm; the evaluation is against the truth the drive was simulated on.
+    err = ns["err"]
+    assert abs(err.path_length_m - 8.0) < 0.05
+    assert err.final_error_m < 0.1 and err.ate_rms_m < 0.1
+    # 8 s: 1 s still, 6 s of trip (1 m/s² up to 2 m/s and down), 1 s still; 10 Hz.
+    assert ns["res"].method == "genz-icp" and len(ns["res"].times) >= 75
+    assert "final error" in out
+
+
 CHECKS = {
     "The Python API in ten lines": check_python_api,
     "The ray-casting engine in ten lines": check_raycasting,
     "Generated tunnels": check_generated,
     "Simulated scanners": check_scanners,
     "Control points, Helmert adjustment, drift correction": check_helmert,
+    "Real SLAM in the loop": check_slam,
 }
 
 
