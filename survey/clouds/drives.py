@@ -1,5 +1,7 @@
 """Simulated drives read back: the scan frames LiDAR odometry consumes, and the drive
-re-placed along another trajectory (the cloud a SLAM estimate implies).
+re-placed along another trajectory (the cloud a SLAM estimate implies). A drive is a
+LAS/LAZ file with full fields, or a ROS 2 bag (``drive -o drive.mcap``: one
+PointCloud2 per sweep in the sensor frame, the mount in /tf_static).
 
 A drive file is what ``tunnelsim drive --fields full`` writes (LAS/LAZ): per point the
 GPS time (the pulse time), the point in the sensor frame (extra bytes ``sensor_x``,
@@ -31,8 +33,8 @@ from sensors.las import LasSource
 from survey.clouds.cloudio import CHUNK, map_cloud
 from survey.errors import CloudFileError
 
-__all__ = ["DRIVE_FIELDS", "DriveFile", "ScanFrame", "frames_from_points", "iter_frames",
-           "open_drive", "replace_drive"]
+__all__ = ["DRIVE_FIELDS", "TIME_FIELDS", "DriveFile", "ScanFrame", "frames_from_points",
+           "iter_frames", "open_drive", "replace_drive"]
 
 #: LAS dimensions a drive file needs for odometry and re-placing.
 DRIVE_FIELDS = ("gps_time", "sensor_x", "sensor_y", "sensor_z", "frame")
@@ -62,7 +64,11 @@ class DriveFile:
         Whether the file recorded the mount.
     n_points : int
     time_span_s : (float, float)
-        First and last GPS time (from the points, read once).
+        First and last point time (from the points, read once).
+    kind : str
+        "las" (LAS/LAZ) or "bag" (ROS 2 bag: an ``.mcap`` file or a rosbag2 folder).
+    topic : str
+        The PointCloud2 topic read from a bag ("" for LAS).
     """
 
     path: Path
@@ -71,6 +77,8 @@ class DriveFile:
     mount_recorded: bool
     n_points: int
     time_span_s: tuple[float, float]
+    kind: str = "las"
+    topic: str = ""
 
 
 def _info(source: LasSource) -> dict[str, Any]:
@@ -94,9 +102,12 @@ def open_drive(path: str | os.PathLike[str]) -> DriveFile:
         sensor-frame fields (``DRIVE_FIELDS``), or whose times do not increase.
     """
     p = Path(path)
+    if p.suffix.lower() == ".mcap" or (p.is_dir() and (p / "metadata.yaml").is_file()):
+        return _open_bag(p)
     if p.suffix.lower() not in (".las", ".laz"):
         raise CloudFileError(f"Expected a drive as .las/.laz (tunnelsim drive --fields full "
-                             f"-o drive.laz), got '{p}'.")
+                             f"-o drive.laz) or a ROS 2 bag (.mcap or a rosbag2 folder), "
+                             f"got '{p}'.")
     if not p.is_file():
         raise CloudFileError(f"Expected a drive file, got '{p}' which does not exist.")
     with LasSource(p) as src:
@@ -137,7 +148,10 @@ def frames_from_points(chunks: Iterable[np.ndarray]) -> Iterator[ScanFrame]:
 
 def iter_frames(drive: DriveFile, *, chunk: int = CHUNK) -> Iterator[ScanFrame]:
     """The drive file's scan frames in time order (a frame split over chunks is
-    joined)."""
+    joined; in a bag, one PointCloud2 message is one frame)."""
+    if drive.kind == "bag":
+        yield from _bag_frames(drive)
+        return
     with LasSource(drive.path) as src:
         yield from _group(
             (np.asarray(rec["frame"], dtype=np.int64),
@@ -179,6 +193,10 @@ def replace_drive(drive: DriveFile, dst: str | os.PathLike[str], trajectory: Tra
     CloudFileError
         When the trajectory does not span the drive's times.
     """
+    if drive.kind != "las":
+        raise CloudFileError(f"Expected a LAS/LAZ drive to re-place, got the ROS 2 bag "
+                             f"'{drive.path}' (its clouds are in the sensor frame only); "
+                             "re-place the same drive written as LAZ (--fields full).")
     a, b = drive.time_span_s
     if len(trajectory) < 2 or trajectory.start_s > a or trajectory.end_s < b:
         raise CloudFileError(f"Expected a trajectory spanning the drive's times [{a:.6f}, "
@@ -193,3 +211,90 @@ def replace_drive(drive: DriveFile, dst: str | os.PathLike[str], trajectory: Tra
         return pos + np.einsum("nij,nj->ni", mat, s)
 
     return map_cloud(drive.path, dst, place, chunk=chunk, fields=_SENSOR_XYZ)
+
+
+# ------------------------------------------------------------------ ROS 2 bags
+#: Per-point time fields of PointCloud2 clouds, as the common drivers write them:
+#: name -> (scale to seconds, relative to the message stamp?). velodyne_pointcloud
+#: ``time`` (float32 s after the stamp), ouster-ros ``t`` (uint32 ns after the stamp),
+#: rslidar_sdk ``timestamp`` (float64 absolute s). sensors.bag writes all three.
+TIME_FIELDS = {"time": (1.0, True), "t": (1e-9, True), "timestamp": (1.0, False)}
+#: sensor_msgs/msg/PointField datatypes as NumPy types.
+_FIELD_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
+
+
+def _reader(p: Path) -> Any:
+    try:
+        from rosbags.highlevel import AnyReader
+    except ImportError:
+        raise CloudFileError("Expected the rosbags package to read a ROS 2 bag, got it "
+                             "missing; install it with: pip install 'tunnelsim[ros]'.") \
+            from None
+    return AnyReader([p])
+
+
+def _cloud(msg: Any, topic: str) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(points (n, 3) float64, absolute times (n,) float64) of one PointCloud2."""
+    fields = {f.name: f for f in msg.fields}
+    tname = next((n for n in TIME_FIELDS if n in fields), None)
+    if not {"x", "y", "z"} <= set(fields) or tname is None:
+        raise CloudFileError(f"Expected x, y, z and a per-point time ({', '.join(TIME_FIELDS)}) "
+                             f"in the clouds of '{topic}', got fields {sorted(fields)}.")
+    order = ">" if msg.is_bigendian else "<"
+    names = ["x", "y", "z", tname]
+    dt = np.dtype({"names": names,
+                   "formats": [order + _FIELD_TYPES[fields[n].datatype] for n in names],
+                   "offsets": [fields[n].offset for n in names],
+                   "itemsize": msg.point_step})
+    n = int(msg.width) * int(msg.height)
+    rec = np.frombuffer(np.asarray(msg.data, dtype=np.uint8).tobytes(), dtype=dt, count=n)
+    xyz = np.stack([rec["x"], rec["y"], rec["z"]], 1).astype(np.float64)
+    scale, relative = TIME_FIELDS[tname]
+    t = rec[tname].astype(np.float64) * scale
+    if relative:
+        t = t + msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+    keep = np.isfinite(xyz).all(axis=1)
+    return xyz[keep], t[keep]
+
+
+def _open_bag(p: Path) -> DriveFile:
+    """A bag's drive: its PointCloud2 topic (the one with most messages), the mount
+    from /tf_static (base_link -> the clouds' frame), points and time span."""
+    if not p.exists():
+        raise CloudFileError(f"Expected a ROS 2 bag, got '{p}' which does not exist.")
+    with _reader(p) as bag:
+        clouds = [c for c in bag.connections if c.msgtype == "sensor_msgs/msg/PointCloud2"]
+        if not clouds:
+            raise CloudFileError(f"Expected a sensor_msgs/msg/PointCloud2 topic in '{p}', "
+                                 "got none.")
+        best = max(clouds, key=lambda c: c.msgcount)
+        n, lo, hi, frame = 0, np.inf, -np.inf, ""
+        for con, _, raw in bag.messages(connections=[best]):
+            msg = bag.deserialize(raw, con.msgtype)
+            xyz, t = _cloud(msg, best.topic)
+            frame = frame or msg.header.frame_id
+            n += len(t)
+            if len(t):
+                lo, hi = min(lo, float(t.min())), max(hi, float(t.max()))
+        mount, recorded = Mount(), False
+        static = [c for c in bag.connections if c.topic == "/tf_static"]
+        for con, _, raw in bag.messages(connections=static):
+            for tf in bag.deserialize(raw, con.msgtype).transforms:
+                if tf.child_frame_id == frame:
+                    tr, q = tf.transform.translation, tf.transform.rotation
+                    mount = Mount((tr.x, tr.y, tr.z), Rotation.from_quat([q.x, q.y, q.z, q.w]))
+                    recorded = True
+    if n == 0:
+        raise CloudFileError(f"Expected points in the clouds of '{best.topic}' in '{p}', "
+                             "got none.")
+    return DriveFile(p, frame or "unknown", mount, recorded, n, (lo, hi), "bag", best.topic)
+
+
+def _bag_frames(drive: DriveFile) -> Iterator[ScanFrame]:
+    with _reader(drive.path) as bag:
+        cons = [c for c in bag.connections if c.topic == drive.topic]
+        for k, (con, _, raw) in enumerate(bag.messages(connections=cons)):
+            xyz, t = _cloud(bag.deserialize(raw, con.msgtype), drive.topic)
+            if len(t):
+                order = np.argsort(t, kind="stable")
+                yield ScanFrame(k, xyz[order], t[order])

@@ -15,7 +15,8 @@ def register(commands: CommandSet) -> None:
         "slam", cmd_slam, seeded=True,
         help="run LiDAR odometry (KISS-ICP) on a simulated drive",
         description="Run real LiDAR odometry on a drive simulated with 'tunnelsim drive "
-                    "--fields full' (per-point times and sensor-frame points) and write "
+                    "--fields full' (per-point times and sensor-frame points; or a ROS 2 "
+                    "bag from 'tunnelsim drive -o drive.mcap') and write "
                     "the estimated platform trajectory (TUM). With --truth: anchor it at "
                     "the true start pose and evaluate it as evo does (ATE after first-pose "
                     "alignment, drift per 10 m and 100 m): _report.md, .json and .png "
@@ -26,7 +27,9 @@ def register(commands: CommandSet) -> None:
                     "optional extra: pip install 'tunnelsim[slam]'.",
         epilog="Example: tunnelsim slam drive.laz -o estimate.txt --truth "
                "drive_true_trajectory.txt --cloud slam_cloud.laz --control tunnel.json")
-    c.option("drive", path="in", help="drive with full fields (.las/.laz)")
+    c.option("drive", path="in",
+             help="drive with full fields (.las/.laz), or a ROS 2 bag (.mcap or a rosbag2 "
+                  "folder from 'tunnelsim drive -o drive.mcap')")
     c.option("-o", "--output", required=True, path="out",
              help="estimated platform trajectory (.txt/.tum TUM, or .csv)")
     c.option("--odometry", choices=["kiss-icp", "genz-icp"], default="kiss-icp",
@@ -96,6 +99,10 @@ def cmd_slam(args) -> int:
     _check_args(args)
     drive = open_drive(args.drive)
     place = open_drive(args.place) if args.place else drive
+    if args.cloud and place.kind != "las":
+        raise TunnelsimCLIError(f"Expected a LAS/LAZ drive to re-place with --cloud, got the "
+                                f"ROS 2 bag '{place.path}'; pass --place DRIVE.laz (the same "
+                                "drive written with --fields full).")
     truth = Trajectory.read(args.truth) if args.truth else None
     control = _control(args.control) if args.control else None
     if not args.quiet:
