@@ -82,11 +82,18 @@ def register(commands: CommandSet) -> None:
              help="sensor name or a .toml file")
     c.option("--trajectory", path="in",
              help="TUM text (t x y z qx qy qz qw) or CSV trajectory")
-    c.option("--along", choices=["centreline"],
-             help="drive along the tunnel centreline (needs the mesh's .json)")
+    c.option("--along", choices=["centreline", "auto"],
+             help="centreline: drive along the tunnel centreline (needs the mesh's "
+                  ".json); auto: along a route found in any mesh, the middle of its "
+                  "passage between its farthest ends or through --waypoints, keeping "
+                  "0.2 m from the mesh (writes _route.csv)")
+    c.option("--waypoints", path="in", metavar="CSV",
+             help="with --along auto: x,y[,z] rows to drive through in order (z picks "
+                  "the floor below it where passages cross)")
     c.option("--speed", type=float, metavar="M_S", help="speed along the centreline")
     c.option("--height", type=float, default=0.5, metavar="M",
-             help="platform height above the centreline (default 0.5)")
+             help="platform height above the centreline, or above the floor with "
+                  "--along auto (default 0.5)")
     c.option("--offset", type=float, default=0.0, metavar="M",
              help="platform offset left of the centreline (default 0)")
     c.option("--margin", type=float, default=1.0, metavar="M",
@@ -277,6 +284,7 @@ def cmd_drive(args) -> int:
         raise TunnelsimCLIError("Expected --along centreline with --slam-drift (the control "
                                 "points come from the tunnel's JSON), got a trajectory "
                                 "file.")
+    _check_auto(args)
     lx, ly, lz = xyz(args.lever, "--lever")
     lever = (lx, ly, lz)
     spec = load_sensor(args.sensor)
@@ -287,21 +295,27 @@ def cmd_drive(args) -> int:
     if not Path(args.mesh).is_file():
         raise TunnelsimCLIError(f"Expected a mesh file, got '{args.mesh}' which does not "
                                 "exist.")
-    meta = None
+    meta = scene = refl = None
     if args.trajectory:
         traj = Trajectory.read(args.trajectory)
     else:
-        if args.along != "centreline" or args.speed is None:
-            raise TunnelsimCLIError("Expected --trajectory FILE, or --along centreline with "
-                                    "--speed V, got neither.")
-        meta = _tunnel_meta(args.mesh)
-        traj = _centreline(args, meta)
+        if args.along is None or args.speed is None:
+            raise TunnelsimCLIError("Expected --trajectory FILE, or --along centreline (or "
+                                    "auto) with --speed V, got neither.")
+        if args.along == "auto":
+            scene, refl = load_mesh(args.mesh)
+            traj = _auto_route(args, scene)
+        else:
+            meta = _tunnel_meta(args.mesh)
+            traj = _centreline(args, meta)
         if args.standstill:
             traj = traj.with_standstill(args.standstill, args.standstill)
-    # DECISION: checked before the mesh is loaded (a large mesh's BVH takes seconds).
+    # DECISION: checked before the mesh is loaded (a large mesh's BVH takes seconds);
+    # --along auto needs the mesh to find its route first.
     t_end = _drive_end(args.duration, traj)
     mount = Mount.pointing_down(lever) if args.mount == "down" else Mount(lever)
-    scene, refl = load_mesh(args.mesh)
+    if scene is None:
+        scene, refl = load_mesh(args.mesh)
     where = _check_drive_reach(args, scene, spec, traj, mount, t_end)
     run = simulate_drive(scene, spec, traj, mount, settings=_settings(args), seed=args.seed,
                          reflectivity=refl if refl is not None else args.reflectivity,
@@ -309,11 +323,46 @@ def cmd_drive(args) -> int:
     driven = trimmed(traj, t_end)      # every output covers the same time span
     if args.slam_drift:
         run = _slam_files(args, run, driven, meta, full=traj)
-    elif meta is not None:
+    else:                              # every drive writes the truth it drove (issue 22)
         _true_trajectory(args, driven)
     return _finish_run(args, run, f"{spec.name} drive {run.duration_s:.1f} s",
                        min_return=0.0 if args.allow_outside else MIN_DRIVE_RETURN,
                        where=where)
+
+
+def _check_auto(args) -> None:
+    """Refuse --waypoints without --along auto, and the options --along auto does not
+    take (they need the tunnel's JSON)."""
+    auto = args.along == "auto" and not args.trajectory
+    if args.waypoints and not auto:
+        other = "--trajectory" if args.trajectory else "--along centreline"
+        raise TunnelsimCLIError(f"Expected --waypoints with --along auto, got it with "
+                                f"{other}.")
+    bad = [flag for flag, given in (("--slam-drift", args.slam_drift),
+                                    ("--chainage", args.chainage),
+                                    ("--offset", args.offset)) if given]
+    if auto and bad:
+        raise TunnelsimCLIError(f"Expected {bad[0]} with --along centreline (it needs the "
+                                "tunnel's JSON), got it with --along auto; use --waypoints "
+                                "and --duration to choose the part driven.")
+
+
+def _auto_route(args, scene):
+    """The route found in the mesh (``sensors.route.find_route``), written beside the
+    output as ``_route.csv``, and its trajectory at --speed (--accel)."""
+    from pathlib import Path
+
+    from sensors.route import find_route, read_waypoints
+
+    wp = read_waypoints(args.waypoints) if args.waypoints else None
+    route = find_route(scene, waypoints=wp, height_m=args.height)
+    out = Path(args.output)
+    path = route.write_csv(out.with_name(f"{out.stem}_route.csv"))
+    if not args.quiet:
+        print(f"route: {route.length_m:.1f} m, smallest clearance "
+              f"{route.min_clearance_m:.2f} m (voxel {route.voxel_m:.2f} m, "
+              f"{route.seconds:.1f} s) -> {path.name}")
+    return route.trajectory(args.speed, accel_mps2=args.accel)
 
 
 def _drive_end(duration_s: float | None, traj) -> float | None:
@@ -380,8 +429,9 @@ def _check_drive_reach(args, scene, spec, traj, mount, t_end) -> str:
 
 
 def _true_trajectory(args, traj) -> None:
-    """The platform's true trajectory of a drive along the centreline, beside the cloud
-    (``_true_trajectory.txt``, TUM): the ground truth a SLAM estimate is judged by."""
+    """The platform's true trajectory of a drive, beside the cloud
+    (``_true_trajectory.txt``, TUM; for --trajectory, the input trimmed to what was
+    driven): the ground truth a SLAM estimate is judged by."""
     from pathlib import Path
 
     out = Path(args.output)
