@@ -323,7 +323,7 @@ def test_demo_about_texts_are_what_the_steps_run():
 
     steps = {s["name"]: s for s in load_pipeline(demo_text())["steps"]}
     mls, plan = steps["mls"], steps["station planning"]
-    assert "2 m/s, 50 profiles/s, chainage 5-60 m" in step_about(mls)
+    assert "3 m/s, 50 profiles/s, chainage 5-60 m" in step_about(mls)
     assert "3 m/s, 25 profiles/s, chainage 8-44 m" in step_about(mls, quick=True)
     assert "99 % coverage" in step_about(plan)
     assert "95 % coverage" in step_about(plan, quick=True)

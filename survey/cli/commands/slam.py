@@ -124,7 +124,7 @@ def cmd_slam(args) -> int:
                "skipped_frames": len(res.skipped), "points": res.n_points,
                "odometry_seconds": res.seconds, **res.settings}
     if truth is not None:
-        summary.update(_evaluate(args, est, truth, out))
+        summary.update(_evaluate(args, est, truth, out, summary))
         said += [f"{out.stem}_report.md", f"{out.stem}.json", f"{out.stem}.png"]
     if args.cloud:
         n = replace_drive(place, args.cloud, est)
@@ -143,9 +143,10 @@ def cmd_slam(args) -> int:
     return 0
 
 
-def _evaluate(args, est, truth, out) -> dict:
+def _evaluate(args, est, truth, out, run: dict) -> dict:
     """Evaluate against the truth (survey.analysis.trajectory) and write the report,
-    the JSON and the plot beside the trajectory; returns the key figures."""
+    the JSON (with ``run``: frames, points, odometry seconds and settings) and the plot
+    beside the trajectory; returns the key figures."""
     from survey.analysis.trajectory import trajectory_errors
     from survey.report.slam import plot_slam, slam_report
 
@@ -155,7 +156,7 @@ def _evaluate(args, est, truth, out) -> dict:
     write_text(out.with_name(out.stem + "_report.md"),
                slam_report(err, odometry=args.odometry, plot_path=png))
     d = err.to_dict()
-    write_json(out.with_name(out.stem + ".json"), dict(d, odometry=args.odometry))
+    write_json(out.with_name(out.stem + ".json"), dict(d, **run))
     return {k: d[k] for k in ("final_error_m", "final_error_pct", "path_length_m",
                               "ate_rms_m") if k in d}
 
