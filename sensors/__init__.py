@@ -29,6 +29,7 @@ _EXPORTS = {
     "sensors.spec": ("SensorSpec", "list_sensors", "load_sensor"),
     "sensors.trajectory": ("Mount", "Trajectory"),
     "sensors.meshes": ("load_mesh",),
+    "sensors.route": ("FreeSpace", "Route", "find_route", "free_space", "read_waypoints"),
 }
 
 
@@ -43,5 +44,6 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from sensors.spec import SensorSpec, list_sensors, load_sensor
     from sensors.trajectory import Mount, Trajectory
     from sensors.meshes import load_mesh
+    from sensors.route import FreeSpace, Route, find_route, free_space, read_waypoints
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -5,6 +5,10 @@ libE57Format checks a CRC-32C per 1 KiB page, so a cut or altered file is refuse
 whole; its exceptions carry several lines of debug context. The reader turns them into
 one ``PointFileError`` line naming the file. A scan with no points (which libE57Format
 cannot read) is skipped; a file without any point is the caller's to refuse.
+
+The coordinate reference system is the root's ``coordinateMetadata`` string (E57's
+place for it; WKT from ``sensors.crs.file_wkt``), written by ``write_e57_scan(...,
+crs=)`` and read by ``read_e57_crs``.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import numpy as np
 
 from .errors import PointFileError
 
-__all__ = ["E57_MAX_POINTS", "read_e57", "write_e57_scan"]
+__all__ = ["E57_MAX_POINTS", "read_e57", "read_e57_crs", "write_e57_scan"]
 
 #: Largest scan read or written: pye57 holds a scan in memory (about 36 bytes a point).
 E57_MAX_POINTS = 50_000_000
@@ -39,6 +43,40 @@ def _first_line(exc: BaseException) -> str:
     return text[0] if text else type(exc).__name__
 
 
+def _open_e57(path: Path) -> Any:
+    if not path.is_file():
+        raise PointFileError(f"Expected an E57 file, got '{path}' which does not exist.")
+    if path.stat().st_size == 0:
+        raise PointFileError(f"Expected an E57 file, got '{path}' which is empty "
+                             "(0 bytes).")
+    pye57 = _pye57()
+    try:
+        return pye57.E57(str(path))
+    except Exception as exc:   # libE57Format raises E57Exception; pye57 others
+        raise PointFileError(f"Expected a readable E57 file, got '{path}' which libE57 "
+                             f"refuses: {_first_line(exc)}; the file is corrupt or cut "
+                             "short: copy or export it again.") from exc
+
+
+def read_e57_crs(path: str | os.PathLike[str]) -> str | None:
+    """The root ``coordinateMetadata`` of an E57 file (the CRS as WKT, not parsed), or
+    None when it is empty or missing."""
+    path = Path(path)
+    e57 = _open_e57(path)
+    try:
+        root = e57.root
+        if not root.isDefined("coordinateMetadata"):
+            return None
+        text = str(root["coordinateMetadata"].value()).strip()
+    except Exception as exc:
+        raise PointFileError(f"Expected a readable coordinateMetadata in '{path}', got: "
+                             f"{_first_line(exc)}.") from exc
+    finally:
+        with contextlib.suppress(Exception):
+            e57.close()
+    return text or None
+
+
 def read_e57(path: str | os.PathLike[str]) -> Iterator[np.ndarray]:
     """World coordinates (n, 3) float64 of each scan of an E57 file (scan pose applied,
     invalid points dropped), one scan at a time.
@@ -47,15 +85,12 @@ def read_e57(path: str | os.PathLike[str]) -> Iterator[np.ndarray]:
     or unreadable file, and for a scan larger than ``E57_MAX_POINTS``.
     """
     path = Path(path)
-    if not path.is_file():
-        raise PointFileError(f"Expected an E57 file, got '{path}' which does not exist.")
-    if path.stat().st_size == 0:
-        raise PointFileError(f"Expected an E57 file, got '{path}' which is empty (0 bytes).")
-    pye57 = _pye57()
+    e57 = _open_e57(path)
     try:
-        e57 = pye57.E57(str(path))
         count = e57.scan_count
     except Exception as exc:   # libE57Format raises E57Exception; pye57 others
+        with contextlib.suppress(Exception):
+            e57.close()
         raise PointFileError(f"Expected a readable E57 file, got '{path}' which libE57 "
                              f"refuses: {_first_line(exc)}; the file is corrupt or cut "
                              "short: copy or export it again.") from exc
@@ -95,11 +130,13 @@ def read_e57(path: str | os.PathLike[str]) -> Iterator[np.ndarray]:
 def write_e57_scan(path: str | os.PathLike[str], local_xyz: np.ndarray, *,
                    rotation_xyzw: np.ndarray, translation: np.ndarray, name: str,
                    intensity: np.ndarray | None = None, row: np.ndarray | None = None,
-                   column: np.ndarray | None = None) -> Path:
+                   column: np.ndarray | None = None, crs: Any = None) -> Path:
     """Write one structured scan: sensor-frame Cartesian coordinates ``local_xyz``
     (n, 3), the pose (quaternion x, y, z, w and translation (3,), sensor to world),
-    optional ``intensity`` (n,) and ``row``/``column`` indices (n,). Written beside the
-    target and renamed when complete (pye57 writes to a path, not a stream)."""
+    optional ``intensity`` (n,) and ``row``/``column`` indices (n,), and the world
+    frame's CRS ``crs`` (as ``sensors.crs.parse_crs`` takes it) in the root's
+    ``coordinateMetadata``. Written beside the target and renamed when complete (pye57
+    writes to a path, not a stream)."""
     local_xyz = np.asarray(local_xyz, dtype=np.float64).reshape(-1, 3)
     path = Path(path)
     if len(local_xyz) == 0:
@@ -118,9 +155,14 @@ def write_e57_scan(path: str | os.PathLike[str], local_xyz: np.ndarray, *,
         data["rowIndex"] = np.asarray(row, dtype=np.int32)
         data["columnIndex"] = np.asarray(column, dtype=np.int32)
     q = np.asarray(rotation_xyzw, dtype=np.float64)
+    meta = ""
+    if crs is not None:
+        from .crs import file_wkt
+
+        meta = file_wkt(crs)
     tmp = path.with_name("." + path.name + ".part")
     try:
-        e57 = pye57.E57(str(tmp), mode="w")
+        e57 = _writer(pye57, tmp, meta)
         try:
             e57.write_scan_raw(data, name=name, rotation=np.array([q[3], q[0], q[1], q[2]]),
                                translation=np.asarray(translation, dtype=np.float64))
@@ -132,3 +174,56 @@ def write_e57_scan(path: str | os.PathLike[str], local_xyz: np.ndarray, *,
             os.unlink(tmp)
         raise
     return path
+
+
+def _writer(pye57: Any, path: Path, coordinate_metadata: str) -> Any:
+    """A pye57 writer whose root ``coordinateMetadata`` holds ``coordinate_metadata``.
+
+    DECISION: pye57 sets the root's ``coordinateMetadata`` to "" while it writes the
+    default header in its constructor, and libE57 refuses to set a node twice; the
+    subclass hands that one ``set`` the text instead (the rest of pye57's header is
+    kept as it writes it), and the result is checked so that a pye57 that changes its
+    header cannot drop the CRS silently."""
+    from pye57 import libe57
+
+    class Root:      # the root node, with the coordinateMetadata set redirected
+        def __init__(self, node: Any, imf: Any) -> None:
+            self._node, self._imf = node, imf
+
+        def set(self, name: str, value: Any) -> None:
+            if name == "coordinateMetadata":
+                value = libe57.StringNode(self._imf, coordinate_metadata)
+            self._node.set(name, value)
+
+        def __getattr__(self, name: str) -> Any:
+            return getattr(self._node, name)
+
+        def __getitem__(self, key: Any) -> Any:
+            return self._node[key]
+
+    class Writer(pye57.E57):
+        _in_header = False
+
+        def write_default_header(self) -> None:
+            self._in_header = True
+            try:
+                super().write_default_header()
+            finally:
+                self._in_header = False
+
+        @property
+        def root(self) -> Any:
+            node = self.image_file.root()
+            return Root(node, self.image_file) if self._in_header else node
+
+    e57 = Writer(str(path), mode="w")
+    root = e57.image_file.root()
+    if not root.isDefined("coordinateMetadata"):
+        root.set("coordinateMetadata", libe57.StringNode(e57.image_file,
+                                                         coordinate_metadata))
+    if str(root["coordinateMetadata"].value()) != coordinate_metadata:
+        e57.close()
+        raise PointFileError(f"Expected pye57 to write the CRS into '{path}', got a "
+                             "coordinateMetadata it set otherwise; update tunnelsim or "
+                             "write LAS/LAZ.")
+    return e57

@@ -19,6 +19,12 @@ Writing (``LasWriter``) is a stream of point records into a temporary file renam
 place on ``close``. ``output_header`` copies an input's header for a rewrite: every
 field, VLR and EVLR (LAS 1.3 and 1.4 waveform data included), so that ``tunnelsim
 transform`` and ``compare`` keep what they were given.
+
+Coordinate reference system (``sensors.crs``): ``set_las_crs`` writes the OGC
+Coordinate System WKT VLR (user ``LASF_Projection``, record 2112) and sets the
+global-encoding WKT bit, as LAS 1.4 R15 asks for point formats 6-10 (a LAS 1.0-1.3
+file gets GeoTIFF keys through laspy); ``las_crs_wkt`` reads the WKT back without
+pyproj. A rewrite keeps the input's CRS records unless told otherwise.
 """
 
 from __future__ import annotations
@@ -36,13 +42,19 @@ import numpy as np
 from .errors import PointFileError
 from .stream import AtomicStream, deferred_interrupt
 
-__all__ = ["LAS_SCALE", "LasSource", "LasWriter", "offsets_near", "output_header",
-           "point_records", "quantize", "write_las"]
+__all__ = ["CRS_USER", "LAS_SCALE", "LasSource", "LasWriter", "is_crs_record",
+           "las_crs_wkt", "offsets_near", "output_header", "point_records", "quantize",
+           "set_las_crs", "write_las"]
 
 #: Default coordinate scale of the files tunnelsim writes (m): 0.1 mm.
 LAS_SCALE = 1e-4
 #: VLRs/EVLRs of this user describe a COPC octree and are not copied into a rewrite.
 COPC_USER = "copc"
+#: VLR user of the CRS records: WKT (2112), WKT math transform (2111), GeoTIFF keys
+#: (34735-34737).
+CRS_USER = "LASF_Projection"
+#: Record id of the OGC Coordinate System WKT VLR (LAS 1.4 R15).
+CRS_WKT_RECORD = 2112
 #: (user, record) of the EVLR holding waveform data packets.
 WAVEFORM_EVLR = ("LASF_Spec", 65535)
 #: Byte offsets in the public header block (LAS 1.4 R15, table 3).
@@ -243,6 +255,52 @@ def output_header(source: Any, *, scales: np.ndarray | None = None,
     return head
 
 
+def is_crs_record(vlr: Any) -> bool:
+    """Whether a VLR/EVLR describes the CRS (user ``LASF_Projection``)."""
+    return str(vlr.user_id).rstrip("\0") == CRS_USER
+
+
+def las_crs_wkt(header: Any) -> str | None:
+    """The WKT of a LAS header's OGC Coordinate System WKT record (VLR, else EVLR),
+    without pyproj; None when it has none (GeoTIFF keys need ``header.parse_crs()``)."""
+    for v in list(header.vlrs) + list(header.evlrs or []):
+        if is_crs_record(v) and v.record_id == CRS_WKT_RECORD:
+            text = getattr(v, "string", None)
+            if text is None:
+                text = bytes(v.record_data).decode("utf-8", "replace")
+            text = text.rstrip("\0").strip()
+            if text:
+                return text
+    return None
+
+
+def set_las_crs(header: Any, crs: Any) -> None:
+    """Replace a header's CRS records with ``crs`` (as ``sensors.crs.parse_crs`` takes
+    it), or remove them (``crs`` None; the WKT bit is cleared). LAS 1.4: the WKT VLR
+    (``sensors.crs.file_wkt``) and the global-encoding WKT bit; LAS 1.0-1.3 with point
+    formats 0-5: GeoTIFF keys (laspy ``add_crs``; a CRS without an EPSG code may not
+    fit them). EVLRs are the caller's to filter (``is_crs_record``)."""
+    from laspy.vlrs.known import WktCoordinateSystemVlr
+
+    from .crs import CRSError, file_wkt, parse_crs
+
+    header.vlrs = _vlr_list([v for v in header.vlrs if not is_crs_record(v)])
+    if crs is None:
+        if header.version.minor >= 4:
+            header.global_encoding.wkt = False
+        return
+    if header.version.minor >= 4 or header.point_format.id >= 6:
+        header.vlrs.append(WktCoordinateSystemVlr(file_wkt(crs)))
+        header.global_encoding.wkt = True
+        return
+    try:
+        header.add_crs(parse_crs(crs, metric=False))
+    except Exception as exc:   # laspy/pyproj raise several types for CRSs GeoTIFF lacks
+        raise CRSError(f"Expected a CRS that GeoTIFF keys can hold for a LAS "
+                       f"{header.version} file, got one they cannot ({exc}); write LAS "
+                       "1.4.") from exc
+
+
 def offsets_near(xyz: np.ndarray) -> np.ndarray:
     """LAS offsets for coordinates ``xyz`` (n, 3): the first point rounded to a
     kilometre, so that a 0.1 mm scale reaches 214 km around it (UTM keeps 0.1 mm)."""
@@ -365,13 +423,14 @@ def write_las(path: str | os.PathLike[str], xyz: np.ndarray, *,
               extra: Mapping[str, np.ndarray] | None = None,
               point_format: int = 6, scale: float = LAS_SCALE,
               vlrs: Iterable[Any] = (), system_identifier: str = "",
-              compress: bool | None = None) -> Path:
+              compress: bool | None = None, crs: Any = None) -> Path:
     """Write points ``xyz`` (n, 3) float64 as LAS 1.4 (default point format 6, scale
     ``scale`` m, offsets near the data), atomically, in chunks.
 
     ``fields`` fills standard dimensions {name: (n,) array} (e.g. ``classification``,
     ``intensity``, ``gps_time``); ``extra`` adds extra-bytes dimensions of the arrays'
-    dtypes. Every point is "return 1 of 1". Returns the path.
+    dtypes; ``crs`` (as ``sensors.crs.parse_crs`` takes it) writes the WKT VLR. Every
+    point is "return 1 of 1". Returns the path.
     """
     import laspy
 
@@ -386,6 +445,8 @@ def write_las(path: str | os.PathLike[str], xyz: np.ndarray, *,
     head.add_extra_dims([laspy.ExtraBytesParams(name=k, type=v.dtype)
                          for k, v in extra.items()])
     head.vlrs.extend(vlrs)
+    if crs is not None:
+        set_las_crs(head, crs)
     every = dict(fields or {}, **extra)
     with LasWriter(path, head, compress=compress) as w:
         for i in range(0, len(xyz), WRITE_CHUNK):

@@ -188,19 +188,22 @@ class Run:
                       "rays_per_s": n_pulses * self.settings.beam_subrays / s if s else 0.0}
 
     def write(self, path, *, fmt: str | None = None, progress=None, fields=None,
-              points: Iterable[NDArray[np.void]] | None = None):
+              points: Iterable[NDArray[np.void]] | None = None, crs=None):
         """Stream every chunk into ``path`` (format from the suffix or ``fmt``:
         las, laz, ply, npz, e57); atomic. ``progress(done_pulses, total)`` is called
         after each chunk; ``fields`` picks the LAS extra bytes (see
         ``sensors.writers``). ``points``: chunks to write instead of the run's own, made
-        from them while it runs (e.g. moved into a drifting SLAM frame). Returns
+        from them while it runs (e.g. moved into a drifting SLAM frame). ``crs``: the
+        coordinate reference system of the scene's coordinates (EPSG:n, WKT or
+        PROJJSON; needs pyproj), stated in the file (``sensors.writers``). Returns
         ``stats`` plus the path."""
         from .writers import open_writer
 
         span = None if self.station is not None else (self.t0, self.t0 + self.duration_s)
         with open_writer(path, sensor=self.sensor, seed=self.seed, pose=self.station,
                          fields=fields, fmt=fmt, expected_points=self.n_pulses,
-                         mount=self.mount, trajectory=self.trajectory, span_s=span) as w:
+                         mount=self.mount, trajectory=self.trajectory, span_s=span,
+                         crs=crs) as w:
             for chunk in (self if points is None else points):
                 w.write_points(chunk)
                 if progress is not None:

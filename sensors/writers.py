@@ -34,6 +34,12 @@ written under a temporary name renamed into place on a clean close: an interrupt
   ``ros2 bag record -o NAME`` makes): one PointCloud2 per whole sweep in the sensor's
   ROS 2 driver layout, /tf_static, and with ``trajectory`` /tf, ground-truth odometry
   and an IMU. Memory stays bounded by one sweep and one chunk.
+
+With ``crs`` (``sensors.crs``: EPSG:n, WKT or PROJJSON; needs pyproj) the file states
+the world coordinates' coordinate reference system: LAS/LAZ in the OGC WKT VLR (and
+the WKT bit), E57 in ``coordinateMetadata``, PLY and NPZ in a sidecar ``<file>.prj``
+(an older sidecar of the same name is removed when a file is written without a CRS),
+a ROS 2 bag in its ``tunnelsim`` metadata (``crs``: the WKT of the ``map`` frame).
 """
 
 from __future__ import annotations
@@ -51,10 +57,11 @@ import numpy as np
 from raytrace.fileio import atomic_writer
 
 from .bag import RosbagStream
+from .crs import file_wkt, parse_crs, write_sidecar
 from .e57 import E57_MAX_POINTS, write_e57_scan
 from .errors import PointFileError
 from .fields import FIELD_NAMES, POINT_DTYPE
-from .las import LAS_SCALE, LasWriter, offsets_near, point_records
+from .las import LAS_SCALE, LasWriter, offsets_near, point_records, set_las_crs
 from .ply import PlyWriter
 from .spec import SensorSpec, load_sensor
 from .stream import Stream
@@ -103,13 +110,17 @@ class PointWriter(Stream):
 
     Attributes: ``path``, ``sensor`` (name), ``seed``, ``position`` (3,) and
     ``quaternion_xyzw`` (4,) of a TLS station (None for a moving platform), ``mount``
-    (the sensor's ``Mount`` on a moving platform, or None), ``n_points`` written so far.
+    (the sensor's ``Mount`` on a moving platform, or None), ``crs`` (the WKT the file
+    states, or None), ``n_points`` written so far.
     """
 
     def __init__(self, path: Path, *, sensor: str | SensorSpec, seed: int, pose: Any,
-                 mount: Any = None) -> None:
+                 mount: Any = None, crs: Any = None) -> None:
         name = sensor.name if isinstance(sensor, SensorSpec) else str(sensor)
         self.path, self.sensor, self.seed = path, name, int(seed)
+        # Parsed here, before any point is simulated: a bad CRS fails at once.
+        self.crs: str | None = None if crs is None else file_wkt(
+            parse_crs(crs, metric=True, what="the output CRS"))
         self.position = self.quaternion_xyzw = None
         if pose is not None:
             pos, rot = pose
@@ -171,6 +182,8 @@ class _LasPoints(PointWriter):
         header.vlrs.append(laspy.VLR(user_id="tunnelsim", record_id=1,
                                      description="simulation info (JSON)",
                                      record_data=json.dumps(self.info()).encode()))
+        if self.crs is not None:
+            set_las_crs(header, self.crs)
         return header
 
     def _write(self, c):
@@ -212,6 +225,7 @@ class _PlyPoints(PointWriter):
 
     def _finish(self):
         self._w.close()
+        write_sidecar(self.path, self.crs)
 
     def _discard(self, exc):
         self._w.abort()
@@ -248,6 +262,7 @@ class _NpzPoints(PointWriter):
                             shutil.copyfileobj(src, member, 1 << 24)
         finally:
             shutil.rmtree(self._tmp, ignore_errors=True)
+        write_sidecar(self.path, self.crs)
 
     def _discard(self, exc):
         for fh in self._files.values():
@@ -288,7 +303,7 @@ class _E57Points(PointWriter):
         write_e57_scan(self.path, np.stack([c["sx"], c["sy"], c["sz"]], 1),
                        rotation_xyzw=self.quaternion_xyzw, translation=self.position,
                        name=f"tunnelsim {self.sensor}", intensity=c["intensity"],
-                       row=c["channel"], column=c["column"])
+                       row=c["channel"], column=c["column"], crs=self.crs)
 
     def _discard(self, exc):
         self._parts = []
@@ -303,9 +318,10 @@ class _BagPoints(PointWriter):
         if self.position is not None:
             raise PointFileError("Expected a moving platform for a ROS 2 bag, got a TLS "
                                  "station; write LAZ or E57 instead.")
+        info = self.info() if self.crs is None else dict(self.info(), crs=self.crs)
         self._w = RosbagStream(path, spec, single_file=single_file, seed=self.seed,
                                mount=self.mount, trajectory=trajectory, span_s=span_s,
-                               info=self.info())
+                               info=info)
 
     def _write(self, c):
         self._w.write_points(c)
@@ -321,7 +337,7 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
                 pose: Any = None, fields: str | None = None, fmt: str | None = None,
                 expected_points: int | None = None, mount: Any = None,
                 trajectory: Trajectory | None = None,
-                span_s: tuple[float, float] | None = None) -> PointWriter:
+                span_s: tuple[float, float] | None = None, crs: Any = None) -> PointWriter:
     """A ``PointWriter`` for ``path`` (format from the suffix or ``fmt``: las, laz,
     ply, npz, e57, mcap; no suffix: a rosbag2 folder).
 
@@ -351,6 +367,10 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
     span_s : (float, float), optional
         The scan's time window (trajectory time base): a ROS 2 bag stamps sweep k at
         ``span_s[0] + k / rate`` and drops a last sweep that ends after ``span_s[1]``.
+    crs : str, dict or pyproj.CRS, optional
+        The coordinate reference system of the world coordinates (EPSG:n, WKT or
+        PROJJSON; metre axes), stated in the file (see the module notes). Needs pyproj;
+        checked before the writer opens (``sensors.crs.CRSError``).
     """
     path = Path(path)
     f = format_of(path, fmt)
@@ -360,12 +380,14 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
     if f in ("mcap", "rosbag2"):
         spec = sensor if isinstance(sensor, SensorSpec) else load_sensor(sensor)
         return _BagPoints(path, spec=spec, single_file=f == "mcap", trajectory=trajectory,
-                          span_s=span_s, sensor=spec, seed=seed, pose=pose, mount=mount)
+                          span_s=span_s, sensor=spec, seed=seed, pose=pose, mount=mount,
+                          crs=crs)
     if fields is None:
         fields = "compact" if pose is not None else "full"
     if fields not in ("full", "compact"):
         raise PointFileError(f"Expected fields 'full' or 'compact', got {fields!r}.")
-    kw: dict[str, Any] = {"sensor": sensor, "seed": seed, "pose": pose, "mount": mount}
+    kw: dict[str, Any] = {"sensor": sensor, "seed": seed, "pose": pose, "mount": mount,
+                          "crs": crs}
     if f in ("las", "laz"):
         return _LasPoints(path, compress=f == "laz", fields=fields, **kw)
     if f == "ply":

@@ -11,6 +11,12 @@ empty or corrupt file, a file shorter than its header promises (with the points
 promised and read), a valid file without points, a NaN or infinite coordinate (with the
 point's index). A rewrite keeps every field, VLR and EVLR of its input, and is written
 atomically: a failure leaves no output file.
+
+Coordinate reference systems (``sensors.crs``): ``cloud_crs`` reports the CRS a cloud
+states (LAS/LAZ: the WKT VLR or GeoTIFF keys; E57: ``coordinateMetadata``; PLY, NPZ,
+text and mesh files: the sidecar ``<file>.prj``, a text cloud also a ``# crs:``
+comment line, a tunnel PLY its JSON's ``crs``). A rewrite keeps the input's CRS unless
+``map_cloud(..., crs=)`` states another (or None: the coordinates left it).
 """
 
 from __future__ import annotations
@@ -25,22 +31,28 @@ from typing import Any, TextIO
 import numpy as np
 from numpy.typing import NDArray
 
-from sensors.e57 import read_e57
+from sensors.crs import CRSError, parse_crs, read_sidecar, text_file_crs, write_sidecar
+from sensors.e57 import read_e57, read_e57_crs
 from sensors.errors import PointFileError
 from sensors.las import (
+    CRS_USER,
     LAS_SCALE,
     LasSource,
     LasWriter,
+    is_crs_record,
+    las_crs_wkt,
     offsets_near,
     output_header,
     quantize,
+    set_las_crs,
     write_las,
 )
 from sensors.ply import PlyWriter, ply_element, read_ply_header
 from survey.errors import CloudFileError, TunnelsimError
 
-__all__ = ["CHUNK", "LAS_SCALE", "MAX_LAS_SCALE", "annotate_las", "cloud_bounds",
-           "iter_points", "map_cloud", "read_points", "read_reference", "write_points_las"]
+__all__ = ["CHUNK", "KEEP_CRS", "LAS_SCALE", "MAX_LAS_SCALE", "annotate_las",
+           "cloud_bounds", "cloud_crs", "cloud_crs_text", "iter_points", "map_cloud", "read_points",
+           "read_reference", "write_points_las"]
 
 CHUNK = 1 << 20
 #: Coarsest LAS coordinate scale accepted for tunnel work (m).
@@ -49,6 +61,8 @@ MAX_LAS_SCALE = 0.01
 SUFFIXES = (".las", ".laz", ".ply", ".xyz", ".txt", ".csv", ".npz", ".e57")
 
 PathLike = str | os.PathLike[str]
+#: ``map_cloud(..., crs=KEEP_CRS)``: the output states the input's CRS (the default).
+KEEP_CRS = "keep"
 
 
 @contextlib.contextmanager
@@ -298,6 +312,65 @@ def _bounds(chunks: Iterable[NDArray[np.float64]]
     return lo, hi, n
 
 
+# ---------------------------------------------------------------------- CRS
+def cloud_crs_text(path: PathLike) -> str | None:
+    """The CRS a cloud or mesh file states, as text (WKT, or what a sidecar or ``# crs:``
+    line holds), or None; see the module notes. No pyproj needed, except for a LAS file
+    with GeoTIFF keys only (turned into WKT)."""
+    path = _existing(path)
+    kind = path.suffix.lower()
+    with _cloud_errors():
+        if kind in (".las", ".laz"):
+            with LasSource(path) as src:
+                text = las_crs_wkt(src.header)
+                if text is None and any(v.user_id == CRS_USER for v in src.header.vlrs):
+                    text = _geotiff_wkt(src.header, path)
+            return text
+        if kind == ".e57":
+            return read_e57_crs(path)
+    text = text_file_crs(path) if kind in (".xyz", ".txt", ".csv") else read_sidecar(path)
+    if text is None and kind == ".ply":
+        text = _tunnel_crs(path)
+    return text
+
+
+def _geotiff_wkt(header: Any, path: Path) -> str | None:
+    """The WKT of a LAS header's GeoTIFF keys (laspy and pyproj read them)."""
+    try:
+        crs = header.parse_crs()
+    except ImportError as exc:
+        raise CRSError(f"Expected the optional package pyproj to read the CRS of '{path}' "
+                       "(GeoTIFF keys); install it with: pip install 'tunnelsim[crs]'."
+                       ) from exc
+    except Exception as exc:   # pyproj and laspy raise several types for bad keys
+        raise CRSError(f"Expected GeoTIFF CRS keys pyproj can read in '{path}', got keys "
+                       f"it refuses ({exc}).") from exc
+    return None if crs is None else str(crs.to_wkt())
+
+
+def _tunnel_crs(path: Path) -> str | None:
+    """The ``crs`` of a tunnel PLY's JSON (when the JSON beside it is a tunnel's)."""
+    from survey.world.mesh import FORMAT, read_meta, sidecar
+
+    js = sidecar(path)
+    if not js.is_file():
+        return None
+    try:
+        meta = read_meta(js)
+    except TunnelsimError:
+        return None
+    crs = meta.get("crs") if meta.get("format") == FORMAT else None
+    return crs if isinstance(crs, str) and crs.strip() else None
+
+
+def cloud_crs(path: PathLike) -> Any:
+    """The ``pyproj.CRS`` a cloud or mesh file states (``cloud_crs_text`` parsed), or
+    None. Needs pyproj only when the file states one."""
+    text = cloud_crs_text(path)
+    return None if text is None else parse_crs(text, metric=False,
+                                               what=f"the CRS of '{path}'")
+
+
 # ---------------------------------------------------------------------- rewriting
 #: fn(xyz (n, 3), time (n,) or None[, fields]) -> new xyz (n, 3).
 XyzFn = Callable[..., Any]
@@ -313,14 +386,19 @@ def _new_xyz(fn: XyzFn, xyz: NDArray[np.float64], t: NDArray[np.float64] | None,
 
 
 def map_cloud(src: PathLike, dst: PathLike, fn: XyzFn, *, chunk: int = CHUNK,
-              fields: tuple[str, ...] = ()) -> int:
+              fields: tuple[str, ...] = (), crs: Any = KEEP_CRS) -> int:
     """Write ``dst`` = ``src`` with x, y, z replaced by ``fn(xyz (n, 3), time (n,) or
     None)``; every other field, VLR and EVLR is kept (a COPC file becomes a plain LAZ).
     LAS/LAZ (by suffix) or binary PLY. Atomic. Returns the point count.
 
     With ``fields`` (LAS/LAZ dimension names, e.g. extra bytes ``sensor_x``), ``fn`` is
     called as ``fn(xyz, time, {name: (n,) array})``; a file without one of them is a
-    ``CloudFileError``."""
+    ``CloudFileError``.
+
+    ``crs``: the CRS ``dst`` states: ``KEEP_CRS`` (default) the input's (its LAS
+    records, its PLY sidecar), None none (the new coordinates are in another system
+    whose CRS is unknown), or a CRS (EPSG:n, WKT, PROJJSON; needs pyproj), which
+    replaces the input's."""
     src, dst = _existing(src), Path(dst)
     if not dst.parent.exists():
         raise CloudFileError(f"Expected an existing output folder, got '{dst.parent}'.")
@@ -329,11 +407,14 @@ def map_cloud(src: PathLike, dst: PathLike, fn: XyzFn, *, chunk: int = CHUNK,
         if kind in (".las", ".laz"):
             if dst.suffix.lower() not in (".las", ".laz"):
                 raise CloudFileError(f"Expected a .las/.laz output for '{src}', got '{dst}'.")
-            n = _map_las(src, dst, fn, chunk, fields)
+            n = _map_las(src, dst, fn, chunk, fields, crs)
         elif kind == ".ply" and not fields:
             if dst.suffix.lower() != ".ply":
                 raise CloudFileError(f"Expected a .ply output for '{src}', got '{dst}'.")
+            if crs is not KEEP_CRS and crs is not None:
+                crs = parse_crs(crs, what="the output CRS")   # before any point is read
             n = _map_ply(src, dst, fn, chunk)
+            write_sidecar(dst, read_sidecar(src) if crs is KEEP_CRS else crs)
         else:
             raise CloudFileError(f"Expected a .las, .laz or .ply cloud, got '{src}'.")
     return n
@@ -348,28 +429,37 @@ def _no_points(src: Path) -> CloudFileError:
 LasStep = Callable[[Any, int], tuple[dict[str, Any], Callable[[Any], Any]]]
 
 
-def _rewrite_las(source: LasSource, dst: Path, chunk: int, step: LasStep) -> int:
+def _rewrite_las(source: LasSource, dst: Path, chunk: int, step: LasStep,
+                 crs: Any = KEEP_CRS) -> int:
     """Write ``dst`` from ``source`` chunk by chunk through ``step``; the options it
     gives for the first chunk make the output header (they may depend on the data:
     offsets near the new coordinates, dtypes of new fields). Every VLR and EVLR is
-    carried; a failure leaves no ``dst``. Returns the point count."""
+    carried, the CRS records as ``map_cloud``'s ``crs`` says; a failure leaves no
+    ``dst``. Returns the point count."""
     if source.point_count == 0:
         raise _no_points(source.path)
+    if crs is not KEEP_CRS and crs is not None:
+        crs = parse_crs(crs, what="the output CRS")     # before any point is read
+    evlrs = source.evlrs()
+    if crs is not KEEP_CRS:
+        evlrs = [e for e in evlrs if not is_crs_record(e)]
     n = 0
     with contextlib.ExitStack() as stack:     # closes the writer, or drops its file
         w: LasWriter | None = None
         for rec in source.chunks(chunk):
             options, records = step(rec, n)
             if w is None:
-                w = stack.enter_context(LasWriter(dst, output_header(source, **options),
-                                                  evlrs=source.evlrs()))
+                head = output_header(source, **options)
+                if crs is not KEEP_CRS:
+                    set_las_crs(head, crs)
+                w = stack.enter_context(LasWriter(dst, head, evlrs=evlrs))
             w.write_points(records(w.header))
             n += len(rec)
     return n
 
 
-def _map_las(src: Path, dst: Path, fn: XyzFn, chunk: int, fields: tuple[str, ...] = ()
-             ) -> int:
+def _map_las(src: Path, dst: Path, fn: XyzFn, chunk: int, fields: tuple[str, ...] = (),
+             crs: Any = KEEP_CRS) -> int:
     import laspy
 
     with LasSource(src) as source:
@@ -399,7 +489,7 @@ def _map_las(src: Path, dst: Path, fn: XyzFn, chunk: int, fields: tuple[str, ...
                 return out
             return {"scales": scales, "offsets": offsets_near(new)}, records
 
-        return _rewrite_las(source, dst, chunk, step)
+        return _rewrite_las(source, dst, chunk, step, crs)
 
 
 def _map_ply(src: Path, dst: Path, fn: XyzFn, chunk: int) -> int:
@@ -429,13 +519,13 @@ def _map_ply(src: Path, dst: Path, fn: XyzFn, chunk: int) -> int:
 
 def write_points_las(path: PathLike, xyz: NDArray[np.float64],
                      extra: Mapping[str, np.ndarray] | None = None,
-                     classification: np.ndarray | None = None) -> Path:
+                     classification: np.ndarray | None = None, *, crs: Any = None) -> Path:
     """Write points (n, 3) as LAS/LAZ 1.4 (format 6, 0.1 mm scale, offset near the data)
-    with optional extra dimensions {name: (n,) array} and classification codes (n,);
-    atomic."""
+    with optional extra dimensions {name: (n,) array}, classification codes (n,) and
+    the CRS ``crs`` (EPSG:n, WKT or PROJJSON; needs pyproj); atomic."""
     fields = {} if classification is None else {"classification": classification}
     with _cloud_errors():
-        return write_las(path, xyz, fields=fields, extra=extra)
+        return write_las(path, xyz, fields=fields, extra=extra, crs=crs)
 
 
 def annotate_las(src: PathLike, dst: PathLike,

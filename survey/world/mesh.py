@@ -13,8 +13,10 @@ trimesh read it:
 
 The JSON beside it (same name, ``.json``) holds the alignment, profile, features,
 parameters, label names, reflectivity table, face counts, control points and the
-deformation fields: enough to rebuild the ``TunnelMesh``. Both files are written
-atomically.
+deformation fields: enough to rebuild the ``TunnelMesh``; with a coordinate reference
+system (``TunnelMesh.with_crs``), ``crs`` (WKT2:2019, ``sensors.crs.crs_wkt``) and
+``crs_name`` (e.g. "EPSG:2056 (CH1903+ / LV95)"), which scans of the tunnel state in
+their files. Both files are written atomically.
 """
 
 from __future__ import annotations
@@ -40,7 +42,8 @@ from survey.world.alignment import Alignment
 from survey.world.profiles import Profile
 
 __all__ = ["FORMAT", "LABEL", "LABELS", "REFLECTIVITY", "TunnelMesh", "read_axis",
-           "read_meta", "read_ply", "read_tunnel", "sidecar", "write_ply", "write_tunnel"]
+           "read_meta", "read_ply", "read_tunnel", "sidecar", "tunnel_crs", "write_ply",
+           "write_tunnel"]
 
 FORMAT = "tunnelsim-tunnel/1"
 
@@ -78,7 +81,7 @@ class TunnelMesh:
         centres (which do not deform)
     alignment, profile : the geometry it was built from
     metadata : dict, JSON-ready description (parameters, features, counts, control
-        points, deformations)
+        points, deformations; ``crs`` and ``crs_name`` when georeferenced)
     displacement : (n, 3) float64 or None, displacement from the undeformed epoch (m)
 
     Coordinates, chainages and profile parameters are metres. ``repr`` is one line.
@@ -101,6 +104,25 @@ class TunnelMesh:
                 f"{len(self.vertices):,} vertices, {self.alignment.length_m:.1f} m, "
                 f"{self.profile.name}, {labels} label{'s' if labels != 1 else ''}"
                 + (", deformed" if self.displacement is not None else "") + ")")
+
+    @property
+    def crs(self) -> str | None:
+        """The coordinate reference system of the vertices (WKT2), or None (local)."""
+        return tunnel_crs(self.metadata)
+
+    def with_crs(self, crs: Any) -> TunnelMesh:
+        """The same tunnel stating its coordinates' CRS ``crs`` (EPSG:n, WKT or
+        PROJJSON, metre axes; needs pyproj), or none (``crs`` None). The vertices are
+        not moved: the CRS says what they already are."""
+        from dataclasses import replace
+
+        from sensors.crs import crs_label, crs_wkt, parse_crs
+
+        meta = {k: v for k, v in self.metadata.items() if k not in ("crs", "crs_name")}
+        if crs is not None:
+            c = parse_crs(crs, what="the tunnel's CRS")
+            meta.update(crs=crs_wkt(c), crs_name=crs_label(c))
+        return replace(self, metadata=meta)
 
     @property
     def reflectivity(self) -> NDArray[np.float32]:
@@ -282,6 +304,18 @@ def read_meta(js: str | Path) -> dict[str, Any]:
         raise TunnelFileError(f"Expected a JSON object in '{js}', got a "
                               f"{type(meta).__name__}; rewrite it with 'tunnelsim tunnel'.")
     return meta
+
+
+def tunnel_crs(meta: Mapping[str, Any]) -> str | None:
+    """The ``crs`` (WKT) of a tunnel's metadata, or None for a local tunnel; a ``crs``
+    that is not a non-empty string is a ``TunnelFileError``."""
+    crs = meta.get("crs")
+    if crs is None:
+        return None
+    if not isinstance(crs, str) or not crs.strip():
+        raise TunnelFileError(f"Expected the tunnel's 'crs' as WKT text, got {crs!r}; "
+                              "rewrite the JSON with 'tunnelsim tunnel --crs'.")
+    return crs
 
 
 def _geometry(meta: dict[str, Any], js: Path) -> tuple[Alignment, Profile]:

@@ -1,4 +1,14 @@
-"""Commands of the surveyor's adjustment: adjust (Helmert), transform, correct (drift)."""
+"""Commands of the surveyor's adjustment: adjust (Helmert), transform, correct (drift).
+
+Coordinate reference systems (``sensors.crs``): a control-point CSV states its CRS in
+a leading comment line ``# crs: EPSG:2056`` (or in a sidecar ``<file>.prj``); ``adjust``
+refuses two files that state different CRSs (unless ``--allow-crs-mismatch``: a datum
+transformation estimated on purpose) and records both in its JSON (``source_crs``,
+``target_crs``, WKT2); ``transform`` writes the target CRS into the output (``--crs``,
+else the one the JSON records), refuses a cloud stating another CRS than the
+transform's source, and drops an input's CRS it cannot replace (with a warning);
+``correct`` gives the corrected cloud the control points' CRS.
+"""
 
 from __future__ import annotations
 
@@ -34,6 +44,9 @@ def register(commands: CommandSet) -> None:
              help="fit even when the two systems are mirror images")
     c.option("--allow-scale", action="store_true",
              help="accept a scale beyond 1,000 ppm")
+    c.option("--allow-crs-mismatch", action="store_true",
+             help="adjust between files that state different CRSs ('# crs:' lines): a "
+                  "datum transformation estimated on purpose")
     c.option("--max-iter", type=int, default=50, metavar="N",
              help="Gauss-Newton iterations at most (default 50)")
     c.option("--report", path="out", help="write the Markdown report here")
@@ -51,6 +64,10 @@ def register(commands: CommandSet) -> None:
              help="Helmert JSON from 'tunnelsim adjust'")
     c.option("--inverse", action="store_true",
              help="apply the inverse transform (target system back to the source system)")
+    c.option("--crs", metavar="CRS",
+             help="coordinate reference system of the output (EPSG:n, WKT or PROJJSON; "
+                  "needs pyproj); default: the target CRS 'adjust --json' recorded (the "
+                  "source CRS with --inverse), else none")
     c.option("-o", "--output", required=True, path="out", help="output cloud (same kind)")
     c.option("--quiet", action="store_true", help="print nothing on success")
 
@@ -86,6 +103,7 @@ def cmd_adjust(args) -> int:
     a = read_control_points(args.source)
     b = read_control_points(args.target)
     names = (str(args.source), str(args.target))
+    crs_a, crs_b = _control_crs(args)
     ia, ib = match(a, b, unmatched_ids="error" if args.strict else "warn", names=names)
     lost = unmatched_message(a, b, names)
     exclude = [k.strip() for k in (args.exclude or "").split(",") if k.strip()]
@@ -97,15 +115,89 @@ def cmd_adjust(args) -> int:
                        allow_scale=args.allow_scale)
     res = sn.result
     notes = [f"control point ids not in both files, left out: {lost}."] if lost else []
+    if crs_a is not None or crs_b is not None:
+        notes.append(f"coordinate reference systems: source {_label(crs_a)}, target "
+                     f"{_label(crs_b)}.")
     text = helmert_report(res, angles=args.angles, snooping=sn, notes=notes)
     if args.report:
         write_text(args.report, text)
     if args.json:
         write_json(args.json, {**res.to_dict(), **sn.to_dict(),
-                               "unmatched_ids": lost or None})
+                               "unmatched_ids": lost or None,
+                               "source_crs": _wkt(crs_a), "target_crs": _wkt(crs_b)})
     if not args.quiet:
         print(text, end="")
     return 0
+
+
+def _control_crs(args) -> tuple[str | None, str | None]:
+    """The CRSs the two control-point files state (``# crs:`` line or sidecar), refused
+    when they differ unless --allow-crs-mismatch."""
+    from sensors.crs import CRSError, crs_mismatch, mismatch_message, text_file_crs
+
+    crs_a, crs_b = text_file_crs(args.source), text_file_crs(args.target)
+    if not args.allow_crs_mismatch:
+        pair = crs_mismatch([(args.source, crs_a), (args.target, crs_b)])
+        if pair is not None:
+            raise CRSError(mismatch_message(
+                *pair, what="two control-point files",
+                hint="between two stated CRSs a Helmert is a datum transformation: use "
+                     "the published one (PROJ, pyproj.Transformer), or pass "
+                     "--allow-crs-mismatch to estimate your own"))
+    return crs_a, crs_b
+
+
+def _wkt(crs: str | None) -> str | None:
+    from sensors.crs import crs_wkt
+
+    return None if crs is None else crs_wkt(crs)
+
+
+def _label(crs) -> str:
+    from sensors.crs import crs_label, parse_crs
+
+    return "none stated" if crs is None else crs_label(parse_crs(crs, metric=False))
+
+
+def _json_crs(d: dict, key: str, p) -> str | None:
+    v = d.get(key)
+    if v is not None and not (isinstance(v, str) and v.strip()):
+        raise TunnelsimCLIError(f"Expected '{key}' in '{p}' as WKT text or null, got "
+                                f"{v!r}.")
+    return v
+
+
+def _transform_crs(args, d: dict, p):
+    """The CRS the transformed cloud states: --crs, else the target (with --inverse the
+    source) CRS the Helmert JSON records, else None. Refuses a cloud stating another
+    CRS than the transform's source, and --crs against a recorded target."""
+    from sensors.crs import CRSError, mismatch_message, parse_crs, same_crs
+    from survey.clouds.cloudio import cloud_crs_text
+
+    src, dst = _json_crs(d, "source_crs", p), _json_crs(d, "target_crs", p)
+    if args.inverse:
+        src, dst = dst, src
+    target = parse_crs(args.crs, what="--crs") if args.crs is not None else None
+    side = "source" if args.inverse else "target"
+    if target is not None and dst is not None and not same_crs(target, dst):
+        raise CRSError(f"Expected --crs to agree with the {side} CRS recorded in '{p}', "
+                       f"got {_label(target)} and {_label(dst)}; leave --crs out, or "
+                       "adjust again with control points in that CRS.")
+    have = cloud_crs_text(args.cloud)
+    if have is not None and src is not None and not same_crs(have, src):
+        raise CRSError(mismatch_message(
+            (str(args.cloud), have), (f"{p} ({'target' if args.inverse else 'source'})",
+                                      src),
+            what="cloud and the transform's input system",
+            hint="the transform was estimated for other coordinates"))
+    out = target if target is not None else dst
+    if out is None and have is not None:
+        import warnings
+
+        warnings.warn(f"'{args.output}' states no CRS: the input's {_label(have)} does "
+                      "not hold after the transform; give the new one with --crs.",
+                      UserWarning, stacklevel=2)
+    return out
 
 
 def cmd_transform(args) -> int:
@@ -120,14 +212,17 @@ def cmd_transform(args) -> int:
         raise TunnelsimCLIError(f"Expected a Helmert JSON (from 'tunnelsim adjust --json'), "
                                 f"got '{p}' which does not exist.")
     try:
-        res = HelmertResult.from_dict(json.loads(p.read_text()))
+        d = json.loads(p.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise TunnelsimCLIError(f"Expected JSON in '{p}', got invalid text ({exc}).") from exc
+    res = HelmertResult.from_dict(d)      # refuses anything but adjust's JSON object
+    out_crs = _transform_crs(args, d, p)
     move = res.apply_inverse if args.inverse else res.apply
-    n = map_cloud(args.cloud, args.output, lambda xyz, t: move(xyz))
+    n = map_cloud(args.cloud, args.output, lambda xyz, t: move(xyz), crs=out_crs)
     if not args.quiet:
         way = "inverse-transformed" if args.inverse else "transformed"
-        print(f"{way} {n:,} points -> {args.output}")
+        into = "" if out_crs is None else f" ({_label(out_crs)})"
+        print(f"{way} {n:,} points -> {args.output}{into}")
     return 0
 
 
@@ -143,8 +238,13 @@ def cmd_correct(args) -> int:
     from survey.errors import ControlPointError
     from survey.report.adjustment import drift_report
 
+    from sensors.crs import text_file_crs
+    from survey.clouds.cloudio import KEEP_CRS
+
     traj = Trajectory.read(args.trajectory)
     world = read_control_points(args.control)
+    # The corrected cloud lies in the control points' system: it states their CRS.
+    world_crs = text_file_crs(args.control)
     seen = read_control_points(args.observed)
     if seen.time is None:
         raise ControlPointError(f"Expected a 'time' column in '{args.observed}' (when each "
@@ -170,7 +270,8 @@ def cmd_correct(args) -> int:
                                     "correct drift, got none.")
         return corr.apply(xyz, tt)
 
-    n = map_cloud(args.cloud, out, moved)
+    n = map_cloud(args.cloud, out, moved,
+                  crs=KEEP_CRS if world_crs is None else world_crs)
     fixed = corr.apply_trajectory(traj)
     traj_out = out.with_name(out.stem + "_trajectory.txt")
     fixed.write(traj_out)

@@ -45,6 +45,9 @@ def register(commands: CommandSet) -> None:
     c.option("--allow-disjoint", action="store_true",
              help="compare clouds whose bounding boxes lie more than 1 m apart (refused "
                   "by default: different frames or units)")
+    c.option("--allow-crs-mismatch", action="store_true",
+             help="compare inputs that state different coordinate reference systems "
+                  "(refused by default: reproject one first)")
     c.option("--threads", type=int, help="Numba threads (default: all cores)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
     c.option("--quiet", action="store_true", help="no progress bar or summary")
@@ -156,6 +159,25 @@ def _compared_boxes(args, compared, ref) -> int:
     return total
 
 
+def _check_crs(args, compared, ref_path) -> dict:
+    """Refuse (unless --allow-crs-mismatch) inputs that state different coordinate
+    reference systems, naming the first two; inputs stating none are not compared.
+    Returns {path: CRS text or None} of the compared clouds (their outputs state it)."""
+    from sensors.crs import CRSError, crs_mismatch, mismatch_message
+    from survey.clouds.cloudio import cloud_crs_text
+
+    stated = {c: cloud_crs_text(c) for c in [*compared, ref_path]}
+    if not args.allow_crs_mismatch:
+        pair_ = crs_mismatch(stated.items())
+        if pair_ is not None:
+            raise CRSError(mismatch_message(
+                *pair_, what="compared clouds and the reference",
+                hint="reproject one into the other's CRS first (e.g. PDAL "
+                     "filters.reprojection), or pass --allow-crs-mismatch if a label is "
+                     "wrong"))
+    return stated
+
+
 def cmd_compare(args) -> int:
     from survey.report.compare import plot_histogram, stats_csv, stats_markdown
 
@@ -167,6 +189,8 @@ def cmd_compare(args) -> int:
         if not Path(c).is_file():
             raise TunnelsimCLIError(f"Expected a compared cloud, got '{c}' which does not "
                                     "exist.")
+    # DECISION: before the boxes: two CRSs explain a disjoint pair better than a box.
+    crs = _check_crs(args, compared, ref_path)
     ref, kind = _load_reference(ref_path)
     if kind == "mesh" and (args.split or args.model):
         raise TunnelsimCLIError("Expected --split/--model only with a reference cloud, got "
@@ -175,7 +199,8 @@ def cmd_compare(args) -> int:
     out = out_dir(args.output, args.force)
     prog = Progress(args.quiet, unit="points")
     try:
-        rows, hist = _distances(args, compared, ref, kind, out, lambda n: prog(n, total))
+        rows, hist = _distances(args, compared, ref, kind, out, lambda n: prog(n, total),
+                                crs)
     finally:
         prog.close()
     title = "C2M (signed)" if kind == "mesh" else "C2C"
@@ -191,10 +216,10 @@ def cmd_compare(args) -> int:
     return 0
 
 
-def _distances(args, compared, ref, kind, out, progress):
-    """Write each compared cloud with its distances (``NAME_distance.laz``), block by
-    block (``progress(points done)`` after each); returns (stats rows, distances) by
-    cloud name."""
+def _distances(args, compared, ref, kind, out, progress, crs=None):
+    """Write each compared cloud with its distances (``NAME_distance.laz``, stating the
+    cloud's CRS ``crs[path]``), block by block (``progress(points done)`` after each);
+    returns (stats rows, distances) by cloud name."""
     import numpy as np
 
     from survey.analysis.compare import BLOCK, distance_stats
@@ -231,7 +256,8 @@ def _distances(args, compared, ref, kind, out, progress):
             parts = list(iter_points(c, chunk=BLOCK))
             extras = [dist(p) for p in parts]
             write_points_las(dst, np.concatenate(parts),
-                             {k: np.concatenate([e[k] for e in extras]) for k in extras[0]})
+                             {k: np.concatenate([e[k] for e in extras])
+                              for k in extras[0]}, crs=(crs or {}).get(c))
         rows[name] = distance_stats(np.concatenate(got))
         hist[name] = np.concatenate(got)
     return rows, hist
@@ -319,4 +345,4 @@ def cmd_study(args) -> int:
     return 0
 
 
-__all__ = ["PointProgress", "cmd_compare", "cmd_plan", "cmd_study", "register"]
+__all__ = ["cmd_compare", "cmd_plan", "cmd_study", "register"]

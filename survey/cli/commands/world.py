@@ -48,6 +48,10 @@ def register(commands: CommandSet) -> None:
              help="coordinates of the first portal's centreline point, e.g. UTM")
     c.option("--heading-deg", type=float, default=0.0, metavar="DEG",
              help="initial direction, degrees counter-clockwise from east")
+    c.option("--crs", metavar="CRS",
+             help="coordinate reference system of the coordinates (with --origin): "
+                  "EPSG:n, WKT or PROJJSON, metre axes, e.g. EPSG:2056; kept in the JSON "
+                  "and stated in every scan of the tunnel (needs pyproj)")
     c.option("--epoch2", metavar="PATH", path="out",
              help="also write a deformed second epoch (.ply + .json)")
     c.option("--convergence", action="append", default=[], metavar="START:END:MM",
@@ -117,6 +121,7 @@ def cmd_sensors(args) -> int:
 
 def cmd_tunnel(args) -> int:
     import time
+    import warnings
     from pathlib import Path
 
     import numpy as np
@@ -134,6 +139,17 @@ def cmd_tunnel(args) -> int:
                                 "create it first.")
     origin = (0.0, 0.0, 0.0) if args.origin is None else \
         numbers(args.origin, "--origin as E,N,H in metres", 3)
+    crs = None
+    if args.crs is not None:   # checked before the mesh is made (seconds)
+        from sensors.crs import area_warning, parse_crs
+
+        crs = parse_crs(args.crs, what="--crs")
+        where = area_warning(crs, origin, what="--origin" if args.origin else
+                             "the default origin", hint="give the portal's position in "
+                             "that CRS with --origin E,N,H" if args.origin is None else
+                             "easting and northing swapped, or another CRS meant?")
+        if where:
+            warnings.warn(where[0].upper() + where[1:], UserWarning, stacklevel=1)
     edge = args.edge_length
     if args.triangles is not None:
         al, prof, _, _ = PRESETS[args.preset](origin, 0.0)
@@ -160,6 +176,8 @@ def cmd_tunnel(args) -> int:
                               roughness_rms_m=None if args.roughness_mm is None
                               else args.roughness_mm / 1000.0, relief=relief,
                               origin=origin, heading_rad=np.deg2rad(args.heading_deg))
+    if crs is not None:
+        tun = tun.with_crs(crs)
     written = list(tun.write(out))
     if args.epoch2:
         epoch = tun.deformed(deformations or default_def)
@@ -170,7 +188,8 @@ def cmd_tunnel(args) -> int:
         print(f"{args.preset}: {len(tun.faces):,} triangles ({counts}), "
               f"{len(tun.vertices):,} vertices, edge length {edge:.4g} m, "
               f"{len(tun.metadata['control_points'])} control points, relief "
-              f"{'none' if relief is None else 'rock'}, {dt:.1f} s")
+              f"{'none' if relief is None else 'rock'}, "
+              f"{tun.metadata.get('crs_name', 'local coordinates (no CRS)')}, {dt:.1f} s")
         for p in written:
             print(f"wrote {p}")
     return 0
@@ -194,7 +213,8 @@ def cmd_gazebo(args) -> int:
     if not args.quiet:
         print(f"wrote {info['path']}/world.sdf and models/tunnel ({info['triangles']:,} "
               f"triangles, collision {info['collision_triangles']:,}); local origin "
-              f"{' '.join(f'{x:.3f}' for x in info['origin'])} m")
+              f"{' '.join(f'{x:.3f}' for x in info['origin'])} m"
+              + (f" in {info['crs']}" if info.get("crs") else ""))
         print(f"{spec.name} as gpu_lidar; SDF cannot express:")
         for x in info["limitations"]:
             print(f"  - {x}")
