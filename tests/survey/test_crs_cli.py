@@ -340,3 +340,26 @@ def test_correct_gives_the_cloud_the_control_points_crs(tmp_path):
                  "--quiet"]) == 0
     assert _las_crs(tmp_path / "run.laz") is None
     assert _las_crs(out).equals(LV95)
+
+
+def test_scan_and_drive_state_the_mesh_crs(site, tmp_path, capsys):
+    """The commands a user runs: `scan` on the EPSG:2056 tunnel writes a LAZ whose
+    header laspy reads as EPSG:2056 (taken from the tunnel JSON); a --crs against the
+    mesh's own is refused in one line naming both; `drive --slam-drift` states the
+    CRS in the world control points and none in the drifted cloud (it lies in the SLAM
+    frame, which `correct` repairs)."""
+    d = site
+    out = tmp_path / "s.laz"
+    assert main(["scan", "--mesh", str(d / "t.ply"), "--chainage", "50", "--step-deg", "2",
+                 "-o", str(out), "--quiet"]) == 0
+    assert LV95.equals(_las_crs(out))
+    assert main(["scan", "--mesh", str(d / "t.ply"), "--chainage", "50", "--step-deg", "2",
+                 "--crs", "EPSG:32632", "-o", str(tmp_path / "u.laz"), "--quiet"]) == 2
+    _one_error(capsys, "EPSG:32632", "EPSG:2056")
+    assert not (tmp_path / "u.laz").exists()
+    assert main(["drive", "--mesh", str(d / "t.ply"), "--sensor", "velodyne_vlp16", "--along",
+                 "centreline", "--speed", "20", "--slam-drift", "-o", str(tmp_path / "m.laz"),
+                 "--quiet"]) == 0
+    first = (tmp_path / "m_cp_world.csv").read_text().splitlines()[0]
+    assert first.startswith("# crs:") and LV95.equals(CRS(first.split(":", 1)[1].strip()))
+    assert _las_crs(tmp_path / "m.laz") is None

@@ -68,6 +68,7 @@ def register(commands: CommandSet) -> None:
     c.option("--allow-outside", action="store_true",
              help="scan from a station outside the mesh's bounding box (e.g. a portal "
                   "seen from outside) instead of refusing it")
+    _crs_option(c)
     physics_options(c)
 
     c = commands.add(
@@ -124,7 +125,35 @@ def register(commands: CommandSet) -> None:
                   "and true trajectories (_trajectory.txt, _true_trajectory.txt) and the "
                   "control points (_cp_world.csv, _cp_observed.csv) for 'tunnelsim "
                   "correct'")
+    _crs_option(c)
     physics_options(c)
+
+
+def _crs_option(c) -> None:
+    c.option("--crs", metavar="CRS",
+             help="coordinate reference system of the mesh's coordinates, stated in the "
+                  "output (EPSG:n, WKT or PROJJSON; needs pyproj); default: the tunnel "
+                  "JSON's 'crs' (or a <mesh>.prj sidecar), else none")
+
+
+def _output_crs(args):
+    """The CRS the output states: --crs, else the mesh's (its tunnel JSON's ``crs``, or
+    a ``<mesh>.prj`` sidecar), else None; --crs against the mesh's own is refused."""
+    from sensors.crs import CRSError, mismatch_message, parse_crs, same_crs
+    from survey.clouds.cloudio import cloud_crs_text
+    from survey.world.mesh import read_meta, tunnel_crs
+
+    js = getattr(args, "tunnel_json", None)
+    where = str(js or args.mesh)
+    stated = tunnel_crs(read_meta(js)) if js else cloud_crs_text(args.mesh)
+    if args.crs is None:
+        return stated
+    crs = parse_crs(args.crs, what="--crs")
+    if stated is not None and not same_crs(crs, stated):
+        raise CRSError(mismatch_message(("--crs", crs), (where, stated),
+                                        what="output and the mesh",
+                                        hint="leave --crs out to take the mesh's"))
+    return crs
 
 
 def _settings(args):
@@ -141,13 +170,16 @@ def _settings(args):
                    attenuation_per_m=args.attenuation, particle_rate_per_m=args.particles)
 
 
-def _finish_run(args, run, label, *, min_return: float = 0.0, where: str = "") -> int:
+def _finish_run(args, run, label, *, min_return: float = 0.0, where: str = "",
+                crs=None) -> int:
     """Write the run and print its summary; refuse (the output removed by
     ``run_command``) a run that returned no point, or fewer than ``min_return`` of its
     pulses (``where`` says what the caller knows: the poses, the mesh's box)."""
     prog = Progress(args.quiet)
     try:
-        stats = run.write(args.output, progress=prog, fields=args.fields)
+        # A drifted run (--slam-drift) states no CRS, and its write takes none.
+        stats = run.write(args.output, progress=prog, fields=args.fields,
+                          **({} if crs is None else {"crs": crs}))
     finally:
         prog.close()
     pulses, points = int(stats["pulses"]), int(stats["points"])
@@ -175,6 +207,7 @@ def cmd_scan(args) -> int:
     heading_deg = station_heading_deg(args.heading_deg, args.azimuth_deg)
     spec = load_sensor(args.sensor)
     scene, refl = load_mesh(args.mesh)
+    crs = _output_crs(args)      # before the simulation: a bad --crs fails at once
     at = _station_on_axis(args, scene) if args.chainage is not None else xyz(args.at, "--at")
     lo, hi = scene.bounds
     if not args.allow_outside and ((np.asarray(at) < lo) | (np.asarray(at) > hi)).any():
@@ -194,7 +227,8 @@ def cmd_scan(args) -> int:
                                reflectivity=refl if refl is not None else args.reflectivity)
     resolution = getattr(run.scan, "resolution", None) or "custom step"
     return _finish_run(args, run, f"{spec.name} {resolution}",
-                       where=f" at {_xyz_text(at)}; put the station where it sees the mesh")
+                       where=f" at {_xyz_text(at)}; put the station where it sees the mesh",
+                       crs=crs)
 
 
 def station_heading_deg(heading_deg: float | None, azimuth_deg: float | None) -> float:
@@ -295,6 +329,7 @@ def cmd_drive(args) -> int:
     if not Path(args.mesh).is_file():
         raise TunnelsimCLIError(f"Expected a mesh file, got '{args.mesh}' which does not "
                                 "exist.")
+    crs = _output_crs(args)      # before the simulation: a bad --crs fails at once
     meta = scene = refl = None
     if args.trajectory:
         traj = Trajectory.read(args.trajectory)
@@ -322,12 +357,16 @@ def cmd_drive(args) -> int:
                          t_end=t_end)
     driven = trimmed(traj, t_end)      # every output covers the same time span
     if args.slam_drift:
-        run = _slam_files(args, run, driven, meta, full=traj)
+        run = _slam_files(args, run, driven, meta, full=traj, crs=crs)
+        # DECISION: the drifted cloud lies in the SLAM frame, which is not the mesh's
+        # CRS to survey accuracy (that is what 'correct' repairs): it states none; the
+        # world control points state it, and 'correct' gives it to the corrected cloud.
+        crs = None
     else:                              # every drive writes the truth it drove (issue 22)
         _true_trajectory(args, driven)
     return _finish_run(args, run, f"{spec.name} drive {run.duration_s:.1f} s",
                        min_return=0.0 if args.allow_outside else MIN_DRIVE_RETURN,
-                       where=where)
+                       where=where, crs=crs)
 
 
 def _check_auto(args) -> None:
@@ -342,9 +381,10 @@ def _check_auto(args) -> None:
                                     ("--chainage", args.chainage),
                                     ("--offset", args.offset)) if given]
     if auto and bad:
+        hint = ("; use --waypoints and --duration to choose the part driven"
+                if bad[0] == "--chainage" else "")
         raise TunnelsimCLIError(f"Expected {bad[0]} with --along centreline (it needs the "
-                                "tunnel's JSON), got it with --along auto; use --waypoints "
-                                "and --duration to choose the part driven.")
+                                f"tunnel's JSON), got it with --along auto{hint}.")
 
 
 def _auto_route(args, scene):
@@ -440,7 +480,7 @@ def _true_trajectory(args, traj) -> None:
         print(f"true trajectory: {len(traj)} poses -> {path.name}")
 
 
-def _slam_files(args, run, traj, meta, *, full=None):
+def _slam_files(args, run, traj, meta, *, full=None, crs=None):
     """Observe the drive through a drifting SLAM (``survey.adjust.slam``) and write what
     a surveyor would have besides the cloud: the SLAM and true trajectories and the
     control points (world, and observed in the MLS frame). Returns the drifted run.
@@ -468,7 +508,11 @@ def _slam_files(args, run, traj, meta, *, full=None):
     obs.slam.write(f"{stem}_trajectory.txt")
     obs.true.write(f"{stem}_true_trajectory.txt")
     obs.observed.write(f"{stem}_cp_observed.csv")
-    obs.world.write(f"{stem}_cp_world.csv")
+    world_csv = obs.world.write(f"{stem}_cp_world.csv")
+    if crs is not None:     # the world points are in the mesh's CRS: say so
+        from sensors.crs import crs_comment
+
+        world_csv.write_text(crs_comment(crs) + "\n" + world_csv.read_text())
     if not args.quiet:
         print(f"SLAM drift: {len(obs.observed)} control points observed; wrote "
               f"{stem.name}_trajectory.txt, {stem.name}_true_trajectory.txt, "
