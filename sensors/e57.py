@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -23,7 +24,8 @@ import numpy as np
 
 from .errors import PointFileError
 
-__all__ = ["E57_MAX_POINTS", "read_e57", "read_e57_crs", "write_e57_scan"]
+__all__ = ["E57_FIELDS", "E57_MAX_POINTS", "E57Scan", "read_e57", "read_e57_crs",
+           "read_e57_scan", "write_e57_scan"]
 
 #: Largest scan read or written: pye57 holds a scan in memory (about 36 bytes a point).
 E57_MAX_POINTS = 50_000_000
@@ -130,13 +132,16 @@ def read_e57(path: str | os.PathLike[str]) -> Iterator[np.ndarray]:
 def write_e57_scan(path: str | os.PathLike[str], local_xyz: np.ndarray, *,
                    rotation_xyzw: np.ndarray, translation: np.ndarray, name: str,
                    intensity: np.ndarray | None = None, row: np.ndarray | None = None,
-                   column: np.ndarray | None = None, crs: Any = None) -> Path:
+                   column: np.ndarray | None = None, crs: Any = None,
+                   fields: Mapping[str, np.ndarray] | None = None) -> Path:
     """Write one structured scan: sensor-frame Cartesian coordinates ``local_xyz``
     (n, 3), the pose (quaternion x, y, z, w and translation (3,), sensor to world),
     optional ``intensity`` (n,) and ``row``/``column`` indices (n,), and the world
     frame's CRS ``crs`` (as ``sensors.crs.parse_crs`` takes it) in the root's
-    ``coordinateMetadata``. Written beside the target and renamed when complete (pye57
-    writes to a path, not a stream)."""
+    ``coordinateMetadata``. ``fields``: other per-point fields {E57 name: (n,) array}
+    that pye57 writes (colour, invalid states; what ``read_e57_scan`` returns), kept
+    as given. Written beside the target and renamed when complete (pye57 writes to a
+    path, not a stream)."""
     local_xyz = np.asarray(local_xyz, dtype=np.float64).reshape(-1, 3)
     path = Path(path)
     if len(local_xyz) == 0:
@@ -151,6 +156,10 @@ def write_e57_scan(path: str | os.PathLike[str], local_xyz: np.ndarray, *,
             "cartesianZ": local_xyz[:, 2].copy()}
     if intensity is not None:
         data["intensity"] = np.asarray(intensity, dtype=np.float32)
+    for key, value in (fields or {}).items():
+        if key in data or key in ("cartesianX", "cartesianY", "cartesianZ"):
+            continue
+        data[key] = np.asarray(value).reshape(-1)
     if row is not None and column is not None:
         data["rowIndex"] = np.asarray(row, dtype=np.int32)
         data["columnIndex"] = np.asarray(column, dtype=np.int32)
@@ -174,6 +183,95 @@ def write_e57_scan(path: str | os.PathLike[str], local_xyz: np.ndarray, *,
             os.unlink(tmp)
         raise
     return path
+
+
+#: Per-point fields ``read_e57_scan`` carries (pye57 reads and writes them).
+E57_FIELDS = ("cartesianX", "cartesianY", "cartesianZ", "sphericalRange",
+              "sphericalAzimuth", "sphericalElevation", "intensity", "colorRed",
+              "colorGreen", "colorBlue", "rowIndex", "columnIndex",
+              "cartesianInvalidState", "sphericalInvalidState")
+
+
+@dataclass
+class E57Scan:
+    """One scan of an E57 file, as stored: pose and scan-frame points.
+
+    Attributes
+    ----------
+    local_xyz : (n, 3) float64, Cartesian coordinates in the scan frame (m)
+    rotation_xyzw : (4,) float64, quaternion x, y, z, w (scan to world)
+    translation : (3,) float64, scan origin in world coordinates (m)
+    name : str, the scan's name
+    fields : dict {E57 name: (n,) array}, the other per-point fields (intensity,
+        rowIndex, columnIndex, colour, invalid states, spherical coordinates)
+    crs : str or None, the file's ``coordinateMetadata`` (WKT, not parsed)
+    """
+
+    local_xyz: np.ndarray
+    rotation_xyzw: np.ndarray
+    translation: np.ndarray
+    name: str
+    fields: dict[str, np.ndarray]
+    crs: str | None
+
+    def world_xyz(self) -> np.ndarray:
+        """(n, 3) float64 world coordinates: the pose applied to ``local_xyz``."""
+        from scipy.spatial.transform import Rotation
+
+        return Rotation.from_quat(self.rotation_xyzw).apply(self.local_xyz) + \
+            self.translation
+
+
+def read_e57_scan(path: str | os.PathLike[str]) -> E57Scan:
+    """The single scan of an E57 file (a TLS station, as ``write_e57_scan`` writes it)
+    with its pose, its scan-frame Cartesian points and every other field.
+
+    Raises ``PointFileError`` for a file that ``read_e57`` refuses, a file with more or
+    fewer than one scan, a scan without Cartesian coordinates, and a scan with fields
+    pye57 cannot carry (a rewrite would drop them).
+    """
+    path = Path(path)
+    crs = read_e57_crs(path)
+    e57 = _open_e57(path)
+    try:
+        try:
+            count = e57.scan_count
+            head = e57.get_header(0) if count == 1 else None
+            names = set(head.point_fields) if head is not None else set()
+        except Exception as exc:   # libE57Format raises E57Exception; pye57 others
+            raise PointFileError(f"Expected a readable E57 file, got '{path}' which libE57 "
+                                 f"refuses: {_first_line(exc)}.") from exc
+        if head is None:
+            raise PointFileError(f"Expected one scan (a station) in '{path}', got {count}; "
+                                 "split the file into one file per scan.")
+        if not {"cartesianX", "cartesianY", "cartesianZ"} <= names:
+            raise PointFileError(f"Expected Cartesian coordinates in the scan of '{path}', "
+                                 f"got fields {sorted(names)}; convert it to Cartesian "
+                                 "first.")
+        other = sorted(names - set(E57_FIELDS))
+        if other:
+            raise PointFileError(f"Expected only the fields {list(E57_FIELDS)} in '{path}', "
+                                 f"got also {other}, which a rewrite would drop.")
+        n = int(head.point_count)
+        if n > E57_MAX_POINTS:
+            raise PointFileError(f"Expected at most {E57_MAX_POINTS:,} points in '{path}' "
+                                 f"(pye57 reads a scan into memory), got {n:,}.")
+        try:
+            d = e57.read_scan_raw(0) if n else {k: np.zeros(0) for k in names}
+            q_wxyz = np.asarray(head.rotation, dtype=np.float64)
+            t = np.asarray(head.translation, dtype=np.float64).reshape(3)
+            name = str(head["name"].value()) if head.node.isDefined("name") else "scan"
+        except Exception as exc:
+            raise PointFileError(f"Expected the {n:,} points of the scan of '{path}', got "
+                                 f"an error reading them: {_first_line(exc)}; the file "
+                                 "is corrupt.") from exc
+    finally:
+        with contextlib.suppress(Exception):
+            e57.close()
+    xyz = np.stack([d.pop("cartesianX"), d.pop("cartesianY"), d.pop("cartesianZ")],
+                   1).astype(np.float64)
+    q = np.array([q_wxyz[1], q_wxyz[2], q_wxyz[3], q_wxyz[0]])
+    return E57Scan(xyz, q, t, name, dict(d), crs)
 
 
 def _writer(pye57: Any, path: Path, coordinate_metadata: str) -> Any:

@@ -17,6 +17,13 @@ states (LAS/LAZ: the WKT VLR or GeoTIFF keys; E57: ``coordinateMetadata``; PLY, 
 text and mesh files: the sidecar ``<file>.prj``, a text cloud also a ``# crs:``
 comment line, a tunnel PLY its JSON's ``crs``). A rewrite keeps the input's CRS unless
 ``map_cloud(..., crs=)`` states another (or None: the coordinates left it).
+
+Station poses: a tunnelsim LAS/LAZ file records its station's pose in the "tunnelsim"
+VLR (JSON ``station_position``, ``station_quaternion_xyzw``; a PLY in its
+``tunnelsim {...}`` comment), an E57 scan in its pose. ``map_cloud(..., pose=)``
+rewrites them with the coordinates (a drive's ``mount_*`` keys are platform-relative
+and stay); an E57 station is rewritten by its pose, its points staying in the scan
+frame.
 """
 
 from __future__ import annotations
@@ -32,7 +39,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from sensors.crs import CRSError, parse_crs, read_sidecar, text_file_crs, write_sidecar
-from sensors.e57 import read_e57, read_e57_crs
+from sensors.e57 import read_e57, read_e57_crs, read_e57_scan, write_e57_scan
 from sensors.errors import PointFileError
 from sensors.las import (
     CRS_USER,
@@ -50,9 +57,10 @@ from sensors.las import (
 from sensors.ply import PlyWriter, ply_element, read_ply_header
 from survey.errors import CloudFileError, TunnelsimError
 
-__all__ = ["CHUNK", "KEEP_CRS", "LAS_SCALE", "MAX_LAS_SCALE", "annotate_las",
-           "cloud_bounds", "cloud_crs", "cloud_crs_text", "iter_points", "map_cloud", "read_points",
-           "read_reference", "write_points_las"]
+__all__ = ["CHUNK", "E57_KEEP_TOL_M", "INFO_USER", "KEEP_CRS", "LAS_SCALE",
+           "MAX_LAS_SCALE", "PoseFn", "annotate_las", "cloud_bounds", "cloud_crs",
+           "cloud_crs_text", "iter_points", "map_cloud", "read_points", "read_reference",
+           "write_points_las"]
 
 CHUNK = 1 << 20
 #: Coarsest LAS coordinate scale accepted for tunnel work (m).
@@ -63,6 +71,12 @@ SUFFIXES = (".las", ".laz", ".ply", ".xyz", ".txt", ".csv", ".npz", ".e57")
 PathLike = str | os.PathLike[str]
 #: ``map_cloud(..., crs=KEEP_CRS)``: the output states the input's CRS (the default).
 KEEP_CRS = "keep"
+#: User id of the VLR (record 1) and prefix of the PLY comment with a tunnelsim file's
+#: simulation info (JSON; ``sensors.writers``).
+INFO_USER = "tunnelsim"
+#: A rewritten E57 scan keeps its scan-frame coordinates when the recomputed ones
+#: differ by less than this (m): rounding of the pose algebra, not a change.
+E57_KEEP_TOL_M = 1e-7
 
 
 @contextlib.contextmanager
@@ -385,8 +399,14 @@ def _new_xyz(fn: XyzFn, xyz: NDArray[np.float64], t: NDArray[np.float64] | None,
     return new
 
 
+#: pose(position (3,), quaternion_xyzw (4,)) -> (position (3,), quaternion_xyzw (4,)),
+#: a station's pose (sensor to world) in the new coordinates.
+PoseFn = Callable[[NDArray[np.float64], NDArray[np.float64]], tuple[Any, Any]]
+
+
 def map_cloud(src: PathLike, dst: PathLike, fn: XyzFn, *, chunk: int = CHUNK,
-              fields: tuple[str, ...] = (), crs: Any = KEEP_CRS) -> int:
+              fields: tuple[str, ...] = (), crs: Any = KEEP_CRS,
+              pose: PoseFn | None = None) -> int:
     """Write ``dst`` = ``src`` with x, y, z replaced by ``fn(xyz (n, 3), time (n,) or
     None)``; every other field, VLR and EVLR is kept (a COPC file becomes a plain LAZ).
     LAS/LAZ (by suffix) or binary PLY. Atomic. Returns the point count.
@@ -398,7 +418,15 @@ def map_cloud(src: PathLike, dst: PathLike, fn: XyzFn, *, chunk: int = CHUNK,
     ``crs``: the CRS ``dst`` states: ``KEEP_CRS`` (default) the input's (its LAS
     records, its PLY sidecar), None none (the new coordinates are in another system
     whose CRS is unknown), or a CRS (EPSG:n, WKT, PROJJSON; needs pyproj), which
-    replaces the input's."""
+    replaces the input's.
+
+    ``pose``: the station pose in the new coordinates (``PoseFn``); the station pose
+    that a tunnelsim file records (LAS/LAZ VLR, PLY comment) is rewritten through it
+    (without ``pose`` it is copied as it is). An E57 file (one scan, as a tunnelsim
+    station; output .e57) needs ``pose``: its pose becomes ``pose(...)`` and its
+    scan-frame points ``R_new^T (fn(world) - p_new)``, which are the input's when
+    ``fn`` and ``pose`` agree on a rigid motion (a scale changes them; see
+    ``_map_e57``)."""
     src, dst = _existing(src), Path(dst)
     if not dst.parent.exists():
         raise CloudFileError(f"Expected an existing output folder, got '{dst.parent}'.")
@@ -407,16 +435,23 @@ def map_cloud(src: PathLike, dst: PathLike, fn: XyzFn, *, chunk: int = CHUNK,
         if kind in (".las", ".laz"):
             if dst.suffix.lower() not in (".las", ".laz"):
                 raise CloudFileError(f"Expected a .las/.laz output for '{src}', got '{dst}'.")
-            n = _map_las(src, dst, fn, chunk, fields, crs)
+            n = _map_las(src, dst, fn, chunk, fields, crs, pose)
         elif kind == ".ply" and not fields:
             if dst.suffix.lower() != ".ply":
                 raise CloudFileError(f"Expected a .ply output for '{src}', got '{dst}'.")
             if crs is not KEEP_CRS and crs is not None:
                 crs = parse_crs(crs, what="the output CRS")   # before any point is read
-            n = _map_ply(src, dst, fn, chunk)
+            n = _map_ply(src, dst, fn, chunk, pose)
             write_sidecar(dst, read_sidecar(src) if crs is KEEP_CRS else crs)
+        elif kind == ".e57" and not fields:
+            if dst.suffix.lower() != ".e57":
+                raise CloudFileError(f"Expected a .e57 output for '{src}', got '{dst}'.")
+            if pose is None:
+                raise CloudFileError(f"Expected a pose function for the E57 scan '{src}' "
+                                     "(its points are stored in the scan frame), got none.")
+            n = _map_e57(src, dst, fn, pose, crs)
         else:
-            raise CloudFileError(f"Expected a .las, .laz or .ply cloud, got '{src}'.")
+            raise CloudFileError(f"Expected a .las, .laz, .ply or .e57 cloud, got '{src}'.")
     return n
 
 
@@ -430,12 +465,13 @@ LasStep = Callable[[Any, int], tuple[dict[str, Any], Callable[[Any], Any]]]
 
 
 def _rewrite_las(source: LasSource, dst: Path, chunk: int, step: LasStep,
-                 crs: Any = KEEP_CRS) -> int:
+                 crs: Any = KEEP_CRS, pose: PoseFn | None = None) -> int:
     """Write ``dst`` from ``source`` chunk by chunk through ``step``; the options it
     gives for the first chunk make the output header (they may depend on the data:
     offsets near the new coordinates, dtypes of new fields). Every VLR and EVLR is
     carried, the CRS records as ``map_cloud``'s ``crs`` says; a failure leaves no
-    ``dst``. Returns the point count."""
+    ``dst``; with ``pose`` the station pose of the tunnelsim VLR is rewritten. Returns
+    the point count."""
     if source.point_count == 0:
         raise _no_points(source.path)
     if crs is not KEEP_CRS and crs is not None:
@@ -450,6 +486,8 @@ def _rewrite_las(source: LasSource, dst: Path, chunk: int, step: LasStep,
             options, records = step(rec, n)
             if w is None:
                 head = output_header(source, **options)
+                if pose is not None:
+                    _move_info_vlr(head, pose, source.path)
                 if crs is not KEEP_CRS:
                     set_las_crs(head, crs)
                 w = stack.enter_context(LasWriter(dst, head, evlrs=evlrs))
@@ -459,7 +497,7 @@ def _rewrite_las(source: LasSource, dst: Path, chunk: int, step: LasStep,
 
 
 def _map_las(src: Path, dst: Path, fn: XyzFn, chunk: int, fields: tuple[str, ...] = (),
-             crs: Any = KEEP_CRS) -> int:
+             crs: Any = KEEP_CRS, pose: PoseFn | None = None) -> int:
     import laspy
 
     with LasSource(src) as source:
@@ -489,10 +527,11 @@ def _map_las(src: Path, dst: Path, fn: XyzFn, chunk: int, fields: tuple[str, ...
                 return out
             return {"scales": scales, "offsets": offsets_near(new)}, records
 
-        return _rewrite_las(source, dst, chunk, step, crs)
+        return _rewrite_las(source, dst, chunk, step, crs, pose)
 
 
-def _map_ply(src: Path, dst: Path, fn: XyzFn, chunk: int) -> int:
+def _map_ply(src: Path, dst: Path, fn: XyzFn, chunk: int, pose: PoseFn | None = None
+             ) -> int:
     head = read_ply_header(src)
     if [e.name for e in head.elements] != ["vertex"]:
         raise CloudFileError(f"Expected a point-cloud PLY (vertex element only), got "
@@ -504,7 +543,13 @@ def _map_ply(src: Path, dst: Path, fn: XyzFn, chunk: int) -> int:
     names = [f for f in data.dtype.names or () if not f.startswith("__n_")]
     native = np.dtype([(f, data.dtype[f].base.newbyteorder("="), data.dtype[f].shape)
                        for f in names])
-    with PlyWriter(dst, [("vertex", native, n)], comments=head.comments) as w:
+    comments = list(head.comments)
+    if pose is not None:
+        tag = f"comment {INFO_USER} "           # comments as read_ply_header gives them
+        for i, line in enumerate(comments):
+            if line.startswith(tag + "{"):
+                comments[i] = tag + _moved_info(line[len(tag):], pose, src)
+    with PlyWriter(dst, [("vertex", native, n)], comments=comments) as w:
         for i in range(0, n, chunk):
             c = np.array(data[i:i + chunk]).astype(native)
             xyz = _ply_xyz(c)
@@ -514,6 +559,83 @@ def _map_ply(src: Path, dst: Path, fn: XyzFn, chunk: int) -> int:
             c["x"], c["y"], c["z"] = new.T
             w.write("vertex", c)
     del data
+    return n
+
+
+def _moved_info(text: str, pose: PoseFn, src: Path) -> str:
+    """The simulation info JSON ``text`` with its station pose moved by ``pose``."""
+    import json
+
+    try:
+        info = json.loads(text)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise CloudFileError(f"Expected JSON in the {INFO_USER} record of '{src}', got "
+                             f"unreadable text ({exc}).") from exc
+    if not isinstance(info, dict) or "station_position" not in info:
+        return text           # a drive: its mount is platform-relative and stays
+    try:
+        p = np.asarray(info["station_position"], dtype=np.float64).reshape(3)
+        q = np.asarray(info["station_quaternion_xyzw"], dtype=np.float64).reshape(4)
+    except (KeyError, TypeError, ValueError) as exc:
+        got = {k: info.get(k) for k in ("station_position", "station_quaternion_xyzw")}
+        raise CloudFileError(f"Expected station_position (3,) and station_quaternion_xyzw "
+                             f"(4,) in the {INFO_USER} record of '{src}', got {got}."
+                             ) from exc
+    p2, q2 = pose(p, q)
+    info["station_position"] = np.asarray(p2, dtype=np.float64).reshape(3).tolist()
+    info["station_quaternion_xyzw"] = np.asarray(q2, dtype=np.float64).reshape(4).tolist()
+    return json.dumps(info)
+
+
+def _move_info_vlr(head: Any, pose: PoseFn, src: Path) -> None:
+    """Rewrite the station pose in a header's tunnelsim VLR (record 1), in place."""
+    import laspy
+
+    for i, v in enumerate(head.vlrs):
+        if str(v.user_id).rstrip("\0") == INFO_USER and v.record_id == 1:
+            text = bytes(v.record_data).decode("utf-8", "replace").rstrip("\0")
+            head.vlrs[i] = laspy.VLR(user_id=INFO_USER, record_id=1,
+                                     description=v.description,
+                                     record_data=_moved_info(text, pose, src).encode())
+
+
+def _map_e57(src: Path, dst: Path, fn: XyzFn, pose: PoseFn, crs: Any) -> int:
+    """Rewrite an E57 station: new pose ``pose(t, q)``; scan-frame points recomputed
+    from ``fn`` of the world points, so that the output's world points are ``fn``'s.
+
+    DECISION: an E57 pose is rigid, so a scale (a similarity's 1 + s, model 9's scale
+    per axis) cannot go into it; it goes into the scan-frame coordinates (x (1 + s) for
+    a similarity), which keeps the world coordinates exactly ``fn``'s, as for LAS and
+    PLY. Refusing a scale instead would refuse every fitted 7-parameter Helmert (its
+    scale is never exactly 0). Spherical coordinates cannot follow such a change; a
+    scan that has them is refused then. Recomputed coordinates within
+    ``E57_KEEP_TOL_M`` of the input's are the input's (rounding, not a change)."""
+    from scipy.spatial.transform import Rotation
+
+    if crs is not KEEP_CRS and crs is not None:
+        crs = parse_crs(crs, what="the output CRS")     # before any point is read
+    scan = read_e57_scan(src)
+    n = len(scan.local_xyz)
+    if n == 0:
+        raise _no_points(src)
+    world = scan.world_xyz()
+    _check_finite(world, src, 0)
+    new = _new_xyz(fn, world, None, src)
+    _check_finite(new, dst, 0)
+    p2, q2 = pose(scan.translation, scan.rotation_xyzw)
+    p2 = np.asarray(p2, dtype=np.float64).reshape(3)
+    q2 = np.asarray(q2, dtype=np.float64).reshape(4)
+    local = Rotation.from_quat(q2).inv().apply(new - p2)
+    if np.max(np.abs(local - scan.local_xyz)) <= E57_KEEP_TOL_M:
+        local = scan.local_xyz
+    elif any(k.startswith("spherical") for k in scan.fields):
+        moved = float(np.max(np.abs(local - scan.local_xyz)))
+        raise CloudFileError(f"Expected a rigid transform for '{src}', whose scan has "
+                             "spherical coordinates, got one that changes the scan-frame "
+                             f"coordinates by up to {moved:.3g} m (a scale); drop the "
+                             "spherical fields or write LAS/LAZ.")
+    write_e57_scan(dst, local, rotation_xyzw=q2, translation=p2, name=scan.name,
+                   fields=scan.fields, crs=scan.crs if crs is KEEP_CRS else crs)
     return n
 
 

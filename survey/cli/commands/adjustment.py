@@ -57,9 +57,11 @@ def register(commands: CommandSet) -> None:
         "transform", cmd_transform, help="apply a Helmert transform to a point cloud",
         description="Apply the Helmert transform of 'tunnelsim adjust --json' (or its "
                     "inverse) to a LAS/LAZ or binary PLY cloud, chunk by chunk, keeping "
-                    "every other field.",
+                    "every other field, or to an E57 station (its pose; a scale goes "
+                    "into its scan-frame points). The station pose a tunnelsim file "
+                    "records (LAS/LAZ VLR, PLY comment, E57 pose) is transformed too.",
         epilog="Example: tunnelsim transform --helmert helmert.json mls.laz -o mls_utm.laz")
-    c.option("cloud", path="in", help="input cloud (.las, .laz, .ply)")
+    c.option("cloud", path="in", help="input cloud (.las, .laz, .ply, .e57)")
     c.option("--helmert", required=True, path="in",
              help="Helmert JSON from 'tunnelsim adjust'")
     c.option("--inverse", action="store_true",
@@ -200,6 +202,29 @@ def _transform_crs(args, d: dict, p):
     return out
 
 
+def _pose_mover(res, inverse: bool):
+    """A station pose (position (3,), quaternion x, y, z, w (4,), sensor to world) in
+    the Helmert's target system (source system with ``inverse``): position through
+    ``apply`` (``apply_inverse``), attitude R -> R_h R (R_h^T R).
+
+    DECISION: the attitude takes the Helmert's rotation only: a rotation has no scale,
+    so the points of a similarity are the new pose applied to the sensor-frame points
+    times (1 + s) (LAS/PLY keep the points' coordinates, E57 the scaled scan-frame
+    ones; ``survey.clouds.cloudio._map_e57``), as ``HelmertResult.apply_trajectory``
+    treats attitudes."""
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    r_h = np.asarray(res.rotation_matrix, dtype=np.float64)
+    r_h = Rotation.from_matrix(r_h.T if inverse else r_h)
+    move = res.apply_inverse if inverse else res.apply
+
+    def pose(position, quaternion_xyzw):
+        rot = r_h * Rotation.from_quat(quaternion_xyzw)
+        return move(np.asarray(position, dtype=np.float64)), rot.as_quat()
+    return pose
+
+
 def cmd_transform(args) -> int:
     import json
     from pathlib import Path
@@ -218,7 +243,8 @@ def cmd_transform(args) -> int:
     res = HelmertResult.from_dict(d)      # refuses anything but adjust's JSON object
     out_crs = _transform_crs(args, d, p)
     move = res.apply_inverse if args.inverse else res.apply
-    n = map_cloud(args.cloud, args.output, lambda xyz, t: move(xyz), crs=out_crs)
+    n = map_cloud(args.cloud, args.output, lambda xyz, t: move(xyz), crs=out_crs,
+                  pose=_pose_mover(res, args.inverse))
     if not args.quiet:
         way = "inverse-transformed" if args.inverse else "transformed"
         into = "" if out_crs is None else f" ({_label(out_crs)})"
