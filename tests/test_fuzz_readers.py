@@ -282,3 +282,20 @@ def test_the_valid_files_read(valid, tmp_path, kind):
         if reader is _iter_points and kind == "ply-mesh":
             continue           # a mesh's vertices read as a cloud: checked by the fuzz
         assert reader(tmp_path / name) is not None
+
+
+def test_a_non_ascii_byte_in_a_ply_comment_is_rewritten_not_a_crash(tmp_path):
+    """Found by the property above in a clean-clone CI run: a flipped byte in a PLY
+    header comment decoded to U+FFFD, and the rewrite crashed encoding it back (PLY
+    headers are ASCII). The rewrite keeps the data and the comment, the byte as '?'."""
+    from survey.clouds.cloudio import map_cloud, read_points
+
+    p = _ply_cloud(tmp_path)
+    raw = bytearray(p.read_bytes())
+    i = raw.index(b"comment") + len(b"comment ")
+    raw[i] = 0xFF
+    p.write_bytes(bytes(raw))
+    n = map_cloud(p, tmp_path / "out.ply", lambda xyz, t: xyz + 1.0)
+    np.testing.assert_allclose(read_points(tmp_path / "out.ply"), read_points(p) + 1.0)
+    assert n == len(read_points(p))
+    assert b"?" in (tmp_path / "out.ply").read_bytes()[:200]

@@ -543,7 +543,8 @@ def _map_ply(src: Path, dst: Path, fn: XyzFn, chunk: int, pose: PoseFn | None = 
     names = [f for f in data.dtype.names or () if not f.startswith("__n_")]
     native = np.dtype([(f, data.dtype[f].base.newbyteorder("="), data.dtype[f].shape)
                        for f in names])
-    comments = list(head.comments)
+    # A damaged header can hold bytes that decode to U+FFFD; PLY headers are ASCII.
+    comments = [c.encode("ascii", "replace").decode("ascii") for c in head.comments]
     if pose is not None:
         tag = f"comment {INFO_USER} "           # comments as read_ply_header gives them
         for i, line in enumerate(comments):
