@@ -71,18 +71,13 @@ def _check_args(args):
 
 
 def _control(path):
-    import json
-
+    """(ids, (k, 3) xyz) of the control points in a tunnel JSON."""
     import numpy as np
 
     from survey.errors import TunnelFileError
+    from survey.world.mesh import read_meta
 
-    try:
-        meta = json.loads(open(path, encoding="utf-8").read())
-    except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise TunnelFileError(f"Expected a tunnel JSON (from 'tunnelsim tunnel') in "
-                              f"'{path}', got unreadable text ({exc}).") from exc
-    cps = meta.get("control_points") if isinstance(meta, dict) else None
+    cps = read_meta(path).get("control_points")
     if not cps:
         raise TunnelFileError(f"Expected 'control_points' in '{path}' (a JSON written by "
                               "'tunnelsim tunnel'), got none.")
