@@ -11,8 +11,9 @@ per scan (the seed's Table 1), a histogram and the distance as a LAS scalar fiel
   ``k`` nearest reference points (CloudCompare's local model "least square plane"),
   which removes the reference's sampling from the distance.
 - ``cloud_to_mesh``: signed distance to the exact closest point of the mesh (Ericson
-  2005, 5.1.5, on candidate triangles from a centroid k-d tree with a radius bound that
-  keeps the search exact). Sign as CloudCompare: positive on the side the closest
+  2005, 5.1.5), found by branch and bound in a tree over the triangles
+  (``survey._kernels.closest_bvh``; ties to the lower triangle index, equal to brute
+  force bit for bit). Sign as CloudCompare: positive on the side the closest
   triangle's right-hand normal (b - a) x (c - a) points to.
 
 Two clouds far apart are not compared: ``check_overlap`` refuses bounding boxes more
@@ -258,6 +259,8 @@ class ReferenceMesh:
     """
 
     def __init__(self, vertices: ArrayLike, faces: ArrayLike) -> None:
+        from survey._kernels.closest_bvh import build_tree
+
         v, _ = as_points(vertices, "vertices", CompareError)
         f = np.asarray(faces)
         if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
@@ -273,23 +276,18 @@ class ReferenceMesh:
             raise CompareError(f"Expected `faces` (m, 3) of vertex indices below {len(v)}, "
                                f"got indices from {f.min()} to {f.max()}.")
         #: (2, 3) float64 (min, max) rows of the vertices used by a face, m.
-        used = v[np.unique(f)]
+        seen = np.zeros(len(v), dtype=bool)
+        seen[f.ravel()] = True
+        used = v[seen]
         self.bounds = np.stack([used.min(axis=0), used.max(axis=0)])
         self.origin = v.mean(axis=0)
         self.tris = np.ascontiguousarray((v - self.origin)[f])          # (m, 3, 3)
         n = np.cross(self.tris[:, 1] - self.tris[:, 0], self.tris[:, 2] - self.tris[:, 0])
         ln = np.linalg.norm(n, axis=1)
         self.normals = n / np.where(ln > 0, ln, 1.0)[:, None]
-        cen = self.tris.mean(axis=1)
-        rad = np.linalg.norm(self.tris - cen[:, None], axis=2).max(axis=1)
-        # Triangles grouped by size (powers of two of the centroid-to-vertex radius),
-        # one centroid tree each, so one big triangle (an end-cap fan) does not widen
-        # every small triangle's search radius.
-        grp = np.floor(np.log2(np.maximum(rad, 1e-9))).astype(int)
-        self.groups: list[tuple[NDArray[np.intp], Any, float]] = []
-        for g in np.unique(grp):
-            ids = np.flatnonzero(grp == g)
-            self.groups.append((ids, cKDTree(cen[ids]), float(rad[ids].max())))
+        # A tree over the triangles' boxes (survey._kernels.closest_bvh): exact nearest
+        # triangles by branch and bound.
+        self._tree = build_tree(self.tris)
 
     def __repr__(self) -> str:
         return f"ReferenceMesh({len(self.tris):,} triangles)"
@@ -298,28 +296,17 @@ class ReferenceMesh:
                   max_distance_m: float | None = None) -> Distances:
         """Signed distances from each compared point (n, 3) or (3,) to this mesh;
         ``max_distance_m`` clamps |d| keeping the sign."""
-        from survey._kernels.closest import nearest_triangles
+        from survey._kernels.closest_bvh import nearest_in_tree
 
         p = as_points(compared, "compared", CompareError)[0] - self.origin
         max_d = _max_distance(max_distance_m)
         dist = np.empty(len(p))
         tri = np.empty(len(p), dtype=np.int64)
         for b in range(0, len(p), BLOCK):
-            q = p[b:b + BLOCK]
-            # Upper bound: the nearest centroid lies on its triangle.
-            ub = np.min([t.query(q, k=1, workers=-1)[0] for _, t, _ in self.groups], axis=0)
-            # Exact: a triangle closer than ub has its centroid within ub + its radius.
-            lists = []
-            for ids, t, r in self.groups:
-                got = t.query_ball_point(q, ub + r + 1e-12, workers=-1)
-                lists.append([ids[np.asarray(g, dtype=np.int64)] for g in got])
-            cand = [np.concatenate(x) for x in zip(*lists)]
-            start = np.zeros(len(q) + 1, dtype=np.int64)
-            start[1:] = np.cumsum([len(c) for c in cand])
-            flat = np.concatenate(cand).astype(np.int64)
+            q = np.ascontiguousarray(p[b:b + BLOCK])
             out_t = np.empty(len(q), dtype=np.int64)
             out_q = np.empty((len(q), 3))
-            nearest_triangles(q, self.tris, start, flat, out_t, out_q)
+            nearest_in_tree(q, self.tris, *self._tree, out_t, out_q)
             diff = q - out_q
             dd = np.linalg.norm(diff, axis=1)
             sign = np.where(np.einsum("ni,ni->n", diff, self.normals[out_t]) < 0, -1.0, 1.0)
