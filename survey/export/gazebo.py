@@ -1,20 +1,28 @@
-"""Export a tunnel and a sensor rig to Gazebo (SDFormat 1.9; Gazebo Sim, Fortress and
-later): a world folder that loads as is.
+"""Export a tunnel and a sensor rig to Gazebo (SDFormat 1.9) for Gazebo Harmonic or
+Ignition Gazebo Fortress: a world folder that loads as is and talks to ROS 2.
 
     world_dir/
-      world.sdf                      the world: scene, lights, physics, tunnel, robot
+      world.sdf                      the world: systems, scene, lights, the origin frame,
+                                     the tunnel, the robot (lidar, IMU, ground truth)
+      bridge.yaml                    ros_gz_bridge configuration (cloud, IMU, TF,
+                                     ground-truth odometry, clock, cmd_vel)
       models/tunnel/model.config     Gazebo model metadata (local origin recorded)
       models/tunnel/model.sdf        static model: visual mesh + collision mesh
       models/tunnel/meshes/tunnel.obj            visual mesh (OBJ), local coordinates
       models/tunnel/meshes/tunnel_collision.stl  collision mesh (decimated when large)
       README.txt                     how to run it, and what SDF cannot express
 
+The flavour (``gazebo_sdf.FLAVOURS``) picks the plugin and message names, the resource
+path variable and the launch line; ``gazebo_sdf`` documents the topics and where each
+name comes from.
+
 Coordinates: metres, Z up, shifted to a local origin (UTM-sized numbers would lose
-millimetres in Gazebo's float32 render buffers); the origin is recorded in
+millimetres in Gazebo's float32 render buffers); the origin is the world's frame
+``map_origin`` (at -origin: world = local + origin), and is recorded in
 ``model.config``, ``model.sdf`` (a ``tunnelsim:origin`` custom element) and README.
 When the tunnel states a coordinate reference system (its JSON's ``crs``, or a
 ``<mesh>.prj`` sidecar; ``survey.clouds.cloudio.cloud_crs_text``), the same places name
-it (``tunnelsim:crs`` holds the WKT): world = local + origin, in that CRS.
+it (``tunnelsim:crs`` holds the WKT in model.sdf, the name in the frame).
 
 DECISION: no ``<spherical_coordinates>``. Gazebo places that origin on the WGS 84
 ellipsoid in a local tangent plane: a projected CRS's grid north differs from true
@@ -24,11 +32,25 @@ ellipsoidal, and SDF's ``heading_deg`` sign changed meaning between versions. Wr
 without all of that, a simulated GPS would disagree with the survey by metres and
 look authoritative; the CRS and the origin are recorded instead.
 
-The lidar is translated from our spec into ``<sensor type="gpu_lidar">``: horizontal
-samples per revolution from the column period and rotation rate, vertical samples and
-limits from the channel table, range limits, Gaussian noise at the spec's reference
-conditions, update rate = rotation (profile) rate. What SDF cannot express is listed in
-a comment inside ``world.sdf`` and returned for the CLI summary.
+Robot start: on a generated tunnel (its JSON holds the alignment) 1 m into it (or at
+``chainage_m``) on the floor under the axis, facing along it. On any other mesh, or
+with ``waypoints``, at the start of the route ``sensors.route.find_route`` finds (the
+one ``tunnelsim drive --along auto`` drives), facing along it; the lamps then hang
+along that route.
+
+The lidar is translated from our spec into ``<sensor type="gpu_lidar">``
+(``gazebo_sdf.lidar_sdf``); the IMU carries ``sensors.bag.ImuModel``'s noise
+(``gazebo_sdf.imu_sdf``). What SDF cannot express is listed in a comment inside
+``world.sdf`` and returned for the CLI summary.
+
+``laser_retro``: Gazebo Sim returns a visual's ``laser_retro`` as the gpu_lidar's
+intensity unchanged (gz-sim ``SceneManager`` stores it as the visual's "laser_retro"
+user data; gz-rendering's GpuRays test expects that value back in the intensity
+channel), so its scale is the consumer's. We write Velodyne's calibrated reflectivity:
+0-100 for diffuse targets of 0-100 % reflectivity (VLP-16 User Manual, "Calibrated
+Reflectivity"), i.e. 100 x the mesh's area-weighted mean face reflectivity.
+DECISION: one value for the whole lining (one visual); splitting the mesh by material
+would multiply visuals and meshes for a number no driver calibrates against.
 
 Collision mesh: vertex clustering on a uniform grid (Rossignac & Borrel 1993,
 "Multi-resolution 3D approximations for rendering complex scenes"): vertices in one cell
@@ -44,7 +66,6 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
-from xml.sax.saxutils import escape
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -52,12 +73,20 @@ from numpy.typing import ArrayLike, NDArray
 from raytrace.fileio import atomic_writer
 from survey.errors import GazeboExportError
 
+from .gazebo_sdf import (BASE, FLAVOURS, RANGE_RESOLUTION_M, Flavour, bridge_entries,
+                         bridge_yaml, crs_suffix, imu_sdf, lidar_sdf, model_config,
+                         model_sdf, origin_frame, robot_sdf, world_sdf)
+from .gazebo_sdf import flavour as flavour_of
+
 if TYPE_CHECKING:
+    from raytrace import Scene
+    from sensors.bag import ImuModel
     from sensors.spec import SensorSpec
     from survey.world.alignment import Alignment
 
-__all__ = ["BASE", "COLLISION_MAX_TRIANGLES", "MAX_METRIC_EXTENT_M", "RANGE_RESOLUTION_M",
-           "decimate", "export_gazebo", "lidar_sdf", "unit_warnings", "write_obj"]
+__all__ = ["BASE", "COLLISION_MAX_TRIANGLES", "FLAVOURS", "LASER_RETRO_SCALE",
+           "MAX_METRIC_EXTENT_M", "RANGE_RESOLUTION_M", "ROUTE_HEIGHT_M", "decimate",
+           "export_gazebo", "laser_retro", "lidar_sdf", "unit_warnings", "write_obj"]
 
 Floats = NDArray[np.float64]
 
@@ -65,12 +94,14 @@ Floats = NDArray[np.float64]
 COLLISION_MAX_TRIANGLES = 200_000
 #: A mesh larger than this (m) is probably not in metres.
 MAX_METRIC_EXTENT_M = 10_000.0
-#: Range resolution written to SDF (m): ASSUMED, the specs give no range quantisation.
-RANGE_RESOLUTION_M = 0.001
-#: LIMO-sized differential-drive base (AgileX LIMO: 322 x 220 x 251 mm, wheels 45 mm
-#: radius, track 172 mm, 4.2 kg; public product sheet).
-BASE = {"length": 0.322, "width": 0.220, "height": 0.10, "clearance": 0.05,
-        "wheel_radius": 0.045, "wheel_width": 0.045, "track": 0.172, "mass": 4.2}
+#: laser_retro per unit reflectivity: Velodyne's calibrated reflectivity scale (module
+#: doc).
+LASER_RETRO_SCALE = 100.0
+#: Height of the route above the floor (m) where the mesh has no JSON: the default of
+#: ``tunnelsim drive --height``, so that the robot starts where that drive does.
+ROUTE_HEIGHT_M = 0.5
+#: Distance along the route (m) over which the robot's start heading is taken.
+HEADING_BASE_M = 0.5
 
 
 # ------------------------------------------------------------------------------- checks
@@ -127,143 +158,6 @@ def _decimate_to(vertices: Floats, faces: NDArray[np.int64], max_tris: int
     return v2, f2
 
 
-# ------------------------------------------------------------------------------ sensor
-def lidar_sdf(spec: SensorSpec, *, name: str = "lidar", topic: str = "lidar",
-              pose: str = "0 0 0 0 0 0", indent: int = 10) -> tuple[str, list[str]]:
-    """(XML of a ``<sensor type="gpu_lidar">``, list of what SDF cannot express)."""
-    p: Any = spec.pattern          # SpinningPattern or ProfilerPattern (by kind)
-    ph = spec.physics
-    limits = ["per-pulse timing (each Gazebo sweep is rendered at one instant: no "
-              "rolling shutter)", "dual/multiple returns and beam divergence (one return "
-              "per ray)", "intensity physics (reflectivity, incidence, range falloff) and "
-              "detection probability", "range noise that depends on range and "
-              "reflectivity (SDF: one constant Gaussian sigma)"]
-    if spec.kind == "spinning":
-        rate = p.rotation_hz
-        cols = 1.0 / (p.rotation_hz * p.column_period_s)
-        h = (int(round(cols)), -np.pi, np.pi * (1 - 2 / round(cols)))
-        e = np.sort(p.elevations_rad)
-        v = (len(e), float(e[0]), float(e[-1]))
-        d = np.diff(e)
-        if len(d) and np.ptp(d) > 1e-6:
-            limits.append("non-uniform channel elevations (SDF spaces the vertical "
-                          f"samples evenly from {np.degrees(e[0]):.2f} to "
-                          f"{np.degrees(e[-1]):.2f} deg)")
-        if abs(cols - round(cols)) > 1e-3:
-            limits.append(f"a non-integer number of columns per turn ({cols:.2f}; "
-                          f"written as {round(cols)})")
-        if np.ptp(p.azimuth_offsets_rad) > 0:
-            limits.append("per-channel azimuth offsets")
-    elif spec.kind == "profiler":
-        rate = p.profile_rate_hz
-        b0, b1 = (float(np.mod(b, 2 * np.pi)) for b in p.blind_sector_rad)
-        # Scan from the blind sector's end round to its start (0 = up, towards +y).
-        lo, hi = b1 - 2 * np.pi, b0
-        n = int(round(p.points_per_profile * (hi - lo) / (2 * np.pi)))
-        h = (n, lo, hi)
-        v = (1, 0.0, 0.0)
-    else:
-        raise GazeboExportError(f"Expected a spinning lidar or a profiler for the robot, "
-                                f"got {spec.name} ({spec.kind}); a TLS station has no "
-                                "Gazebo sensor model.")
-    sigma = float(np.hypot(ph.range_sigma_floor_m, ph.range_sigma_m))
-    pad = " " * indent
-    xml = f"""<sensor name="{escape(name)}" type="gpu_lidar">
-  <pose>{pose}</pose>
-  <topic>{escape(topic)}</topic>
-  <update_rate>{rate:g}</update_rate>
-  <always_on>true</always_on>
-  <visualize>true</visualize>
-  <lidar>
-    <scan>
-      <horizontal>
-        <samples>{h[0]}</samples>
-        <resolution>1</resolution>
-        <min_angle>{h[1]:.9f}</min_angle>
-        <max_angle>{h[2]:.9f}</max_angle>
-      </horizontal>
-      <vertical>
-        <samples>{v[0]}</samples>
-        <resolution>1</resolution>
-        <min_angle>{v[1]:.9f}</min_angle>
-        <max_angle>{v[2]:.9f}</max_angle>
-      </vertical>
-    </scan>
-    <range>
-      <min>{ph.range_min_m:g}</min>
-      <max>{ph.range_max_m:g}</max>
-      <resolution>{RANGE_RESOLUTION_M:g}</resolution>
-    </range>
-    <noise>
-      <type>gaussian</type>
-      <mean>0</mean>
-      <stddev>{sigma:.6g}</stddev>
-    </noise>
-  </lidar>
-</sensor>"""
-    return "\n".join(pad + line for line in xml.splitlines()), limits
-
-
-# ------------------------------------------------------------------------------- world
-def _inertia_box(m: float, x: float, y: float, z: float) -> str:
-    return (f"<inertial><mass>{m:g}</mass><inertia><ixx>{m * (y * y + z * z) / 12:.6g}</ixx>"
-            f"<iyy>{m * (x * x + z * z) / 12:.6g}</iyy><izz>{m * (x * x + y * y) / 12:.6g}"
-            "</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>")
-
-
-def _robot_sdf(pose: str, sensor_xml: str) -> str:
-    b = BASE
-    zc = b["clearance"] + b["height"] / 2
-    wr, ww = b["wheel_radius"], b["wheel_width"]
-    wheels = []
-    joints = []
-    for side, y in (("left", b["track"] / 2 + ww / 2), ("right", -b["track"] / 2 - ww / 2)):
-        wheels.append(f"""      <link name="{side}_wheel">
-        <pose>0 {y:.4f} {wr:.4f} -1.5707963 0 0</pose>
-        {_inertia_box(0.3, 2 * wr, 2 * wr, ww)}
-        <collision name="collision"><geometry><cylinder><radius>{wr}</radius>
-          <length>{ww}</length></cylinder></geometry></collision>
-        <visual name="visual"><geometry><cylinder><radius>{wr}</radius>
-          <length>{ww}</length></cylinder></geometry></visual>
-      </link>""")
-        joints.append(f"""      <joint name="{side}_wheel_joint" type="revolute">
-        <parent>chassis</parent><child>{side}_wheel</child>
-        <axis><xyz expressed_in="__model__">0 1 0</xyz></axis>
-      </joint>""")
-    return f"""    <model name="robot">
-      <pose>{pose}</pose>
-      <link name="chassis">
-        <pose>0 0 {zc:.4f} 0 0 0</pose>
-        {_inertia_box(b["mass"], b["length"], b["width"], b["height"])}
-        <collision name="collision"><geometry><box><size>{b["length"]} {b["width"]}
-          {b["height"]}</size></box></geometry></collision>
-        <visual name="visual"><geometry><box><size>{b["length"]} {b["width"]}
-          {b["height"]}</size></box></geometry>
-          <material><diffuse>0.9 0.6 0.1 1</diffuse><ambient>0.9 0.6 0.1 1</ambient>
-          </material></visual>
-{sensor_xml}
-      </link>
-      <link name="caster">
-        <pose>{-b["length"] / 2 + 0.03:.4f} 0 {wr / 2:.4f} 0 0 0</pose>
-        {_inertia_box(0.1, wr, wr, wr)}
-        <collision name="collision"><geometry><sphere><radius>{wr / 2}</radius></sphere>
-          </geometry><surface><friction><ode><mu>0</mu><mu2>0</mu2></ode></friction>
-          </surface></collision>
-      </link>
-{chr(10).join(wheels)}
-{chr(10).join(joints)}
-      <joint name="caster_joint" type="ball"><parent>chassis</parent><child>caster</child>
-      </joint>
-      <plugin filename="gz-sim-diff-drive-system" name="gz::sim::systems::DiffDrive">
-        <left_joint>left_wheel_joint</left_joint>
-        <right_joint>right_wheel_joint</right_joint>
-        <wheel_separation>{b["track"] + ww}</wheel_separation>
-        <wheel_radius>{wr}</wheel_radius>
-        <topic>cmd_vel</topic>
-      </plugin>
-    </model>"""
-
-
 def _check_output(out: Path, force: bool, mount: str) -> None:
     if out.exists() and not force:
         raise GazeboExportError(f"Expected a new output folder, got '{out}' which exists; "
@@ -285,120 +179,235 @@ def _sensor_pose(sensor: SensorSpec, mount: str) -> str:
     return f"0.10 0 {top + 0.05:.3f} 0 0 0"
 
 
-def _lights_sdf(al: Alignment, hc: float, origin: Floats, spacing_m: float) -> str:
-    """Point lights along the axis under the crown, every ``spacing_m``."""
-    c0, c1 = al.chainage_range
-    ls = np.arange(c0 + spacing_m / 2, c1, spacing_m)
-    top = al.to_world(ls, 0.0, hc) - origin
+def _lamps(points: Floats, spacing_m: float) -> str:
+    """Point lights at ``points`` (k, 3), local coordinates, lighting ``spacing_m``."""
     return "\n".join(f"""    <light name="lamp_{i}" type="point">
-      <pose>{p[0]:.3f} {p[1]:.3f} {p[2] + 1.0:.3f} 0 0 0</pose>
+      <pose>{p[0]:.3f} {p[1]:.3f} {p[2]:.3f} 0 0 0</pose>
       <diffuse>1 0.95 0.85 1</diffuse><specular>0.2 0.2 0.2 1</specular>
       <attenuation><range>{1.5 * spacing_m:g}</range><constant>0.3</constant>
         <linear>0.05</linear><quadratic>0.005</quadratic></attenuation>
       <cast_shadows>false</cast_shadows>
-    </light>""" for i, p in enumerate(top))
+    </light>""" for i, p in enumerate(points))
 
 
-def _in_crs(crs_name: str | None) -> str:
-    """" in EPSG:2056 (CH1903+ / LV95)" for the texts that name the local origin (no
-    '--', which an XML comment cannot hold)."""
-    return "" if crs_name is None else " in " + crs_name.replace("--", "- -")
+def _axis_lamps(al: Alignment, hc: float, spacing_m: float) -> Floats:
+    """Lamp positions (world) along a tunnel axis, 1 m above the profile centre, every
+    ``spacing_m``."""
+    c0, c1 = al.chainage_range
+    ls = np.arange(c0 + spacing_m / 2, c1, spacing_m)
+    return np.asarray(al.to_world(ls, 0.0, hc), dtype=np.float64).reshape(-1, 3) + \
+        [0.0, 0.0, 1.0]
 
 
-def _world_sdf(mesh_name: str, sensor_name: str, org: str, lim_text: str, lights: str,
-               robot: str, crs_name: str | None = None) -> str:
-    """world.sdf: physics, systems, scene, lights, the tunnel model and the robot."""
-    return f"""<?xml version="1.0"?>
-<!-- Generated by tunnelsim from {escape(mesh_name)}. Coordinates are local:
-     world = local + ({org}) m{escape(_in_crs(crs_name))}.
-     Sensor {escape(sensor_name)} translated to gpu_lidar. SDF cannot express:
-{escape(lim_text)}
-     Run: GZ_SIM_RESOURCE_PATH=$PWD/models gz sim world.sdf -->
-<sdf version="1.9">
-  <world name="tunnel_world">
-    <physics name="default" type="ode"><max_step_size>0.002</max_step_size>
-      <real_time_factor>1</real_time_factor></physics>
-    <plugin filename="gz-sim-physics-system" name="gz::sim::systems::Physics"/>
-    <plugin filename="gz-sim-user-commands-system" name="gz::sim::systems::UserCommands"/>
-    <plugin filename="gz-sim-scene-broadcaster-system"
-            name="gz::sim::systems::SceneBroadcaster"/>
-    <plugin filename="gz-sim-sensors-system" name="gz::sim::systems::Sensors">
-      <render_engine>ogre2</render_engine>
-    </plugin>
-    <gravity>0 0 -9.81</gravity>
-    <scene>
-      <ambient>0.15 0.15 0.15 1</ambient>
-      <background>0 0 0 1</background>
-      <shadows>false</shadows>
-      <grid>false</grid>
-    </scene>
-{lights}
-    <include>
-      <uri>model://tunnel</uri>
-      <name>tunnel</name>
-      <static>true</static>
-      <pose>0 0 0 0 0 0</pose>
-    </include>
-{robot}
-  </world>
-</sdf>
-"""
+def _route_lamps(scene: Scene, points: Floats, distance_m: Floats,
+                 spacing_m: float) -> Floats:
+    """Lamp positions (world) along a route, every ``spacing_m`` (one at the middle of a
+    shorter route), half-way from the route point up to the roof above it (a ray cast
+    up; 1 m above the point where none is hit)."""
+    length = float(distance_m[-1])
+    at = np.arange(spacing_m / 2, length, spacing_m) if length > spacing_m else \
+        np.array([length / 2])
+    p = points[np.minimum(np.searchsorted(distance_m, at), len(points) - 1)]
+    up = scene.cast(p, np.array([0.0, 0.0, 1.0]))
+    rise = np.where(np.isfinite(up.t), up.t / 2, 1.0)
+    return p + np.column_stack([np.zeros((len(p), 2)), rise])
 
 
-def _model_sdf(org: str, crs_name: str | None = None, crs_wkt: str | None = None) -> str:
-    """models/tunnel/model.sdf: the static tunnel, visual OBJ and collision STL; the
-    local origin and (when stated) the CRS as tunnelsim custom elements."""
-    crs = ""
-    if crs_wkt is not None:
-        name = escape(crs_name or "", {'"': "&quot;"})
-        crs = (f'\n    <tunnelsim:crs name="{name}">'
-               f"{escape(' '.join(crs_wkt.split()))}</tunnelsim:crs>")
-    return f"""<?xml version="1.0"?>
-<sdf version="1.9" xmlns:tunnelsim="https://github.com/tunnelsim">
-  <model name="tunnel">
-    <static>true</static>
-    <tunnelsim:origin>{org}</tunnelsim:origin>{crs}
-    <link name="lining">
-      <visual name="visual">
-        <geometry><mesh><uri>model://tunnel/meshes/tunnel.obj</uri></mesh></geometry>
-      </visual>
-      <collision name="collision">
-        <geometry><mesh><uri>model://tunnel/meshes/tunnel_collision.stl</uri></mesh>
-        </geometry>
-      </collision>
-    </link>
-  </model>
-</sdf>
-"""
+def laser_retro(reflectivity: ArrayLike | None, vertices: ArrayLike, faces: ArrayLike,
+                default: float = 0.5) -> float:
+    """``laser_retro`` of a mesh (module doc): ``LASER_RETRO_SCALE`` x the area-weighted
+    mean of the per-face ``reflectivity`` (n_faces,) in [0, 1], or x ``default`` where
+    the mesh has none."""
+    if reflectivity is None:
+        return LASER_RETRO_SCALE * float(default)
+    v = np.asarray(vertices, dtype=np.float64)
+    tri = v[np.asarray(faces, dtype=np.int64)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]),
+                                axis=1)
+    r = np.asarray(reflectivity, dtype=np.float64)
+    if area.sum() <= 0:
+        return LASER_RETRO_SCALE * float(r.mean()) if len(r) else \
+            LASER_RETRO_SCALE * float(default)
+    return LASER_RETRO_SCALE * float(np.sum(area * r) / area.sum())
 
 
-def _model_config(mesh_name: str, n_faces: int, n_collision: int, org: str,
-                  crs_name: str | None = None) -> str:
-    """models/tunnel/model.config: Gazebo's model metadata."""
-    return f"""<?xml version="1.0"?>
-<model>
-  <name>tunnel</name>
-  <version>1.0</version>
-  <sdf version="1.9">model.sdf</sdf>
-  <author><name>tunnelsim</name></author>
-  <description>Tunnel mesh from {escape(mesh_name)}: {n_faces:,} triangles
-    (collision {n_collision:,}). Local coordinates: world = local + ({org}) m{escape(
-        _in_crs(crs_name))}.</description>
-</model>
-"""
+def _has_axis_json(mesh_path: str | Path) -> bool:
+    """Whether the mesh has the generator's JSON with an alignment and a profile."""
+    from survey.world.mesh import read_meta, sidecar
+
+    js = sidecar(mesh_path)
+    if not js.is_file():
+        return False
+    meta = read_meta(js)
+    return "alignment" in meta and "profile" in meta
 
 
-def _readme(mesh_name: str, sensor_name: str, out_name: str, org: str,
-            lim_text: str, crs_name: str | None = None, crs_wkt: str | None = None) -> str:
+def _placement(mesh_path: str | Path, scene: Scene, chainage_m: float | None,
+               waypoints: ArrayLike | None, route_height_m: float, spacing_m: float
+               ) -> tuple[Floats, float, Floats, Any]:
+    """(robot floor point (3,) world, yaw rad, lamp positions (k, 3) world, the Route or
+    None): on the tunnel axis where the JSON gives one and no waypoints are asked,
+    else at the start of the route found in the mesh (module doc)."""
+    if waypoints is None and _has_axis_json(mesh_path):
+        from survey.analysis.planning import axis_stations
+        from survey.clouds.axis import tunnel_frame
+
+        _, _, al, hc = tunnel_frame(mesh_path, scene)
+        s0 = al.chainage_range[0] + 1.0 if chainage_m is None else float(chainage_m)
+        floor = np.asarray(axis_stations(scene, al, hc, [s0], height_m=0.0)[0],
+                           dtype=np.float64)
+        yaw = float(al.heading(np.array([s0]))[0])
+        return floor, yaw, _axis_lamps(al, hc, spacing_m), None
+    if chainage_m is not None:
+        why = "waypoints" if waypoints is not None else "no tunnel JSON beside the mesh"
+        raise GazeboExportError(f"Expected a start chainage only for a generated tunnel's "
+                                f"axis, got one with {why}; the robot starts at the "
+                                "route's first point: leave the chainage out.")
+    from sensors.route import find_route
+
+    route = find_route(scene, waypoints=waypoints, height_m=route_height_m)
+    d, p = route.distance_m, route.points
+    k = min(int(np.searchsorted(d, HEADING_BASE_M)), len(p) - 1)
+    step = p[k] - p[0]
+    yaw = float(np.arctan2(step[1], step[0]))
+    return np.asarray(route.floor[0], dtype=np.float64), yaw, \
+        _route_lamps(scene, p, d, spacing_m), route
+
+
+def _readme(fl: Flavour, mesh_name: str, sensor_name: str, out_name: str, org: str,
+            origin: Floats, lim_text: str, start: str, crs_name: str | None = None,
+            crs_wkt: str | None = None) -> str:
     crs = "Coordinate reference system: none stated (local coordinates)\n" \
         if crs_wkt is None else (f"Coordinate reference system: {crs_name}\n  WKT: "
                                  f"{' '.join(crs_wkt.split())}\n")
-    return (f"Gazebo world for {mesh_name} with {sensor_name} on a LIMO-sized "
-            f"robot.\nRun:  cd {out_name} && GZ_SIM_RESOURCE_PATH=$PWD/models gz sim "
-            f"world.sdf\nLocal origin (world = local + origin): {org} m"
-            f"{_in_crs(crs_name)}\n{crs}Drive: gz topic "
-            "-t /cmd_vel -m gz.msgs.Twist -p 'linear: {x: 0.5}'\nNot expressible in "
-            f"SDF:\n{lim_text}\n")
+    o = " ".join(f"--{a} {x:.3f}" for a, x in zip("xyz", origin))
+    return (f"Gazebo world for {mesh_name} with {sensor_name} on a LIMO-sized robot, "
+            f"for {fl.title}.\n"
+            f"Run:     cd {out_name} && {fl.run_line()}\n"
+            f"Bridge:  ros2 run ros_gz_bridge parameter_bridge --ros-args -p "
+            f"config_file:=$PWD/bridge.yaml   ({fl.ros}; add -p use_sim_time:=true to "
+            "your nodes)\n"
+            f"Drive:   {fl.topic_cli} -t /cmd_vel -m {fl.msgs}Twist -p "
+            "'linear: {x: 0.5}'\n"
+            f"Start:   {start}\n"
+            f"Local origin (world = local + origin): {org} m{crs_suffix(crs_name)}; SDF "
+            "frame map_origin.\n"
+            f"  As a ROS frame: ros2 run tf2_ros static_transform_publisher {o} "
+            "--frame-id map --child-frame-id tunnel_world\n"
+            f"{crs}"
+            "Frames (Gazebo's scoped names): tunnel_world -> robot -> robot::chassis -> "
+            "robot::chassis::lidar, robot::chassis::imu\n"
+            "Ground truth: /tf (PosePublisher) and /odometry/ground_truth "
+            "(OdometryPublisher, frame tunnel_world)\n"
+            f"Not expressible in SDF:\n{lim_text}\n")
+
+
+def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path, *,
+                  force: bool = False, mount: str = "level",
+                  chainage_m: float | None = None, light_spacing_m: float = 25.0,
+                  flavour: str = "harmonic", waypoints: ArrayLike | None = None,
+                  route_height_m: float = ROUTE_HEIGHT_M, imu: ImuModel | None = None,
+                  reflectivity: float = 0.5) -> dict[str, Any]:
+    """Write the world folder (see module doc).
+
+    Parameters
+    ----------
+    mesh_path : the tunnel mesh (PLY, with its JSON sidecar when generated; any mesh)
+    sensor : SensorSpec, a spinning lidar or a profiler
+    out_dir : the world folder; an existing one is refused unless ``force`` (then
+        replaced as a whole, atomically)
+    mount : "level" or "down"
+    chainage_m : where the robot starts on a generated tunnel's axis (default: 1 m in)
+    light_spacing_m : distance between the lamps along the axis or route (m)
+    flavour : "harmonic" or "fortress" (``gazebo_sdf.FLAVOURS``)
+    waypoints : (k, 2) or (k, 3) array_like of float, optional
+        The route's waypoints (``sensors.route.find_route``; world coordinates); the
+        robot starts at the route's start even on a generated tunnel.
+    route_height_m : the route's height above the floor (m), as drive's ``--height``
+    imu : sensors.bag.ImuModel, optional
+        The IMU's noise (default ``sensors.bag.DEFAULT_IMU``).
+    reflectivity : float
+        Reflectivity for ``laser_retro`` where the mesh has none per face (0-1).
+
+    Returns
+    -------
+    dict
+        path, flavour, triangles, collision_triangles, origin (m), crs (its name, e.g.
+        "EPSG:2056 (CH1903+ / LV95)", or None), crs_wkt (or None), limitations,
+        warnings, robot_pose (x, y, z in m, local coordinates; yaw in radians),
+        route (None, or length_m and min_clearance_m of the route found), laser_retro,
+        bridge (the entries of bridge.yaml), run (the launch line).
+
+    Raises
+    ------
+    GazeboExportError
+        An existing folder without ``force``, an unknown mount or flavour, a chainage
+        without a tunnel axis, a TLS sensor.
+    sensors.errors.TrajectoryError
+        No route in the mesh (``find_route``).
+    """
+    import trimesh
+
+    from sensors.bag import DEFAULT_IMU, GENERIC_DRIVER, POSE_RATE_HZ
+    from sensors.crs import crs_label, parse_crs
+    from sensors.meshes import load_mesh
+    from survey.clouds.cloudio import cloud_crs_text
+
+    fl = flavour_of(flavour)
+    out = Path(out_dir)
+    _check_output(out, force, mount)
+    crs_wkt = cloud_crs_text(mesh_path) if Path(mesh_path).is_file() else None
+    crs_name = None if crs_wkt is None else crs_label(parse_crs(crs_wkt, metric=False))
+    scene, refl = load_mesh(mesh_path)
+    mesh: Any = trimesh.load(str(mesh_path), force="mesh", process=False)
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    f = np.asarray(mesh.faces, dtype=np.int64)
+    warns = unit_warnings(v)
+    for w in warns:
+        warnings.warn(w, UserWarning, stacklevel=2)
+    sensor_xml, limits = lidar_sdf(sensor, name=sensor.name,
+                                   pose=_sensor_pose(sensor, mount))
+    origin = np.floor(v.min(axis=0))
+    floor, yaw, lamps, route = _placement(mesh_path, scene, chainage_m, waypoints,
+                                          route_height_m, light_spacing_m)
+    floor = floor - origin
+    retro = laser_retro(refl if refl is not None and len(refl) == len(f) else None, v, f,
+                        default=reflectivity)
+    cv, cf = _decimate_to(v - origin, f, COLLISION_MAX_TRIANGLES)
+    lim_text = "\n".join(f"  - {x}" for x in limits)
+    org = " ".join(f"{x:.3f}" for x in origin)
+    name = Path(mesh_path).name
+    robot = robot_sdf(fl, f"{floor[0]:.3f} {floor[1]:.3f} {floor[2]:.3f} 0 0 {yaw:.6f}",
+                      sensor_xml, imu_sdf(imu or DEFAULT_IMU), POSE_RATE_HZ)
+    entries = bridge_entries(fl, (sensor.driver or GENERIC_DRIVER).topic)
+    start = (f"route start ({route.length_m:.1f} m route, smallest clearance "
+             f"{route.min_clearance_m:.2f} m)" if route is not None else "tunnel axis") + \
+        f" at local {floor[0]:.3f} {floor[1]:.3f} {floor[2]:.3f} m, yaw {yaw:.4f} rad"
+
+    def fill(tmp: Path) -> None:
+        (tmp / "models" / "tunnel" / "meshes").mkdir(parents=True)
+        _write(tmp / "world.sdf", world_sdf(fl, name, sensor.name, org, lim_text,
+                                            _lamps(lamps - origin, light_spacing_m), robot,
+                                            origin_frame(origin, crs_name), crs_name))
+        _write(tmp / "bridge.yaml", bridge_yaml(entries, fl))
+        _write(tmp / "models" / "tunnel" / "model.sdf",
+               model_sdf(org, retro, crs_name, crs_wkt))
+        _write(tmp / "models" / "tunnel" / "model.config",
+               model_config(name, len(f), len(cf), org, crs_name))
+        mdir = tmp / "models" / "tunnel" / "meshes"
+        write_obj(mdir / "tunnel.obj", v - origin, f)
+        trimesh.Trimesh(cv, cf, process=False).export(mdir / "tunnel_collision.stl")
+        _write(tmp / "README.txt", _readme(fl, name, sensor.name, out.name, org, origin,
+                                           lim_text, start, crs_name, crs_wkt))
+
+    _replace_folder(out, fill)
+    return {"path": str(out), "flavour": fl.name, "triangles": int(len(f)),
+            "collision_triangles": int(len(cf)), "origin": origin.tolist(),
+            "crs": crs_name, "crs_wkt": crs_wkt, "limitations": limits, "warnings": warns,
+            "robot_pose": [float(floor[0]), float(floor[1]), float(floor[2]), yaw],
+            "route": None if route is None else
+            {"length_m": route.length_m, "min_clearance_m": route.min_clearance_m},
+            "laser_retro": retro, "bridge": entries, "run": fl.run_line()}
 
 
 def _replace_folder(out: Path, fill: Callable[[Path], None]) -> None:
@@ -418,83 +427,6 @@ def _replace_folder(out: Path, fill: Callable[[Path], None]) -> None:
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-
-
-def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path, *,
-                  force: bool = False, mount: str = "level",
-                  chainage_m: float | None = None,
-                  light_spacing_m: float = 25.0) -> dict[str, Any]:
-    """Write the world folder (see module doc).
-
-    Parameters
-    ----------
-    mesh_path : the tunnel mesh (PLY, with its JSON sidecar when generated)
-    sensor : SensorSpec, a spinning lidar or a profiler
-    out_dir : the world folder; an existing one is refused unless ``force`` (then
-        replaced as a whole, atomically)
-    mount : "level" or "down"
-    chainage_m : where the robot starts (default: 1 m into the tunnel)
-    light_spacing_m : distance between the lamps along the axis (m)
-
-    Returns
-    -------
-    dict
-        path, triangles, collision_triangles, origin (m), crs (its name, e.g.
-        "EPSG:2056 (CH1903+ / LV95)", or None), crs_wkt (or None), limitations,
-        warnings and robot_pose (x, y, z in m, yaw in radians).
-    """
-    import trimesh
-
-    from sensors.crs import crs_label, parse_crs
-    from sensors.meshes import load_mesh
-    from survey.analysis.planning import axis_stations
-    from survey.clouds.axis import tunnel_frame
-    from survey.clouds.cloudio import cloud_crs_text
-
-    out = Path(out_dir)
-    _check_output(out, force, mount)
-    crs_wkt = cloud_crs_text(mesh_path) if Path(mesh_path).is_file() else None
-    crs_name = None if crs_wkt is None else crs_label(parse_crs(crs_wkt, metric=False))
-    scene, _ = load_mesh(mesh_path)
-    mesh: Any = trimesh.load(str(mesh_path), force="mesh", process=False)
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    f = np.asarray(mesh.faces, dtype=np.int64)
-    warns = unit_warnings(v)
-    for w in warns:
-        warnings.warn(w, UserWarning, stacklevel=2)
-    _, _, al, hc = tunnel_frame(mesh_path, scene)
-    origin = np.floor(v.min(axis=0))
-    s0 = al.chainage_range[0] + 1.0 if chainage_m is None else float(chainage_m)
-    floor = axis_stations(scene, al, hc, [s0], height_m=0.0)[0] - origin
-    yaw = float(al.heading(np.array([s0]))[0])
-    sensor_xml, limits = lidar_sdf(sensor, name=sensor.name, topic=f"{sensor.name}/points",
-                                   pose=_sensor_pose(sensor, mount))
-    cv, cf = _decimate_to(v - origin, f, COLLISION_MAX_TRIANGLES)
-    lim_text = "\n".join(f"  - {x}" for x in limits)
-    org = " ".join(f"{x:.3f}" for x in origin)
-    name = Path(mesh_path).name
-    robot = _robot_sdf(f"{floor[0]:.3f} {floor[1]:.3f} {floor[2]:.3f} 0 0 {yaw:.6f}",
-                       sensor_xml)
-
-    def fill(tmp: Path) -> None:
-        (tmp / "models" / "tunnel" / "meshes").mkdir(parents=True)
-        _write(tmp / "world.sdf", _world_sdf(name, sensor.name, org, lim_text,
-                                             _lights_sdf(al, hc, origin, light_spacing_m),
-                                             robot, crs_name))
-        _write(tmp / "models" / "tunnel" / "model.sdf", _model_sdf(org, crs_name, crs_wkt))
-        _write(tmp / "models" / "tunnel" / "model.config",
-               _model_config(name, len(f), len(cf), org, crs_name))
-        mdir = tmp / "models" / "tunnel" / "meshes"
-        write_obj(mdir / "tunnel.obj", v - origin, f)
-        trimesh.Trimesh(cv, cf, process=False).export(mdir / "tunnel_collision.stl")
-        _write(tmp / "README.txt", _readme(name, sensor.name, out.name, org, lim_text,
-                                           crs_name, crs_wkt))
-
-    _replace_folder(out, fill)
-    return {"path": str(out), "triangles": int(len(f)), "collision_triangles": int(len(cf)),
-            "origin": origin.tolist(), "crs": crs_name, "crs_wkt": crs_wkt,
-            "limitations": limits, "warnings": warns,
-            "robot_pose": [float(floor[0]), float(floor[1]), float(floor[2]), yaw]}
 
 
 def write_obj(path: str | Path, vertices: ArrayLike, faces: ArrayLike) -> str | Path:

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import shutil
+import subprocess
+from pathlib import Path
+
 import pytest
 
 from survey.cli.main import main
@@ -22,3 +26,24 @@ def tbm_mesh(tmp_path_factory):
         return made[edge_length_m]
 
     return make
+
+
+CHECKER = Path(__file__).parent / "sdf" / "sdf_check.cpp"
+
+
+@pytest.fixture(scope="session")
+def sdf_check(tmp_path_factory):
+    """The checker compiled once against libsdformat (skipped, with the reason, when
+    the library or a compiler is missing)."""
+    if not shutil.which("g++") or not shutil.which("pkg-config"):
+        pytest.skip("g++ or pkg-config not found: cannot build the SDFormat checker")
+    flags = subprocess.run(["pkg-config", "--cflags", "--libs", "sdformat12"],
+                           capture_output=True, text=True)
+    if flags.returncode != 0:
+        pytest.skip("libsdformat-dev (SDFormat 12) not installed: apt-get install "
+                    "libsdformat-dev (.ci/run does)")
+    exe = tmp_path_factory.mktemp("sdf") / "sdf_check"
+    r = subprocess.run(["g++", "-std=c++17", "-O1", str(CHECKER), "-o", str(exe),
+                        *flags.stdout.split()], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    return exe

@@ -3,7 +3,6 @@ compiled checker), the lidar reads back as the spec, bad input is refused."""
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -18,27 +17,6 @@ from survey.errors import GazeboExportError
 from survey.export.gazebo import decimate, export_gazebo, lidar_sdf, unit_warnings
 from survey.world.profiles import horseshoe
 from survey.world.generator import make_tunnel
-
-CHECKER = Path(__file__).parent / "sdf" / "sdf_check.cpp"
-
-
-@pytest.fixture(scope="session")
-def sdf_check(tmp_path_factory):
-    """The checker compiled once against libsdformat (skipped, with the reason, when
-    the library or a compiler is missing)."""
-    if not shutil.which("g++") or not shutil.which("pkg-config"):
-        pytest.skip("g++ or pkg-config not found: cannot build the SDFormat checker")
-    flags = subprocess.run(["pkg-config", "--cflags", "--libs", "sdformat12"],
-                           capture_output=True, text=True)
-    if flags.returncode != 0:
-        pytest.skip("libsdformat-dev (SDFormat 12) not installed: apt-get install "
-                    "libsdformat-dev (.ci/run does)")
-    exe = tmp_path_factory.mktemp("sdf") / "sdf_check"
-    r = subprocess.run(["g++", "-std=c++17", "-O1", str(CHECKER), "-o", str(exe),
-                        *flags.stdout.split()], capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    return exe
-
 
 @pytest.fixture(scope="module")
 def tunnel_ply(tmp_path_factory):

@@ -65,20 +65,34 @@ def register(commands: CommandSet) -> None:
     c = commands.add(
         "gazebo", cmd_gazebo,
         help="export the tunnel and a lidar robot as a Gazebo world (SDF 1.9)",
-        description="Write a Gazebo world folder: world.sdf (underground lighting, the "
-                    "tunnel as a static model, a LIMO-sized differential-drive robot "
-                    "carrying the lidar as a gpu_lidar sensor), the tunnel model (OBJ "
-                    "visual, decimated STL collision) in local coordinates, and a README. "
-                    "What SDF cannot express about the sensor is listed.",
-        epilog="Example: tunnelsim gazebo --mesh bfo.ply --sensor robosense_airy -o world/")
+        description="Write a Gazebo world folder for Gazebo Harmonic or Ignition Gazebo "
+                    "Fortress: world.sdf (underground lighting, the tunnel as a static "
+                    "model, a LIMO-sized differential-drive robot carrying the lidar as a "
+                    "gpu_lidar sensor, an IMU with the bag's noise model and ground-truth "
+                    "pose and odometry publishers), bridge.yaml for ros_gz_bridge, the "
+                    "tunnel model (OBJ visual, decimated STL collision, laser_retro from "
+                    "the mesh's reflectivity) in local coordinates, and a README. On a "
+                    "mesh without the tunnel JSON the robot starts at the beginning of "
+                    "the route 'drive --along auto' finds. What SDF cannot express about "
+                    "the sensor is listed.",
+        epilog="Example: tunnelsim gazebo --mesh bfo.ply --sensor robosense_airy "
+               "--flavour fortress -o world/")
     c.option("--mesh", required=True, path="in",
-             help="tunnel mesh (its .json gives the axis)")
+             help="tunnel mesh (its .json gives the axis; any other mesh: a route is "
+                  "found in it)")
     c.option("--sensor", default="robosense_airy", path="toml",
              help="spinning lidar or profiler, name or .toml (default robosense_airy)")
+    c.option("--flavour", choices=["harmonic", "fortress"], default="harmonic",
+             help="Gazebo line: harmonic (gz sim, ROS 2 Jazzy) or fortress (ign gazebo, "
+                  "ROS 2 Humble) (default harmonic)")
     c.option("--mount", choices=["level", "down"], default="level",
              help="lidar z up (level) or pointing down (default level)")
     c.option("--chainage", type=float, metavar="M",
-             help="robot start chainage (default: first chainage + 1 m)")
+             help="robot start chainage on a generated tunnel (default: first chainage "
+                  "+ 1 m)")
+    c.option("--waypoints", path="in", metavar="CSV",
+             help="x,y[,z] rows the route passes through in order, as drive's; the robot "
+                  "starts at the first")
     c.option("-o", "--output", required=True, path="out", help="output world folder (new)")
     c.option("--force", action="store_true", help="replace an existing folder")
     c.option("--quiet", action="store_true", help="print nothing on success")
@@ -199,26 +213,37 @@ def cmd_gazebo(args) -> int:
     import warnings
 
     from sensors import load_sensor
+    from sensors.route import read_waypoints
     from survey.export.gazebo import export_gazebo
 
     spec = load_sensor(args.sensor)
+    wp = read_waypoints(args.waypoints) if args.waypoints else None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
             info = export_gazebo(args.mesh, spec, args.output, force=args.force,
-                                 mount=args.mount, chainage_m=args.chainage)
+                                 mount=args.mount, chainage_m=args.chainage,
+                                 flavour=args.flavour, waypoints=wp)
         finally:   # unit warnings first: they often explain a later failure
             for w in caught:
                 print(f"tunnelsim: warning: {w.message}", file=sys.stderr)
     if not args.quiet:
-        print(f"wrote {info['path']}/world.sdf and models/tunnel ({info['triangles']:,} "
-              f"triangles, collision {info['collision_triangles']:,}); local origin "
-              f"{' '.join(f'{x:.3f}' for x in info['origin'])} m"
+        print(f"wrote {info['path']}/world.sdf, bridge.yaml and models/tunnel "
+              f"({info['triangles']:,} triangles, collision "
+              f"{info['collision_triangles']:,}, laser_retro {info['laser_retro']:.3g}); "
+              f"local origin {' '.join(f'{x:.3f}' for x in info['origin'])} m"
               + (f" in {info['crs']}" if info.get("crs") else ""))
+        x, y, z, yaw = info["robot_pose"]
+        where = "on the tunnel axis" if info["route"] is None else (
+            f"at the start of the route ({info['route']['length_m']:.1f} m, smallest "
+            f"clearance {info['route']['min_clearance_m']:.2f} m)")
+        print(f"robot {where}: {x:.3f} {y:.3f} {z:.3f} m local, yaw {yaw:.3f} rad")
         print(f"{spec.name} as gpu_lidar; SDF cannot express:")
-        for x in info["limitations"]:
-            print(f"  - {x}")
-        print(f"run: cd {info['path']} && GZ_SIM_RESOURCE_PATH=$PWD/models gz sim world.sdf")
+        for item in info["limitations"]:
+            print(f"  - {item}")
+        print(f"run: cd {info['path']} && {info['run']}")
+        print("bridge: ros2 run ros_gz_bridge parameter_bridge --ros-args -p "
+              "config_file:=$PWD/bridge.yaml")
     return 0
 
 

@@ -1,0 +1,496 @@
+"""The texts of a Gazebo world folder (``survey.export.gazebo.export_gazebo``): SDFormat
+1.9 for the world, the tunnel model and the robot, its sensors and systems, and the
+``ros_gz_bridge`` configuration, for one of two Gazebo lines (``FLAVOURS``).
+
+Gazebo lines (the flavour picks plugin files, class names, message names, the resource
+path variable and the command line; the SDF is the same):
+
+- ``harmonic``: Gazebo Harmonic (gz-sim 8, libsdformat 14), paired with ROS 2 Jazzy.
+  Plugins ``gz-sim-<system>-system`` / ``gz::sim::systems::<System>``, messages
+  ``gz.msgs.*``, ``GZ_SIM_RESOURCE_PATH``, ``gz sim`` (gz-sim's
+  ``src/systems/*/*.cc`` register both names with ``GZ_ADD_PLUGIN_ALIAS``; the
+  ros_gz_bridge README for Jazzy lists ``gz.msgs.*``).
+- ``fortress``: Ignition Gazebo 6 "Fortress" (libsdformat 12: the checker the tests
+  build), paired with ROS 2 Humble. Plugins ``ignition-gazebo-<system>-system`` /
+  ``ignition::gazebo::systems::<System>`` (the ``ignition::gazebo`` aliases gz-sim
+  kept until version 8 carry the Fortress names), messages ``ignition.msgs.*`` (the
+  ros_gz_bridge README for Humble, docs.ros.org/en/humble/p/ros_gz_bridge),
+  ``IGN_GAZEBO_RESOURCE_PATH``, ``ign gazebo``.
+
+Topics on the Gazebo side are written out explicitly (a leading '/', so that the
+partition-free name is the one the bridge asks for):
+
+- the lidar: ``<topic>/lidar</topic>``. gz-sensors' ``GpuLidarSensor::Load`` calls
+  ``SetTopic(Topic() + "/points")`` before it advertises the ``PointCloudPacked``
+  publisher (the parent ``Lidar`` class advertises the ``LaserScan`` on the plain
+  topic), so the cloud is ``/lidar/points``. A topic already ending in ``/points``
+  would give ``.../points/points``: ``lidar_sdf`` refuses one.
+- the IMU: ``/imu`` (``gz.msgs.IMU``).
+- ground truth: ``PosePublisher`` publishes on ``<scoped model name>/pose``, i.e.
+  ``/model/robot/pose`` (gz-sim ``PosePublisher.cc``: ``scopedName(entity) +
+  "/pose"``), a ``Pose_V`` with the model, link and sensor frames (bridged to
+  ``/tf``); ``OdometryPublisher`` on ``/ground_truth/odometry`` (``<odom_topic>``)
+  with its own TF moved to ``<tf_topic>`` ``/ground_truth/odometry/tf`` (its default,
+  ``/model/robot/pose``, is the PosePublisher's topic).
+- the wheels: ``DiffDrive`` listens on ``/cmd_vel``; its wheel odometry and TF go to
+  ``/model/robot/wheel_odometry`` and ``/model/robot/wheel_tf`` (their defaults,
+  ``/model/robot/odometry`` and ``/model/robot/tf``, would read as ground truth).
+- ``/clock``: published by the server itself (gz-sim's ``SimulationRunner``
+  advertises ``/clock`` next to ``/world/<name>/clock``).
+
+DECISION: the ROS topic names are the ones ``sensors.bag`` writes in a bag of a drive
+(cloud: the driver's topic; ``/imu/data_raw``; ``/odometry/ground_truth``; ``/tf``), so
+that a stack set up on a recorded drive runs on the simulation unchanged. The frames
+differ: Gazebo names them by scope (``robot::chassis::lidar``), which only the
+``gz_frame_id`` / ``ignition_frame_id`` extension elements change, and libsdformat
+refuses those as unknown elements.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Final
+from xml.sax.saxutils import escape
+
+import numpy as np
+
+from survey.errors import GazeboExportError
+
+if TYPE_CHECKING:
+    from sensors.bag import ImuModel
+    from sensors.spec import SensorSpec
+
+__all__ = ["BASE", "CLOCK_TOPIC", "CMD_VEL_TOPIC", "FLAVOURS", "GT_ODOMETRY_TOPIC",
+           "IMU_BIAS_CORRELATION_S", "IMU_GZ_TOPIC", "LIDAR_GZ_TOPIC", "POINTS_SUFFIX",
+           "RANGE_RESOLUTION_M", "ROBOT", "Flavour", "bridge_entries", "bridge_yaml",
+           "crs_suffix", "flavour", "imu_sdf", "lidar_sdf", "model_config", "model_sdf",
+           "origin_frame", "pose_topic", "robot_sdf", "world_sdf"]
+
+#: Range resolution written to SDF (m): ASSUMED, the specs give no range quantisation.
+RANGE_RESOLUTION_M: Final = 0.001
+#: LIMO-sized differential-drive base (AgileX LIMO: 322 x 220 x 251 mm, wheels 45 mm
+#: radius, track 172 mm, 4.2 kg; public product sheet).
+BASE: Final = {"length": 0.322, "width": 0.220, "height": 0.10, "clearance": 0.05,
+               "wheel_radius": 0.045, "wheel_width": 0.045, "track": 0.172, "mass": 4.2}
+#: The robot model's name: it scopes the PosePublisher's topic and the frames.
+ROBOT: Final = "robot"
+LIDAR_GZ_TOPIC: Final = "/lidar"
+#: gz-sensors' GpuLidarSensor publishes the cloud on ``<topic>`` + this.
+POINTS_SUFFIX: Final = "/points"
+IMU_GZ_TOPIC: Final = "/imu"
+GT_ODOMETRY_TOPIC: Final = "/ground_truth/odometry"
+CMD_VEL_TOPIC: Final = "/cmd_vel"
+CLOCK_TOPIC: Final = "/clock"
+#: Correlation time of the IMU bias process (s). gz-sensors' GaussianNoiseModel
+#: (after Rotors' gazebo_imu_plugin) drives the bias as a Gauss-Markov process whose
+#: step over dt has sigma = dynamic_bias_stddev * sqrt(tau/2 (1 - exp(-2 dt/tau))),
+#: ~ dynamic_bias_stddev * sqrt(dt) for dt << tau: a random walk of that density, the
+#: Kalibr parameter ``sensors.bag.ImuModel`` holds. ASSUMED: 1000 s (Rotors' ADIS16448
+#: default), long against a drive, so the bias wanders as ImuModel's does.
+IMU_BIAS_CORRELATION_S: Final = 1000.0
+
+
+@dataclass(frozen=True)
+class Flavour:
+    """One Gazebo line: how its plugins, messages, resource path and commands are
+    named (see module doc)."""
+
+    name: str
+    title: str
+    ros: str
+    plugin_file: str         # "{}" -> the system's file stem, e.g. "imu"
+    plugin_class: str        # "{}" -> the system's class, e.g. "Imu"
+    msgs: str                # message package prefix, e.g. "gz.msgs."
+    resource_env: str
+    launch: str
+    topic_cli: str
+
+    def plugin(self, stem: str, cls: str, body: str = "", indent: int = 4) -> str:
+        """A ``<plugin>`` element for system ``stem`` / ``cls`` with ``body`` inside."""
+        pad = " " * indent
+        head = (f'{pad}<plugin filename="{self.plugin_file.format(stem)}" '
+                f'name="{self.plugin_class.format(cls)}"')
+        if not body:
+            return head + "/>"
+        inner = "\n".join(pad + "  " + line for line in body.strip().splitlines())
+        return f"{head}>\n{inner}\n{pad}</plugin>"
+
+    def run_line(self, folder: str = "$PWD") -> str:
+        """The command that opens the world from inside its folder."""
+        return f"{self.resource_env}={folder}/models {self.launch} world.sdf"
+
+
+FLAVOURS: Final[dict[str, Flavour]] = {
+    "harmonic": Flavour("harmonic", "Gazebo Harmonic (gz-sim 8)", "ROS 2 Jazzy",
+                        "gz-sim-{}-system", "gz::sim::systems::{}", "gz.msgs.",
+                        "GZ_SIM_RESOURCE_PATH", "gz sim", "gz topic"),
+    "fortress": Flavour("fortress", "Ignition Gazebo Fortress (6)", "ROS 2 Humble",
+                        "ignition-gazebo-{}-system", "ignition::gazebo::systems::{}",
+                        "ignition.msgs.", "IGN_GAZEBO_RESOURCE_PATH", "ign gazebo",
+                        "ign topic"),
+}
+
+
+def flavour(name: str) -> Flavour:
+    """The ``Flavour`` called ``name``; ``GazeboExportError`` for another name."""
+    try:
+        return FLAVOURS[name]
+    except (KeyError, TypeError):
+        raise GazeboExportError(f"Expected a Gazebo flavour {' or '.join(map(repr, FLAVOURS))}"
+                                f", got {name!r}.") from None
+
+
+def pose_topic(model: str = ROBOT) -> str:
+    """The PosePublisher's topic on a top-level model (``/model/<name>/pose``)."""
+    return f"/model/{model}/pose"
+
+
+def _indent(xml: str, indent: int) -> str:
+    pad = " " * indent
+    return "\n".join(pad + line for line in xml.splitlines())
+
+
+# ---------------------------------------------------------------------------- sensors
+def lidar_sdf(spec: SensorSpec, *, name: str = "lidar", topic: str = LIDAR_GZ_TOPIC,
+              pose: str = "0 0 0 0 0 0", indent: int = 10) -> tuple[str, list[str]]:
+    """(XML of a ``<sensor type="gpu_lidar">``, list of what SDF cannot express).
+
+    ``topic`` is the scan's; the cloud goes to ``topic + "/points"`` (module doc), so a
+    topic ending in ``/points`` is refused."""
+    if topic.rstrip("/").endswith(POINTS_SUFFIX):
+        raise GazeboExportError(f"Expected a lidar topic without the '{POINTS_SUFFIX}' "
+                                f"suffix gz-sensors adds for the cloud, got {topic!r}; the "
+                                f"cloud would be on '{topic}{POINTS_SUFFIX}'.")
+    p: Any = spec.pattern          # SpinningPattern or ProfilerPattern (by kind)
+    ph = spec.physics
+    limits = ["per-pulse timing (each Gazebo sweep is rendered at one instant: no "
+              "rolling shutter)", "dual/multiple returns and beam divergence (one return "
+              "per ray)", "intensity physics (reflectivity, incidence, range falloff) and "
+              "detection probability", "range noise that depends on range and "
+              "reflectivity (SDF: one constant Gaussian sigma)"]
+    if spec.kind == "spinning":
+        rate = p.rotation_hz
+        cols = 1.0 / (p.rotation_hz * p.column_period_s)
+        h = (int(round(cols)), -np.pi, np.pi * (1 - 2 / round(cols)))
+        e = np.sort(p.elevations_rad)
+        v = (len(e), float(e[0]), float(e[-1]))
+        d = np.diff(e)
+        if len(d) and np.ptp(d) > 1e-6:
+            limits.append("non-uniform channel elevations (SDF spaces the vertical "
+                          f"samples evenly from {np.degrees(e[0]):.2f} to "
+                          f"{np.degrees(e[-1]):.2f} deg)")
+        if abs(cols - round(cols)) > 1e-3:
+            limits.append(f"a non-integer number of columns per turn ({cols:.2f}; "
+                          f"written as {round(cols)})")
+        if np.ptp(p.azimuth_offsets_rad) > 0:
+            limits.append("per-channel azimuth offsets")
+    elif spec.kind == "profiler":
+        rate = p.profile_rate_hz
+        b0, b1 = (float(np.mod(b, 2 * np.pi)) for b in p.blind_sector_rad)
+        # Scan from the blind sector's end round to its start (0 = up, towards +y).
+        lo, hi = b1 - 2 * np.pi, b0
+        n = int(round(p.points_per_profile * (hi - lo) / (2 * np.pi)))
+        h = (n, lo, hi)
+        v = (1, 0.0, 0.0)
+    else:
+        raise GazeboExportError(f"Expected a spinning lidar or a profiler for the robot, "
+                                f"got {spec.name} ({spec.kind}); a TLS station has no "
+                                "Gazebo sensor model.")
+    sigma = float(np.hypot(ph.range_sigma_floor_m, ph.range_sigma_m))
+    xml = f"""<sensor name="{escape(name)}" type="gpu_lidar">
+  <pose>{pose}</pose>
+  <topic>{escape(topic)}</topic>
+  <update_rate>{rate:g}</update_rate>
+  <always_on>true</always_on>
+  <visualize>true</visualize>
+  <lidar>
+    <scan>
+      <horizontal>
+        <samples>{h[0]}</samples>
+        <resolution>1</resolution>
+        <min_angle>{h[1]:.9f}</min_angle>
+        <max_angle>{h[2]:.9f}</max_angle>
+      </horizontal>
+      <vertical>
+        <samples>{v[0]}</samples>
+        <resolution>1</resolution>
+        <min_angle>{v[1]:.9f}</min_angle>
+        <max_angle>{v[2]:.9f}</max_angle>
+      </vertical>
+    </scan>
+    <range>
+      <min>{ph.range_min_m:g}</min>
+      <max>{ph.range_max_m:g}</max>
+      <resolution>{RANGE_RESOLUTION_M:g}</resolution>
+    </range>
+    <noise>
+      <type>gaussian</type>
+      <mean>0</mean>
+      <stddev>{sigma:.6g}</stddev>
+    </noise>
+  </lidar>
+</sensor>"""
+    return _indent(xml, indent), limits
+
+
+def _noise(white: float, bias: float, walk: float) -> str:
+    return (f'<noise type="gaussian"><mean>0</mean><stddev>{white:.6g}</stddev>'
+            f"<bias_mean>0</bias_mean><bias_stddev>{bias:.6g}</bias_stddev>"
+            f"<dynamic_bias_stddev>{walk:.6g}</dynamic_bias_stddev>"
+            "<dynamic_bias_correlation_time>"
+            f"{IMU_BIAS_CORRELATION_S:g}</dynamic_bias_correlation_time></noise>")
+
+
+def imu_sdf(imu: ImuModel, *, name: str = "imu", topic: str = IMU_GZ_TOPIC,
+            pose: str = "0 0 0 0 0 0", indent: int = 8) -> str:
+    """XML of a ``<sensor type="imu">`` with the noise of ``imu`` (``ImuModel``).
+
+    Per axis, SDF's Gaussian noise holds the white noise per sample (density x
+    sqrt(rate), ``ImuModel.sample_sigmas``), the turn-on bias (``bias_stddev``) and the
+    bias random walk (``dynamic_bias_stddev`` = the Kalibr random-walk density, see
+    ``IMU_BIAS_CORRELATION_S``); the update rate is ``imu.rate_hz``."""
+    gyro_white, accel_white, _, _ = imu.sample_sigmas()
+    parts = []
+    for tag, white, bias, walk in (
+            ("angular_velocity", gyro_white, imu.gyro_bias_sigma, imu.gyro_random_walk),
+            ("linear_acceleration", accel_white, imu.accel_bias_sigma,
+             imu.accel_random_walk)):
+        axes = "\n".join(f"    <{a}>{_noise(white, bias, walk)}</{a}>" for a in "xyz")
+        parts.append(f"  <{tag}>\n{axes}\n  </{tag}>")
+    body = "\n".join(parts)
+    xml = f"""<sensor name="{escape(name)}" type="imu">
+  <pose>{pose}</pose>
+  <topic>{escape(topic)}</topic>
+  <update_rate>{imu.rate_hz:g}</update_rate>
+  <always_on>true</always_on>
+  <imu>
+{body}
+  </imu>
+</sensor>"""
+    return _indent(xml, indent)
+
+
+# ----------------------------------------------------------------------------- bridge
+def bridge_entries(fl: Flavour, cloud_ros_topic: str) -> list[dict[str, str]]:
+    """The ``ros_gz_bridge`` entries of the world (module doc), in the documented YAML
+    config's keys: ros_topic_name, gz_topic_name, ros_type_name, gz_type_name,
+    direction (ros_gz_bridge ``bridge_config.cpp``)."""
+    from sensors.bag import IMU_TOPIC, ODOMETRY_TOPIC
+
+    m = fl.msgs
+    rows = [(CLOCK_TOPIC, CLOCK_TOPIC, "rosgraph_msgs/msg/Clock", "Clock", "GZ_TO_ROS"),
+            (cloud_ros_topic, LIDAR_GZ_TOPIC + POINTS_SUFFIX, "sensor_msgs/msg/PointCloud2",
+             "PointCloudPacked", "GZ_TO_ROS"),
+            (IMU_TOPIC, IMU_GZ_TOPIC, "sensor_msgs/msg/Imu", "IMU", "GZ_TO_ROS"),
+            (ODOMETRY_TOPIC, GT_ODOMETRY_TOPIC, "nav_msgs/msg/Odometry", "Odometry",
+             "GZ_TO_ROS"),
+            ("/tf", pose_topic(), "tf2_msgs/msg/TFMessage", "Pose_V", "GZ_TO_ROS"),
+            (CMD_VEL_TOPIC, CMD_VEL_TOPIC, "geometry_msgs/msg/Twist", "Twist",
+             "ROS_TO_GZ")]
+    return [{"ros_topic_name": r, "gz_topic_name": g, "ros_type_name": rt,
+             "gz_type_name": m + gt, "direction": d} for r, g, rt, gt, d in rows]
+
+
+def bridge_yaml(entries: list[dict[str, str]], fl: Flavour) -> str:
+    """The entries as a ``parameter_bridge`` ``config_file`` (a YAML list)."""
+    lines = [f"# ros_gz_bridge configuration for {fl.title} and {fl.ros}, written by "
+             "tunnelsim.", "# Run: ros2 run ros_gz_bridge parameter_bridge --ros-args "
+             "-p config_file:=$PWD/bridge.yaml"]
+    for e in entries:
+        lines += [f'- {k}: "{v}"' if i == 0 else f'  {k}: "{v}"'
+                  for i, (k, v) in enumerate(e.items()) if k != "direction"]
+        lines.append(f"  direction: {e['direction']}")
+    return "\n".join(lines) + "\n"
+
+
+# ------------------------------------------------------------------------------ world
+def _inertia_box(m: float, x: float, y: float, z: float) -> str:
+    return (f"<inertial><mass>{m:g}</mass><inertia><ixx>{m * (y * y + z * z) / 12:.6g}</ixx>"
+            f"<iyy>{m * (x * x + z * z) / 12:.6g}</iyy><izz>{m * (x * x + y * y) / 12:.6g}"
+            "</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>")
+
+
+def robot_sdf(fl: Flavour, pose: str, sensor_xml: str, imu_xml: str,
+              pose_rate_hz: float) -> str:
+    """The robot model: chassis (carrying the lidar and the IMU), two driven wheels and
+    a caster; DiffDrive, PosePublisher and OdometryPublisher systems (module doc)."""
+    b = BASE
+    zc = b["clearance"] + b["height"] / 2
+    wr, ww = b["wheel_radius"], b["wheel_width"]
+    wheels = []
+    joints = []
+    for side, y in (("left", b["track"] / 2 + ww / 2), ("right", -b["track"] / 2 - ww / 2)):
+        wheels.append(f"""      <link name="{side}_wheel">
+        <pose>0 {y:.4f} {wr:.4f} -1.5707963 0 0</pose>
+        {_inertia_box(0.3, 2 * wr, 2 * wr, ww)}
+        <collision name="collision"><geometry><cylinder><radius>{wr}</radius>
+          <length>{ww}</length></cylinder></geometry></collision>
+        <visual name="visual"><geometry><cylinder><radius>{wr}</radius>
+          <length>{ww}</length></cylinder></geometry></visual>
+      </link>""")
+        joints.append(f"""      <joint name="{side}_wheel_joint" type="revolute">
+        <parent>chassis</parent><child>{side}_wheel</child>
+        <axis><xyz expressed_in="__model__">0 1 0</xyz></axis>
+      </joint>""")
+    drive = fl.plugin("diff-drive", "DiffDrive", f"""
+<left_joint>left_wheel_joint</left_joint>
+<right_joint>right_wheel_joint</right_joint>
+<wheel_separation>{b["track"] + ww}</wheel_separation>
+<wheel_radius>{wr}</wheel_radius>
+<topic>{CMD_VEL_TOPIC}</topic>
+<odom_topic>/model/{ROBOT}/wheel_odometry</odom_topic>
+<tf_topic>/model/{ROBOT}/wheel_tf</tf_topic>""", indent=6)
+    # PosePublisher: the model (in the world), its links and sensors, as one Pose_V;
+    # publish_nested_model_pose also publishes the top-level model (PosePublisher.cc).
+    poses = fl.plugin("pose-publisher", "PosePublisher", f"""
+<publish_link_pose>true</publish_link_pose>
+<publish_sensor_pose>true</publish_sensor_pose>
+<publish_collision_pose>false</publish_collision_pose>
+<publish_visual_pose>false</publish_visual_pose>
+<publish_nested_model_pose>true</publish_nested_model_pose>
+<use_pose_vector_msg>true</use_pose_vector_msg>
+<update_frequency>{pose_rate_hz:g}</update_frequency>""", indent=6)
+    odom = fl.plugin("odometry-publisher", "OdometryPublisher", f"""
+<odom_frame>tunnel_world</odom_frame>
+<robot_base_frame>{ROBOT}</robot_base_frame>
+<odom_publish_frequency>{pose_rate_hz:g}</odom_publish_frequency>
+<odom_topic>{GT_ODOMETRY_TOPIC}</odom_topic>
+<tf_topic>{GT_ODOMETRY_TOPIC}/tf</tf_topic>
+<dimensions>3</dimensions>""", indent=6)
+    return f"""    <model name="{ROBOT}">
+      <pose>{pose}</pose>
+      <link name="chassis">
+        <pose>0 0 {zc:.4f} 0 0 0</pose>
+        {_inertia_box(b["mass"], b["length"], b["width"], b["height"])}
+        <collision name="collision"><geometry><box><size>{b["length"]} {b["width"]}
+          {b["height"]}</size></box></geometry></collision>
+        <visual name="visual"><geometry><box><size>{b["length"]} {b["width"]}
+          {b["height"]}</size></box></geometry>
+          <material><diffuse>0.9 0.6 0.1 1</diffuse><ambient>0.9 0.6 0.1 1</ambient>
+          </material></visual>
+{sensor_xml}
+{imu_xml}
+      </link>
+      <link name="caster">
+        <pose>{-b["length"] / 2 + 0.03:.4f} 0 {wr / 2:.4f} 0 0 0</pose>
+        {_inertia_box(0.1, wr, wr, wr)}
+        <collision name="collision"><geometry><sphere><radius>{wr / 2}</radius></sphere>
+          </geometry><surface><friction><ode><mu>0</mu><mu2>0</mu2></ode></friction>
+          </surface></collision>
+      </link>
+{chr(10).join(wheels)}
+{chr(10).join(joints)}
+      <joint name="caster_joint" type="ball"><parent>chassis</parent><child>caster</child>
+      </joint>
+{drive}
+{poses}
+{odom}
+    </model>"""
+
+
+def crs_suffix(crs_name: str | None) -> str:
+    """" in EPSG:2056 (CH1903+ / LV95)" for the texts that name the local origin (no
+    '--', which an XML comment cannot hold)."""
+    return "" if crs_name is None else " in " + crs_name.replace("--", "- -")
+
+
+def origin_frame(origin: Any, crs_name: str | None, indent: int = 4) -> str:
+    """``<frame name="map_origin">``: where the CRS origin lies in the world's local
+    coordinates (world = local + origin, so the frame sits at -origin), with the CRS
+    named in a ``tunnelsim:crs`` element when stated."""
+    o = np.asarray(origin, dtype=np.float64)
+    pad = " " * indent
+    crs = "" if crs_name is None else \
+        f"\n{pad}  <tunnelsim:crs>{escape(crs_name)}</tunnelsim:crs>"
+    return (f'{pad}<frame name="map_origin">\n{pad}  <pose>{-o[0]:.3f} {-o[1]:.3f} '
+            f"{-o[2]:.3f} 0 0 0</pose>{crs}\n{pad}</frame>")
+
+
+def world_sdf(fl: Flavour, mesh_name: str, sensor_name: str, org: str, lim_text: str,
+              lights: str, robot: str, frame: str, crs_name: str | None = None) -> str:
+    """world.sdf: physics, systems, scene, the origin frame, lights, the tunnel model
+    and the robot."""
+    sensors = fl.plugin("sensors", "Sensors", "<render_engine>ogre2</render_engine>")
+    systems = "\n".join([fl.plugin("physics", "Physics"),
+                         fl.plugin("user-commands", "UserCommands"),
+                         fl.plugin("scene-broadcaster", "SceneBroadcaster"),
+                         sensors, fl.plugin("imu", "Imu")])
+    return f"""<?xml version="1.0"?>
+<!-- Generated by tunnelsim from {escape(mesh_name)} for {escape(fl.title)}.
+     Coordinates are local: world = local + ({org}) m{escape(crs_suffix(crs_name))}
+     (frame map_origin). Sensor {escape(sensor_name)} translated to gpu_lidar. SDF
+     cannot express:
+{escape(lim_text)}
+     Run: {escape(fl.run_line())}
+     ROS 2 ({escape(fl.ros)}): ros_gz_bridge with bridge.yaml (README.txt) -->
+<sdf version="1.9" xmlns:tunnelsim="https://github.com/tunnelsim">
+  <world name="tunnel_world">
+    <physics name="default" type="ode"><max_step_size>0.002</max_step_size>
+      <real_time_factor>1</real_time_factor></physics>
+{systems}
+    <gravity>0 0 -9.81</gravity>
+    <scene>
+      <ambient>0.15 0.15 0.15 1</ambient>
+      <background>0 0 0 1</background>
+      <shadows>false</shadows>
+      <grid>false</grid>
+    </scene>
+{frame}
+{lights}
+    <include>
+      <uri>model://tunnel</uri>
+      <name>tunnel</name>
+      <static>true</static>
+      <pose>0 0 0 0 0 0</pose>
+    </include>
+{robot}
+  </world>
+</sdf>
+"""
+
+
+def model_sdf(org: str, laser_retro: float, crs_name: str | None = None,
+              crs_wkt: str | None = None) -> str:
+    """models/tunnel/model.sdf: the static tunnel, visual OBJ and collision STL with
+    ``laser_retro``; the local origin and (when stated) the CRS as tunnelsim custom
+    elements."""
+    crs = ""
+    if crs_wkt is not None:
+        name = escape(crs_name or "", {'"': "&quot;"})
+        crs = (f'\n    <tunnelsim:crs name="{name}">'
+               f"{escape(' '.join(crs_wkt.split()))}</tunnelsim:crs>")
+    return f"""<?xml version="1.0"?>
+<sdf version="1.9" xmlns:tunnelsim="https://github.com/tunnelsim">
+  <model name="tunnel">
+    <static>true</static>
+    <tunnelsim:origin>{org}</tunnelsim:origin>{crs}
+    <link name="lining">
+      <visual name="visual">
+        <geometry><mesh><uri>model://tunnel/meshes/tunnel.obj</uri></mesh></geometry>
+        <laser_retro>{laser_retro:.4g}</laser_retro>
+      </visual>
+      <collision name="collision">
+        <laser_retro>{laser_retro:.4g}</laser_retro>
+        <geometry><mesh><uri>model://tunnel/meshes/tunnel_collision.stl</uri></mesh>
+        </geometry>
+      </collision>
+    </link>
+  </model>
+</sdf>
+"""
+
+
+def model_config(mesh_name: str, n_faces: int, n_collision: int, org: str,
+                 crs_name: str | None = None) -> str:
+    """models/tunnel/model.config: Gazebo's model metadata."""
+    return f"""<?xml version="1.0"?>
+<model>
+  <name>tunnel</name>
+  <version>1.0</version>
+  <sdf version="1.9">model.sdf</sdf>
+  <author><name>tunnelsim</name></author>
+  <description>Tunnel mesh from {escape(mesh_name)}: {n_faces:,} triangles
+    (collision {n_collision:,}). Local coordinates: world = local + ({org}) m{escape(
+        crs_suffix(crs_name))}.</description>
+</model>
+"""
