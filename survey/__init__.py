@@ -34,6 +34,7 @@ _EXPORTS = {
     "survey.world.generator": ("edge_length_for", "make_tunnel"),
     "survey.world.presets": ("PRESETS", "preset"),
     "survey.world.rock": ("RockRelief",),
+    "survey.world.junction": ("Branch", "branch_alignment", "make_junction_tunnel"),
     "survey.adjust.helmert": ("HelmertResult", "fit_helmert", "from_parameters"),
     "survey.adjust.controlpoints": ("ControlPoints", "match", "read_control_points",
                                     "unmatched", "unmatched_message"),
@@ -89,6 +90,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.world.generator import edge_length_for, make_tunnel
     from survey.world.presets import PRESETS, preset
     from survey.world.rock import RockRelief
+    from survey.world.junction import Branch, branch_alignment, make_junction_tunnel
     from survey.adjust.helmert import HelmertResult, fit_helmert, from_parameters
     from survey.adjust.controlpoints import (ControlPoints, match, read_control_points,
         unmatched, unmatched_message)

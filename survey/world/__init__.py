@@ -9,10 +9,11 @@ from .mesh import LABELS, REFLECTIVITY, TunnelMesh, read_axis, read_ply, read_tu
 from .generator import edge_length_for, make_tunnel
 from .presets import PRESETS, preset
 from .rock import RockRelief
+from .junction import Branch, branch_alignment, make_junction_tunnel
 
 __all__ = ["Alignment", "Element", "arc", "clothoid", "curve", "straight", "Profile",
            "arched_rectangle", "circle", "horseshoe", "Bolts", "Cable", "Drainage", "Niche",
            "Prisms", "WetFloor", "Bulge", "Convergence", "Ovalisation", "LABELS",
            "REFLECTIVITY", "TunnelMesh", "read_axis", "read_ply", "read_tunnel",
            "write_ply", "write_tunnel", "edge_length_for", "make_tunnel", "PRESETS",
-           "preset", "RockRelief"]
+           "preset", "RockRelief", "Branch", "branch_alignment", "make_junction_tunnel"]

@@ -35,6 +35,15 @@ galleries:
 
 ``tbm`` is a bored tunnel: a smooth segmental lining (2 mm roughness), no rock relief.
 
+``junction`` is a mine drift with a 90 deg bend and a T-junction (issue 20: route finding
+must handle bends and junctions), built by ``survey.world.junction``. All dimensions are
+ASSUMED, typical of a trackless mine's haulage drift (e.g. 4 x 3.5 m, bends of 10-15 m
+radius for LHD loaders): a horseshoe of 4 m span, springline at 1.5 m (3.5 m high,
+3.4 m flat floor); 30 m straight, a left curve of 12 m radius with 4 m clothoids turning
+90 deg, 30 m straight (82.8 m in all); level to chainage 20 m, then a 2 % grade; a 10 m
+crosscut leaving to the left at chainage 12 m (so the main gallery's portals are the two
+ends farthest apart); 3 mm lining roughness, no rock relief, no features.
+
 Coordinates are local (portal centreline at the origin, heading east) unless an
 ``origin`` (easting, northing, height) and ``heading_rad`` are given, e.g. UTM.
 """
@@ -51,11 +60,13 @@ from survey.world import features as F
 from survey.world.alignment import Alignment, curve, straight
 from survey.world.deformation import Convergence, Deformation
 from survey.world.generator import make_tunnel
+from survey.world.junction import Branch, make_junction_tunnel
 from survey.world.mesh import TunnelMesh
 from survey.world.profiles import Profile, circle, horseshoe
 from survey.world.rock import RockRelief
 
-__all__ = ["PRESETS", "RELIEF", "bfo_parts", "preset", "tbm_parts"]
+__all__ = ["BRANCHES", "PRESETS", "RELIEF", "bfo_parts", "junction_parts", "preset",
+           "tbm_parts"]
 
 #: (alignment, profile, features, deformations) of a preset world.
 Parts = tuple[Alignment, Profile, list[F.Feature], list[Deformation]]
@@ -108,12 +119,26 @@ def tbm_parts(origin: ArrayLike = (0.0, 0.0, 0.0), heading_rad: float = 0.0) -> 
     return al, prof, feats, deform
 
 
+def junction_parts(origin: ArrayLike = (0.0, 0.0, 0.0), heading_rad: float = 0.0) -> Parts:
+    """(alignment, profile, features, deformations) of the main gallery of the
+    ``junction`` preset (its branch: ``BRANCHES["junction"]``); see the module doc."""
+    e0, n0, h0 = _origin(origin)
+    elements = [straight(30.0), *curve(np.pi / 2, 12.0, 4.0), straight(30.0)]
+    length = sum(el.length_m for el in elements)
+    al = Alignment(elements, start_xy=(e0, n0), heading_rad=heading_rad,
+                   profile=((0.0, h0), (20.0, h0), (length, h0 + 0.02 * (length - 20.0))))
+    return al, horseshoe(4.0, 1.5), [], []
+
+
 PRESETS: dict[str, Callable[[ArrayLike, float], Parts]] = {"bfo": bfo_parts,
-                                                            "tbm": tbm_parts}
+                                                            "tbm": tbm_parts,
+                                                            "junction": junction_parts}
+#: The branch galleries of presets that have them (``survey.world.junction``).
+BRANCHES: dict[str, Branch] = {"junction": Branch(12.0, "left", 10.0)}
 #: The surface relief of each preset (None: a smooth lining).
-RELIEF: dict[str, RockRelief | None] = {"bfo": RockRelief(), "tbm": None}
+RELIEF: dict[str, RockRelief | None] = {"bfo": RockRelief(), "tbm": None, "junction": None}
 #: Lining roughness (m) of each preset without relief (the texture of a relief is its own).
-_SMOOTH_ROUGHNESS_M = {"bfo": 0.003, "tbm": 0.002}
+_SMOOTH_ROUGHNESS_M = {"bfo": 0.003, "tbm": 0.002, "junction": 0.003}
 
 
 def preset(name: str, *, edge_length_m: float = 0.1, seed: int = 0,
@@ -121,11 +146,11 @@ def preset(name: str, *, edge_length_m: float = 0.1, seed: int = 0,
            relief: RockRelief | None | str = "preset",
            origin: ArrayLike = (0.0, 0.0, 0.0), heading_rad: float = 0.0
            ) -> tuple[TunnelMesh, list[Deformation]]:
-    """Generate a preset tunnel ("bfo" or "tbm"); returns (TunnelMesh, its default
-    deformations). ``origin`` (3,) in m and ``heading_rad`` place it (e.g. in UTM).
+    """Generate a preset tunnel ("bfo", "tbm" or "junction"); returns (TunnelMesh, its
+    default deformations). ``origin`` (3,) in m and ``heading_rad`` place it (e.g. in UTM).
 
     ``relief``: "preset" (default) for the preset's own (``RELIEF``: rock relief for
-    bfo, none for tbm), None for a smooth lining, or a ``RockRelief``.
+    bfo, none for tbm and junction), None for a smooth lining, or a ``RockRelief``.
     ``roughness_rms_m``: the lining roughness, the Gaussian fine texture (standard
     deviation, m), as it has always meant: without relief the same surface as before
     for a seed (0.3 m correlation); with a relief it replaces the relief's texture rms
@@ -142,6 +167,15 @@ def preset(name: str, *, edge_length_m: float = 0.1, seed: int = 0,
     al, prof, feats, deform = PRESETS[name](origin, heading_rad)
     if roughness_rms_m is None and relief is None:
         roughness_rms_m = _SMOOTH_ROUGHNESS_M[name]
+    if name in BRANCHES:
+        if relief is not None:
+            raise TunnelError(f"Expected no rock relief for the {name!r} preset (its "
+                              "junction has a lining roughness only), got one; leave "
+                              "--relief unset or 'none'.")
+        tun = make_junction_tunnel(al, prof, BRANCHES[name], edge_length_m=edge_length_m,
+                                   roughness_rms_m=float(roughness_rms_m or 0.0),
+                                   closed_ends=closed_ends, seed=seed, name=name)
+        return tun, deform
     if closed_ends:  # recesses must stop short of closed ends
         feats = [f for f in feats if not isinstance(f, F.Drainage)] + \
             [F.Drainage(f.offset_m, f.width_m, f.depth_m, al.chainage_range[0] + 0.5,

@@ -25,8 +25,9 @@ def register(commands: CommandSet) -> None:
         epilog="Example: tunnelsim tunnel -o bfo.ply --preset bfo --edge-length 0.08 "
                "--epoch2 bfo_epoch2.ply --convergence 120:160:5")
     c.option("-o", "--output", required=True, path="out", help="output mesh (.ply)")
-    c.option("--preset", default="bfo", choices=["bfo", "tbm"],
-             help="which tunnel (default: bfo, the seed study's gallery)")
+    c.option("--preset", default="bfo", choices=["bfo", "tbm", "junction"],
+             help="which tunnel (default: bfo, the seed study's gallery; tbm: a segmental "
+                  "lining; junction: a mine drift with a 90-degree bend and a T-junction)")
     g = c.exclusive()
     c.option("--edge-length", group=g, type=float, default=0.1, metavar="M",
              help="target edge length of the lining in metres (default 0.1)")
