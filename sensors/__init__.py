@@ -20,7 +20,8 @@ __version__ = "0.2.0"
 # Public names are imported on first use: ``import sensors.errors`` (which every
 # command-line start does) must not compile or load Numba.
 _EXPORTS = {
-    "sensors.errors": ("TunnelsimError", "PointFileError", "SensorSpecError", "SimulationError", "TrajectoryError"),
+    "sensors.errors": ("TunnelsimError", "PointFileError", "SensorSpecError", "SimulationError",
+                       "TrajectoryError", "PlatformError", "RouteError"),
     "sensors.patterns": ("ProfileScan", "Pulses", "SpinningScan", "TLSScan", "scan_for"),
     "sensors.physics": ("Settings",),
     "sensors.fields": ("POINT_DTYPE",),
@@ -29,13 +30,16 @@ _EXPORTS = {
     "sensors.spec": ("SensorSpec", "list_sensors", "load_sensor"),
     "sensors.trajectory": ("Mount", "Trajectory"),
     "sensors.meshes": ("load_mesh",),
-    "sensors.route": ("FreeSpace", "Route", "find_route", "free_space", "read_waypoints"),
+    "sensors.freespace": ("FreeSpace", "free_space"),
+    "sensors.route": ("Route", "find_route", "read_waypoints"),
+    "sensors.platform_spec": ("PlatformSpec", "list_platforms", "load_platform"),
+    "sensors.platform": ("platform_trajectory",),
 }
 
 
 if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from sensors.errors import (TunnelsimError, PointFileError, SensorSpecError,
-        SimulationError, TrajectoryError)
+        SimulationError, TrajectoryError, PlatformError, RouteError)
     from sensors.patterns import ProfileScan, Pulses, SpinningScan, TLSScan, scan_for
     from sensors.physics import Settings
     from sensors.fields import POINT_DTYPE
@@ -44,6 +48,9 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from sensors.spec import SensorSpec, list_sensors, load_sensor
     from sensors.trajectory import Mount, Trajectory
     from sensors.meshes import load_mesh
-    from sensors.route import FreeSpace, Route, find_route, free_space, read_waypoints
+    from sensors.freespace import FreeSpace, free_space
+    from sensors.route import Route, find_route, read_waypoints
+    from sensors.platform_spec import PlatformSpec, list_platforms, load_platform
+    from sensors.platform import platform_trajectory
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from raytrace.errors import TunnelsimError
 
-__all__ = ["PointFileError", "SensorSpecError", "SimulationError", "TrajectoryError",
-           "TunnelsimError"]
+__all__ = ["PlatformError", "PointFileError", "RouteError", "SensorSpecError",
+           "SimulationError", "TrajectoryError", "TunnelsimError"]
 
 
 class SensorSpecError(TunnelsimError, ValueError):
@@ -15,6 +15,18 @@ class SensorSpecError(TunnelsimError, ValueError):
 
 class TrajectoryError(TunnelsimError, ValueError):
     """A trajectory or mounting is unusable (times not increasing, bad shapes)."""
+
+
+class RouteError(TrajectoryError):
+    """No route can be found in a mesh as asked: no enclosed free space or floor, a
+    waypoint outside it or not connected, a passage too narrow or low. A
+    ``TrajectoryError``, as it was before it had its own class."""
+
+
+class PlatformError(TunnelsimError, ValueError):
+    """A platform specification (TOML) is missing, malformed or holds a key the loader
+    does not know, or a platform cannot follow the path asked (a speed above its
+    limit, a floor it cannot find)."""
 
 
 class SimulationError(TunnelsimError, ValueError):

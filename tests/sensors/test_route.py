@@ -310,7 +310,8 @@ def test_drive_along_auto_writes_the_cloud_truth_and_route(tmp_path, capsys):
     mesh = _write_mesh(tmp_path / "tube.ply", v, f)
     out = tmp_path / "dr.laz"
     assert main(["drive", "--mesh", mesh, "--sensor", "velodyne_vlp16", "--along", "auto",
-                 "--speed", "4", "--height", "0.6", "-o", str(out)]) == 0
+                 "--platform", "trolley", "--speed", "4", "--height", "0.6",
+                 "-o", str(out)]) == 0
     text = capsys.readouterr().out
     assert "route: 8.0 m, smallest clearance 0.60 m" in text
     assert len(laspy.read(out).points) > 10_000

@@ -32,6 +32,9 @@ from survey.errors import TunnelFileError, TunnelsimCLIError
 #: 100 m off the mesh returned 2 points of 578,704 pulses (issue 21: 6 points). 1 %
 #: sits far from both.
 MIN_DRIVE_RETURN = 0.01
+#: --along auto: the clearance the route keeps from the mesh (``find_route``'s
+#: default), and that the platform's poses must keep too (issue 20).
+ROUTE_CLEARANCE_M = 0.2
 
 
 
@@ -91,10 +94,19 @@ def register(commands: CommandSet) -> None:
     c.option("--waypoints", path="in", metavar="CSV",
              help="with --along auto: x,y[,z] rows to drive through in order (z picks "
                   "the floor below it where passages cross)")
-    c.option("--speed", type=float, metavar="M_S", help="speed along the centreline")
-    c.option("--height", type=float, default=0.5, metavar="M",
-             help="platform height above the centreline, or above the floor with "
-                  "--along auto (default 0.5)")
+    c.option("--platform", path="toml",
+             help="with --along: what carries the sensor, a name (ground_robot, "
+                  "trolley, walker, tripod: sensors/platforms/*.toml) or a .toml file "
+                  "(default trolley with --along centreline, ground_robot with --along "
+                  "auto)")
+    c.option("--level", action="store_true",
+             help="with --along: keep the platform level (it does not pitch with the "
+                  "grade or roll with the floor; its height still follows the floor)")
+    c.option("--speed", type=float, metavar="M_S", help="speed along the path (m/s)")
+    c.option("--height", type=float, metavar="M",
+             help="sensor mount height above the centreline, or above the floor with "
+                  "--along auto (default: the platform's mast height, 0.5 for the "
+                  "trolley and the ground robot)")
     c.option("--offset", type=float, default=0.0, metavar="M",
              help="platform offset left of the centreline (default 0)")
     c.option("--margin", type=float, default=1.0, metavar="M",
@@ -289,10 +301,14 @@ def _tunnel_meta(mesh) -> dict:
     return meta
 
 
-def _centreline(args, meta):
+def _centreline(args, meta, platform, scene=None):
+    """The centreline (or --chainage part of it), --offset left and --height (default
+    the platform's mast height) above it, driven by ``platform``: a trolley rides it
+    exactly (the generated tunnels' drive, pitched with the grade unless --level);
+    another platform follows it on the floor of ``scene``."""
     import numpy as np
 
-    from sensors import Trajectory
+    from sensors.platform import platform_trajectory
     from survey.world.alignment import Alignment
 
     al = Alignment.from_dict(meta["alignment"])
@@ -304,8 +320,10 @@ def _centreline(args, meta):
             raise TunnelsimCLIError(f"Expected --chainage within [{c0:g}, {c1:g}] m with "
                                     f"START < END, got {args.chainage!r}.")
     s = np.append(np.arange(a, b, 0.5), b)
-    return Trajectory.along_polyline(al.to_world(s, args.offset, args.height), args.speed,
-                                     accel_mps2=args.accel)
+    height = platform.mast_height_m if args.height is None else args.height
+    return platform_trajectory(al.to_world(s, args.offset, height), platform, args.speed,
+                               scene=scene, accel_mps2=args.accel,
+                               follow_grade=not args.level, height_m=height)
 
 
 def cmd_drive(args) -> int:
@@ -334,15 +352,25 @@ def cmd_drive(args) -> int:
     if args.trajectory:
         traj = Trajectory.read(args.trajectory)
     else:
+        from sensors.platform_spec import load_platform
+
         if args.along is None or args.speed is None:
             raise TunnelsimCLIError("Expected --trajectory FILE, or --along centreline (or "
                                     "auto) with --speed V, got neither.")
-        if args.along == "auto":
+        auto = args.along == "auto"
+        platform = load_platform(args.platform or ("ground_robot" if auto else "trolley"))
+        if platform.motion == "static" and (args.duration is None or args.standstill):
+            raise TunnelsimCLIError(f"Expected --duration S (and no --standstill) with the "
+                                    f"static platform {platform.name}, got "
+                                    f"{'--standstill' if args.standstill else 'none'}.")
+        if auto:
             scene, refl = load_mesh(args.mesh)
-            traj = _auto_route(args, scene)
+            traj = _auto_route(args, scene, platform)
         else:
             meta = _tunnel_meta(args.mesh)
-            traj = _centreline(args, meta)
+            if platform.motion != "rail":      # it finds the floor in the mesh
+                scene, refl = load_mesh(args.mesh)
+            traj = _centreline(args, meta, platform, scene)
         if args.standstill:
             traj = traj.with_standstill(args.standstill, args.standstill)
     # DECISION: checked before the mesh is loaded (a large mesh's BVH takes seconds);
@@ -377,6 +405,10 @@ def _check_auto(args) -> None:
         other = "--trajectory" if args.trajectory else "--along centreline"
         raise TunnelsimCLIError(f"Expected --waypoints with --along auto, got it with "
                                 f"{other}.")
+    given = [f for f, on in (("--platform", args.platform), ("--level", args.level)) if on]
+    if args.trajectory and given:
+        raise TunnelsimCLIError(f"Expected {given[0]} with --along, got it with "
+                                "--trajectory (the file gives the platform's poses).")
     bad = [flag for flag, given in (("--slam-drift", args.slam_drift),
                                     ("--chainage", args.chainage),
                                     ("--offset", args.offset)) if given]
@@ -387,22 +419,47 @@ def _check_auto(args) -> None:
                                 f"tunnel's JSON), got it with --along auto{hint}.")
 
 
-def _auto_route(args, scene):
-    """The route found in the mesh (``sensors.route.find_route``), written beside the
-    output as ``_route.csv``, and its trajectory at --speed (--accel)."""
+def _auto_route(args, scene, platform):
+    """The route found in the mesh (``sensors.route.find_route``) at --height (default
+    the platform's mast height) above the floor, written beside the output as
+    ``_route.csv``, and ``platform`` driven along it at --speed (--accel)
+    (``sensors.platform.platform_trajectory``); the smallest clearance of its poses is
+    reported, and a trajectory closer to the mesh than the route's clearance refused."""
     from pathlib import Path
 
-    from sensors.route import find_route, read_waypoints
+    import numpy as np
+
+    from sensors.platform import platform_trajectory
+    from sensors.route import find_route, free_space, read_waypoints
 
     wp = read_waypoints(args.waypoints) if args.waypoints else None
-    route = find_route(scene, waypoints=wp, height_m=args.height)
+    height = platform.mast_height_m if args.height is None else args.height
+    space = free_space(scene)
+    route = find_route(scene, waypoints=wp, height_m=height, space=space)
+    traj = platform_trajectory(route, platform, args.speed, scene=scene,
+                               accel_mps2=args.accel, follow_grade=not args.level,
+                               height_m=height)
+    p = traj.positions
+    # Poses every ~5 cm of travel (and the first and last): the exact distance to the
+    # mesh; the route itself is checked at every point by find_route.
+    step = max(1, int(0.05 / max(float(np.median(np.linalg.norm(np.diff(p, axis=0),
+                                                                axis=1))), 1e-6))) \
+        if len(p) > 1 else 1
+    clear = float(space.distance(np.vstack([p[::step], p[-1:]])).min())
+    if clear < ROUTE_CLEARANCE_M:
+        raise TunnelsimCLIError(f"Expected the {platform.name} to keep "
+                                f"{ROUTE_CLEARANCE_M:g} m from the mesh, got "
+                                f"{clear:.3g} m; lower --speed or use --waypoints.")
     out = Path(args.output)
     path = route.write_csv(out.with_name(f"{out.stem}_route.csv"))
     if not args.quiet:
         print(f"route: {route.length_m:.1f} m, smallest clearance "
               f"{route.min_clearance_m:.2f} m (voxel {route.voxel_m:.2f} m, "
               f"{route.seconds:.1f} s) -> {path.name}")
-    return route.trajectory(args.speed, accel_mps2=args.accel)
+        print(f"platform: {platform.name} ({platform.motion}), {traj.duration_s:.1f} s, "
+              f"sensor mount {height:g} m above the floor, smallest clearance "
+              f"{clear:.2f} m")
+    return traj
 
 
 def _drive_end(duration_s: float | None, traj) -> float | None:
@@ -520,5 +577,5 @@ def _slam_files(args, run, traj, meta, *, full=None, crs=None):
     return obs.run
 
 
-__all__ = ["MIN_DRIVE_RETURN", "cmd_drive", "cmd_scan", "register",
+__all__ = ["MIN_DRIVE_RETURN", "ROUTE_CLEARANCE_M", "cmd_drive", "cmd_scan", "register",
            "station_heading_deg", "trimmed", "warn_radian_like"]

@@ -1,0 +1,240 @@
+"""Platforms as data: one TOML file per platform in ``sensors/platforms/``
+(``list_platforms``), loaded into a frozen ``PlatformSpec`` and validated on load like
+the sensor specs: a missing or malformed key names the file, table and key; a key the
+platform's motion does not use is refused with the valid ones (pbrt's
+``ReportUnused``). TOML carries degrees; the dataclasses hold SI units and radians.
+``sensors.platform`` moves a platform along a path.
+
+>>> load_platform("ground_robot")
+PlatformSpec(ground_robot: wheeled, mast 0.5 m, up to 1 m/s, 60 deg/s)
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import os
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Final
+
+from .errors import PlatformError
+
+__all__ = ["MOTIONS", "PLATFORM_DIR", "TABLE_KEYS", "Gait", "Limits", "PlatformSpec",
+           "list_platforms", "load_platform"]
+
+PLATFORM_DIR: Final = Path(__file__).resolve().parent / "platforms"
+MOTIONS: Final = ("wheeled", "walking", "rail", "static")
+_LIMIT_KEYS = ("max_speed_mps", "max_accel_mps2", "max_jerk_mps3", "max_yaw_rate_dps",
+               "max_yaw_accel_dps2")
+_GAIT_KEYS = ("step_hz", "bob_m", "sway_m", "roll_deg", "pitch_deg")
+_PLATFORM_KEYS = ("name", "description", "motion", "sources")
+#: Tables and keys of a platform file, by motion: all required, nothing else allowed.
+TABLE_KEYS: Final[Mapping[str, Mapping[str, tuple[str, ...]]]] = {
+    "wheeled": {"platform": _PLATFORM_KEYS,
+                "body": ("mast_height_m", "wheelbase_m", "track_m"),
+                "limits": _LIMIT_KEYS},
+    "walking": {"platform": _PLATFORM_KEYS, "body": ("mast_height_m",),
+                "limits": _LIMIT_KEYS, "gait": _GAIT_KEYS},
+    "rail": {"platform": _PLATFORM_KEYS, "body": ("mast_height_m",),
+             "limits": ("max_speed_mps",)},
+    "static": {"platform": _PLATFORM_KEYS, "body": ("mast_height_m",)},
+}
+
+@dataclass(frozen=True)
+class Limits:
+    """What a moving platform can do (SI units); ``inf`` where not limited (rail)."""
+
+    max_speed_mps: float
+    max_accel_mps2: float = math.inf
+    max_jerk_mps3: float = math.inf
+    max_yaw_rate_radps: float = math.inf
+    max_yaw_accel_radps2: float = math.inf
+
+
+@dataclass(frozen=True)
+class Gait:
+    """A walker's gait: step frequency (Hz), peak-to-peak vertical bob (once a step) and
+    lateral sway (once a stride, two steps) of the sensor (m), and the amplitudes of
+    its roll (with the sway) and pitch (with the bob) (rad)."""
+
+    step_hz: float
+    bob_m: float
+    sway_m: float
+    roll_rad: float
+    pitch_rad: float
+
+
+@dataclass(frozen=True)
+class PlatformSpec:
+    """A platform (``load_platform``): body, limits and gait, in SI units.
+
+    Attributes
+    ----------
+    name, description, motion : str
+        ``motion`` is one of ``MOTIONS``.
+    sources : tuple of str
+    mast_height_m : float
+        Height of the platform frame (the sensor mount) above the floor (m).
+    wheelbase_m, track_m : float
+        Distances between the axles and between the wheels of an axle (m; wheeled, else
+        0).
+    limits : Limits or None
+        None for a static platform.
+    gait : Gait or None
+        A walker's.
+    path : str
+        The file it was read from.
+    """
+
+    name: str
+    description: str
+    motion: str
+    sources: tuple[str, ...]
+    mast_height_m: float
+    wheelbase_m: float
+    track_m: float
+    limits: Limits | None
+    gait: Gait | None
+    path: str
+
+    def __repr__(self) -> str:
+        out = f"PlatformSpec({self.name}: {self.motion}, mast {self.mast_height_m:g} m"
+        if self.limits is not None:
+            out += f", up to {self.limits.max_speed_mps:g} m/s"
+            if math.isfinite(self.limits.max_yaw_rate_radps):
+                out += f", {math.degrees(self.limits.max_yaw_rate_radps):.3g} deg/s"
+        return out + ")"
+
+
+# ---------------------------------------------------------------------- loading
+class _Table:
+    """One TOML table of a platform file: typed reads, errors naming file and key."""
+
+    def __init__(self, data: Any, file: str, table: str, valid: tuple[str, ...]) -> None:
+        if not isinstance(data, dict):
+            raise PlatformError(f"Expected [{table}] in {file} to be a table, got "
+                                f"{data!r}; fix the platform file.")
+        unknown = [k for k in data if k not in valid]
+        if unknown:
+            named = []
+            for k in unknown:
+                near = difflib.get_close_matches(k, valid, n=1)
+                named.append(f"`{k}`" + (f" (did you mean `{near[0]}`?)" if near else ""))
+            where = f"table [{table}]" if table else "the top level"
+            raise PlatformError(f"Expected only known keys in {where} of {file}, got "
+                                f"unknown {', '.join(named)}; valid keys there: "
+                                f"{', '.join(valid)}.")
+        missing = [k for k in valid if k not in data]
+        if missing:
+            what = "table" if not table else "key"
+            raise PlatformError(f"Expected a {what} `{missing[0]}` in "
+                                f"{f'[{table}] of ' if table else ''}{file}, got none; "
+                                "add it to the platform file.")
+        self.data, self.file, self.table = data, file, table
+
+    def num(self, key: str, *, positive: bool = True) -> float:
+        v = self.data[key]
+        ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) \
+            and (v > 0 if positive else v >= 0)
+        if not ok:
+            raise PlatformError(f"Expected `{self.table}.{key}` in {self.file} to be a "
+                                f"finite number {'> 0' if positive else '>= 0'}, got "
+                                f"{v!r}; fix the platform file.")
+        return float(v)
+
+    def text(self, key: str) -> str:
+        v = self.data[key]
+        if not isinstance(v, str) or not v:
+            raise PlatformError(f"Expected `{self.table}.{key}` in {self.file} to be a "
+                                f"non-empty string, got {v!r}; fix the platform file.")
+        return v
+
+
+def _load(path: Path) -> PlatformSpec:
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise PlatformError(f"Expected valid TOML in {path}, got a syntax error: {exc}; "
+                            "fix the platform file.") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise PlatformError(f"Expected a readable UTF-8 text file at '{path}', got "
+                            f"{type(exc).__name__}: {exc}.") from exc
+    f = path.name
+    head = data.get("platform")
+    motion = head.get("motion") if isinstance(head, dict) else None
+    if motion not in MOTIONS:
+        raise PlatformError(f"Expected `platform.motion` in {f} to be one of {MOTIONS}, "
+                            f"got {motion!r}; fix the platform file.")
+    keys = TABLE_KEYS[motion]
+    _Table(data, f, "", tuple(keys))
+    t = {name: _Table(data[name], f, name, valid) for name, valid in keys.items()}
+    src = t["platform"].data["sources"]
+    if not isinstance(src, list) or not src or not all(isinstance(s, str) for s in src):
+        raise PlatformError(f"Expected `platform.sources` in {f} to be a non-empty list "
+                            f"of strings, got {src!r}; fix the platform file.")
+    body = t["body"]
+    wheeled = motion == "wheeled"
+    limits = gait = None
+    if "limits" in t:
+        lim = t["limits"]
+        deg = math.radians
+        limits = Limits(lim.num("max_speed_mps")) if motion == "rail" else Limits(
+            lim.num("max_speed_mps"), lim.num("max_accel_mps2"), lim.num("max_jerk_mps3"),
+            deg(lim.num("max_yaw_rate_dps")), deg(lim.num("max_yaw_accel_dps2")))
+    if "gait" in t:
+        g = t["gait"]
+        gait = Gait(g.num("step_hz"), g.num("bob_m", positive=False),
+                    g.num("sway_m", positive=False),
+                    math.radians(g.num("roll_deg", positive=False)),
+                    math.radians(g.num("pitch_deg", positive=False)))
+    return PlatformSpec(t["platform"].text("name"), t["platform"].text("description"),
+                        motion, tuple(src), body.num("mast_height_m"),
+                        body.num("wheelbase_m") if wheeled else 0.0,
+                        body.num("track_m") if wheeled else 0.0, limits, gait, str(path))
+
+
+def _registry() -> dict[str, str]:
+    out: dict[str, str] = {}
+    for f in sorted(PLATFORM_DIR.glob("*.toml")):
+        spec = _load(f)
+        if spec.name in out:
+            raise PlatformError(f"Expected unique platform names, got {spec.name!r} in "
+                                f"both {Path(out[spec.name]).name} and {f.name}.")
+        out[spec.name] = str(f)
+    return out
+
+
+def list_platforms() -> list[str]:
+    """Names of the shipped platforms, sorted."""
+    return sorted(_registry())
+
+
+def load_platform(name_or_path: str | os.PathLike[str]) -> PlatformSpec:
+    """A shipped platform by name (``list_platforms()``) or a TOML file by path.
+
+    Raises
+    ------
+    PlatformError
+        For an unknown name, a missing file, or a file that is not a valid platform
+        (bad TOML, a missing, malformed or unknown key).
+    """
+    if not isinstance(name_or_path, str | os.PathLike) or not str(name_or_path).strip():
+        raise PlatformError(f"Expected a platform name in {list_platforms()} or a .toml "
+                            f"path, got {name_or_path!r}.")
+    p = Path(name_or_path)
+    if p.suffix == ".toml" or p.exists():
+        if not p.is_file():
+            raise PlatformError(f"Expected a platform TOML file, got '{p}' which does not "
+                                "exist.")
+        return _load(p)
+    reg = _registry()
+    if str(name_or_path) not in reg:
+        raise PlatformError(f"Expected a platform name in {sorted(reg)} or a .toml path, "
+                            f"got {str(name_or_path)!r}.")
+    return _load(Path(reg[str(name_or_path)]))
+
+
+# ---------------------------------------------------------------------- motion
