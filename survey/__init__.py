@@ -57,8 +57,9 @@ _EXPORTS = {
                              "open_drive", "replace_drive"),
     "survey.analysis.compare": ("Distances", "ReferenceCloud", "ReferenceMesh",
                                 "cloud_to_cloud", "cloud_to_mesh", "distance_stats"),
-    "survey.analysis.planning": ("Plan", "Planner", "Thresholds", "axis_stations",
-                                 "lining_cells"),
+    "survey.analysis.planning": ("Plan", "Planner", "RoutePlanner", "Thresholds",
+                                 "axis_stations", "lining_cells"),
+    "survey.analysis.surface": ("RouteFrame", "Surface", "mesh_surface"),
     "survey.analysis.study": ("Study", "StudyRow"),
     "survey.analysis.trajectory": ("RelativeError", "TrajectoryErrors", "align_origin",
                                    "path_pairs", "trajectory_errors"),
@@ -112,8 +113,9 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
         open_drive, replace_drive)
     from survey.analysis.compare import (Distances, ReferenceCloud, ReferenceMesh,
         cloud_to_cloud, cloud_to_mesh, distance_stats)
-    from survey.analysis.planning import (Plan, Planner, Thresholds, axis_stations,
-        lining_cells)
+    from survey.analysis.planning import (Plan, Planner, RoutePlanner, Thresholds,
+        axis_stations, lining_cells)
+    from survey.analysis.surface import RouteFrame, Surface, mesh_surface
     from survey.analysis.study import Study, StudyRow
     from survey.analysis.trajectory import (RelativeError, TrajectoryErrors, align_origin,
         path_pairs, trajectory_errors)

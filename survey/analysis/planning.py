@@ -29,15 +29,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from survey.analysis.surface import FLOOR_NORMAL_Z, RouteFrame, Surface, mesh_surface
 from survey.errors import PlanningError
 from survey.world.alignment import Alignment
 
 if TYPE_CHECKING:
     from raytrace import Scene
+    from sensors.route import Route
     from sensors.spec import SensorSpec
 
-__all__ = ["FLOOR_NORMAL_Z", "OCCLUSION_EPS_M", "TRIPOD_HEIGHT_M", "Cells", "Plan",
-           "Planner", "StationQuality", "Thresholds", "axis_stations", "lining_cells",
+__all__ = ["OCCLUSION_EPS_M", "TRIPOD_HEIGHT_M", "Cells", "Plan", "Planner", "RoutePlanner",
+           "StationQuality", "Thresholds", "axis_stations", "lining_cells",
            "station_quality"]
 
 Floats = NDArray[np.float64]
@@ -45,9 +47,6 @@ Ints = NDArray[np.int64]
 
 #: Tripod height above the floor (m) for stations on the axis.
 TRIPOD_HEIGHT_M = 1.5
-#: A cell whose surface normal points up by more than this (cosine) below the axis is
-#: floor, not lining.
-FLOOR_NORMAL_Z = 0.8
 #: Station-to-cell rays stop this far short of the cell (m) so that the cell's own
 #: surface does not occlude it.
 OCCLUSION_EPS_M = 2e-3
@@ -166,7 +165,7 @@ class StationQuality:
             (self.incidence_rad <= th.incidence_rad) & (self.spacing_m <= th.spacing_m)
 
 
-def station_quality(scene: Scene, cells: Cells, station: ArrayLike, step_rad: float, *,
+def station_quality(scene: Scene, cells: Cells | Surface, station: ArrayLike, step_rad: float, *,
                     range_max_m: float, vertical_fov_rad: float = 2 * np.pi
                     ) -> StationQuality:
     """Quality of every cell seen from ``station`` (3,) by a level scanner with angular
@@ -228,6 +227,8 @@ class Plan:
     overlap: Floats
     gaps: list[dict[str, float]] = field(default_factory=list)
     note: str = ""
+    #: (k,) lateral offsets (m, left positive) of route stations; zeros on the axis.
+    offsets_m: Floats = field(default_factory=lambda: np.zeros(0))
 
     def __repr__(self) -> str:
         return (f"Plan({self.name!r}, {len(self.chainages)} stations, coverage "
@@ -244,6 +245,18 @@ class Planner:
                  cell_rad: float = float(np.deg2rad(2.0)),
                  chainage_range_m: tuple[float, float] | None = None,
                  height_m: float = TRIPOD_HEIGHT_M) -> None:
+        self._setup(scene, sensor, resolution, thresholds, height_m)
+        self.alignment, self.hc = alignment, float(centre_height_m)
+        self.cells: Cells | Surface = lining_cells(
+            scene, alignment, self.hc, chainage_range_m=chainage_range_m, cell_m=cell_m,
+            cell_rad=cell_rad)
+        if len(self.cells.area) == 0:
+            raise PlanningError("Expected lining cells around the axis, got none; does "
+                                "the axis run inside the mesh?")
+
+    def _setup(self, scene: Scene, sensor: SensorSpec, resolution: str | None,
+               thresholds: Thresholds | None, height_m: float) -> None:
+        """The sensor, its angular step and the thresholds (shared by both planners)."""
         if sensor.kind != "tls":
             raise PlanningError(f"Expected a TLS sensor for station planning, got "
                                 f"{sensor.name} ({sensor.kind}).")
@@ -253,16 +266,10 @@ class Planner:
         if res not in steps:
             raise PlanningError(f"Expected a resolution of {sensor.name} "
                                 f"({', '.join(steps)}), got {res!r}.")
-        self.scene, self.alignment, self.hc = scene, alignment, float(centre_height_m)
+        self.scene = scene
         self.sensor, self.resolution, self.step_rad = sensor, res, float(steps[res])
         self.th = thresholds or Thresholds()
         self.height_m = height_m
-        self.cells = lining_cells(scene, alignment, self.hc,
-                                  chainage_range_m=chainage_range_m, cell_m=cell_m,
-                                  cell_rad=cell_rad)
-        if len(self.cells.area) == 0:
-            raise PlanningError("Expected lining cells around the axis, got none; does "
-                                "the axis run inside the mesh?")
         self._cache: dict[tuple[float, ...], StationQuality] = {}
 
     def __repr__(self) -> str:
@@ -280,6 +287,17 @@ class Planner:
                 vertical_fov_rad=pattern.vertical_fov_rad)
         return self._cache[key]
 
+    @property
+    def span_m(self) -> tuple[float, float]:
+        """(first, last) chainage (m) the stations may take."""
+        c = self.cells
+        assert isinstance(c, Cells)
+        return float(c.s_edges[0]), float(c.s_edges[-1])
+
+    def _where(self, chainages: ArrayLike) -> Floats:
+        """Station places in plan order: chainages (k,) sorted."""
+        return np.sort(np.asarray(chainages, dtype=np.float64).reshape(-1))
+
     def stations_at(self, chainages: ArrayLike) -> Floats:
         """Stations (k, 3) on the axis at chainages (k,) (m)."""
         return axis_stations(self.scene, self.alignment, self.hc, chainages,
@@ -287,7 +305,7 @@ class Planner:
 
     def spaced(self, spacing_m: float, *, start_m: float | None = None) -> Floats:
         """Chainages every ``spacing_m`` (first at half a spacing from the start)."""
-        c0, c1 = self.cells.s_edges[0], self.cells.s_edges[-1]
+        c0, c1 = self.span_m
         if not spacing_m > 0:
             raise PlanningError(f"Expected a positive station spacing, got {spacing_m} m.")
         first = c0 + spacing_m / 2 if start_m is None else start_m
@@ -295,7 +313,7 @@ class Planner:
 
     def evaluate(self, chainages: ArrayLike, name: str = "plan", note: str = "") -> Plan:
         """The plan of stations at ``chainages`` (k,) (m)."""
-        s = np.sort(np.asarray(chainages, dtype=np.float64).reshape(-1))
+        s = self._where(chainages)
         st = self.stations_at(s) if len(s) else np.zeros((0, 3))
         a = self.cells.area
         served = np.zeros(len(a), dtype=np.int64)
@@ -312,14 +330,16 @@ class Planner:
         overlap = np.array([a[vis[i] & vis[i + 1]].sum() / max(a[vis[i]].sum(), 1e-12)
                             for i in range(len(vis) - 1)])
         cov = float(a[served > 0].sum() / a.sum())
-        return Plan(name, st, s, served, seen, cov, np.array(per), overlap,
-                    self.gaps(served > 0), note)
+        off = s[:, 1] if s.ndim == 2 else np.zeros(len(s))
+        return Plan(name, st, s[:, 0] if s.ndim == 2 else s, served, seen, cov,
+                    np.array(per), overlap, self.gaps(served > 0), note, off)
 
     def gaps(self, covered: NDArray[np.bool_]) -> list[dict[str, float]]:
         """Connected uncovered regions of the unrolled grid, largest first."""
         from scipy import ndimage
 
         c = self.cells
+        assert isinstance(c, Cells)
         grid = np.zeros(c.shape, dtype=bool)
         grid[c.ring[~covered], c.col[~covered]] = True
         area = np.zeros(c.shape)
@@ -346,7 +366,7 @@ class Planner:
 
         if not 0 < target <= 1:
             raise PlanningError(f"Expected a target coverage in (0, 1], got {target}.")
-        cand = np.sort(np.asarray(candidates, dtype=np.float64).reshape(-1))
+        cand = self._where(candidates)
         if len(cand) == 0:
             raise PlanningError("Expected at least one candidate station, got none.")
         st = self.stations_at(cand)
@@ -411,3 +431,138 @@ class Planner:
             chosen.append(j)
             covered |= sig[:, j]
         return sorted(chosen)
+
+
+class RoutePlanner(Planner):
+    """Station planning on any mesh: candidate stations along the route found in it
+    (``sensors.route.find_route``) and offset across it, ``height_m`` above the floor
+    under them; coverage measured on the mesh's own triangles (``mesh_surface``), by
+    the rule of the grid path (``station_quality``, ``StationQuality.meets``).
+
+    Stations are placed by (distance along the route, left offset) in m; ``evaluate``
+    and ``optimize`` take (k,) distances or (k, 2) (distance, offset) rows.
+    """
+
+    def __init__(self, scene: Scene, sensor: SensorSpec, *, route: Route | None = None,
+                 waypoints: ArrayLike | None = None, resolution: str | None = None,
+                 thresholds: Thresholds | None = None, sample_m: float = 0.25,
+                 height_m: float = TRIPOD_HEIGHT_M, clearance_m: float = 0.2,
+                 keep_floor: bool = False) -> None:
+        from sensors.route import find_route, free_space
+
+        self._setup(scene, sensor, resolution, thresholds, height_m)
+        if route is None:
+            self.space = free_space(scene)
+            route = find_route(scene, waypoints=waypoints, height_m=height_m,
+                               clearance_m=clearance_m, space=self.space)
+        else:
+            self.space = free_space(scene, voxel_m=route.voxel_m,
+                                    start=route.points[len(route.points) // 2])
+        self.route, self.clearance_m = route, float(clearance_m)
+        # DECISION: the frame runs through the floor under the route, so that stations
+        # at any height_m are placed from the floor and the unrolled angle is seen from
+        # the instrument's height.
+        self.frame = RouteFrame(route.floor)
+        self.surface = mesh_surface(scene, self.frame, sample_m=sample_m,
+                                    height_m=height_m, keep_floor=keep_floor)
+        self.cells = self.surface
+        if len(self.cells.area) == 0:
+            raise PlanningError("Expected triangles to cover, got none (every one is "
+                                "floor or has no area).")
+        tri = np.unique(np.round(np.asarray(scene.vertices) / 1e-6), axis=0,
+                        return_inverse=True)[1].reshape(-1)
+        self._faces = tri[np.asarray(scene.faces)]        # faces on merged vertices
+
+    def __repr__(self) -> str:
+        return (f"RoutePlanner({self.sensor.name} at {self.resolution}, route "
+                f"{self.frame.length_m:.1f} m, {len(self.cells.area):,} samples, "
+                f"{self.th!r})")
+
+    @property
+    def span_m(self) -> tuple[float, float]:
+        """(0, route length) in m."""
+        return self.frame.chainage_range
+
+    def _where(self, chainages: ArrayLike) -> Floats:
+        """(k, 2) (distance, offset) rows in plan order; (k,) distances get offset 0."""
+        w = np.asarray(chainages, dtype=np.float64)
+        w = np.column_stack([w.reshape(-1), np.zeros(w.size)]) if w.ndim < 2 else w
+        if w.shape[1] != 2:
+            raise PlanningError(f"Expected stations as (k,) distances or (k, 2) "
+                                f"(distance, offset) rows, got shape {w.shape}.")
+        return w[np.lexsort((w[:, 1], w[:, 0]))]
+
+    def _place(self, where: ArrayLike) -> tuple[Floats, NDArray[np.bool_]]:
+        """Stations (k, 3) and whether each fits: a floor under it, in sight of the
+        route and at least ``clearance_m`` from the mesh."""
+        w = self._where(where)
+        s, off = w[:, 0], w[:, 1]
+        L = self.frame.length_m
+        if ((s < -1e-9) | (s > L + 1e-9)).any():
+            raise PlanningError(f"Expected distances along the route within [0, {L:.3f}] "
+                                f"m, got {s[(s < 0) | (s > L)][:5].tolist()}.")
+        # From the route point at the instrument height across to the offset, then down.
+        top = self.frame.to_world(s, off, self.height_m)
+        mid = self.frame.to_world(s, 0.0, self.height_m)
+        ok = np.ones(len(s), dtype=bool)
+        side = np.flatnonzero(off != 0)
+        if len(side):
+            ok[side] = ~self.scene.occluded(mid[side], top[side] - mid[side],
+                                            t_max=np.abs(off[side]))
+        hits = self.scene.cast(top, np.broadcast_to([0.0, 0.0, -1.0], top.shape))
+        st = np.where(hits.hit[:, None], hits.points, top - [0.0, 0.0, self.height_m])
+        st = st + [0.0, 0.0, self.height_m]
+        ok &= hits.hit & (self.space.distance(st) >= self.clearance_m - 1e-9)
+        return st, ok
+
+    def stations_at(self, chainages: ArrayLike) -> Floats:
+        """Stations (k, 3) at (k,) distances along the route or (k, 2) (distance,
+        offset) rows (m), ``height_m`` above the floor under them."""
+        st, ok = self._place(chainages)
+        w = self._where(chainages)
+        if not ok.all():
+            bad = w[~ok][:3].round(2).tolist()
+            raise PlanningError(f"Expected every station {self.clearance_m:g} m or more "
+                                f"from the mesh with a floor under it, got {int((~ok).sum())}"
+                                f" that do not fit at (distance, offset) {bad} m; lower "
+                                "the height or the offsets.")
+        return st
+
+    def candidates(self, step_m: float, offsets_m: ArrayLike = (0.0,)) -> Floats:
+        """(k, 2) (distance, offset) rows every ``step_m`` along the route at each of
+        ``offsets_m`` (m, left positive) that fit (``stations_at``); the rest dropped."""
+        d = self.spaced(step_m)
+        off = np.unique(np.append(np.asarray(offsets_m, dtype=np.float64).reshape(-1), 0.0))
+        w = np.array([(a, b) for a in d for b in off], dtype=np.float64).reshape(-1, 2)
+        return w[self._place(w)[1]] if len(w) else w
+
+    def gaps(self, covered: NDArray[np.bool_]) -> list[dict[str, float]]:
+        """Uncovered regions of the mesh, largest first: triangles holding an uncovered
+        sample, joined where they share a vertex; per region its distance and angle
+        span along the route, its uncovered area (m^2) and its area-weighted centre
+        (x, y, z)."""
+        from scipy import sparse
+        from scipy.sparse import csgraph
+
+        c = self.surface
+        gap_faces = np.unique(c.triangle[~covered])
+        if len(gap_faces) == 0:
+            return []
+        fv = self._faces[gap_faces]
+        m = sparse.csr_matrix((np.ones(fv.size), (np.repeat(np.arange(len(fv)), 3),
+                                                   fv.ravel())))
+        n, lab = csgraph.connected_components(m @ m.T, directed=False)
+        comp = lab[np.searchsorted(gap_faces, c.triangle[~covered])]
+        a, s, ang, p = c.area[~covered], c.chainage[~covered], c.angle[~covered], \
+            c.points[~covered]
+        out = []
+        for k in range(n):
+            q = comp == k
+            w = a[q]
+            x, y, z = (w[:, None] * p[q]).sum(axis=0) / w.sum()
+            out.append({"chainage_from": float(s[q].min()), "chainage_to": float(s[q].max()),
+                        "angle_from_deg": float(np.degrees(ang[q].min())),
+                        "angle_to_deg": float(np.degrees(ang[q].max())),
+                        "area_m2": float(w.sum()), "x": float(x), "y": float(y),
+                        "z": float(z)})
+        return sorted(out, key=lambda g: -g["area_m2"])

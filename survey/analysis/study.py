@@ -38,6 +38,8 @@ from survey.world.alignment import Alignment
 
 if TYPE_CHECKING:
     from raytrace import Scene
+    from sensors.route import Route
+    from survey.analysis.surface import RouteFrame, Surface
     from sensors.physics import Settings
     from sensors.spec import SensorSpec
     from sensors.trajectory import Mount, Trajectory
@@ -125,7 +127,14 @@ class Study:
     height_m : sensor height above the floor (m)
     cell_m, cell_rad : lining cell size along (m) and around (rad) the axis
     keep_points : floor points kept per configuration for the figure (0: none)
+
+    ``Study.along_route`` makes one on any mesh.
     """
+
+    # Sample lookup of the mesh path (``along_route``): sorted (triangle, sub) keys.
+    _kmax: int
+    _keys: NDArray[np.int64]
+    _order: NDArray[np.int64]
 
     def __init__(self, scene: Scene, alignment: Alignment, centre_height_m: float,
                  sensor: SensorSpec, *, strip_m: tuple[float, float] | None = None,
@@ -134,7 +143,7 @@ class Study:
                  seed: int = 0, reflectivity: Any = None, keep_points: int = 0) -> None:
         from survey.analysis.planning import axis_stations, lining_cells
 
-        self.scene, self.al, self.hc = scene, alignment, float(centre_height_m)
+        self.scene, self.hc = scene, float(centre_height_m)
         self.sensor = sensor
         _with_rate(sensor, 1.0)                        # kind check
         c0, c1 = alignment.chainage_range
@@ -151,26 +160,111 @@ class Study:
                              f"both sides inside the tunnel [{c0}, {c1}] m, got it outside; "
                              "shorten the strip or the lead.")
         self.strip_m, self.lead_m = (sa, sb), float(lead_m)
-        self.cells = lining_cells(scene, alignment, self.hc, chainage_range_m=(sa, sb),
-                                  cell_m=cell_m, cell_rad=cell_rad, keep_floor=True)
+        self.cells: Any = lining_cells(
+            scene, alignment, self.hc, chainage_range_m=(sa, sb), cell_m=cell_m,
+            cell_rad=cell_rad, keep_floor=True)
+        self.frame: Alignment | RouteFrame = alignment
         self.cell_m, self.n_a = cell_m, self.cells.shape[1]
         # Cell index of each (ring, column) of the grid, -1 where there is no cell.
         self._lookup = np.full(self.cells.shape, -1, dtype=np.int64)
         self._lookup[self.cells.ring, self.cells.col] = np.arange(len(self.cells.area))
+        # Sensor path: height_m above the floor below the axis, sampled every 0.25 m.
+        s = np.arange(sa - lead_m, sb + lead_m + 1e-9, 0.25)
+        self.path = axis_stations(scene, alignment, self.hc, s, height_m=height_m)
+        self._finish(height_m, settings, seed, reflectivity, keep_points, s,
+                     alignment.to_world(0.5 * (sa + sb), 0.0, self.hc))
+
+    def _finish(self, height_m: float, settings: Settings | None, seed: int,
+                reflectivity: Any, keep_points: int, path_s: Floats,
+                centre: Floats) -> None:
+        """The state both paths share: settings, the ball holding the strip (points
+        outside it skip the exact, slow, chainage) and the figure's footprints."""
         self.height_m = height_m
         self.settings, self.seed, self.refl = settings, seed, reflectivity
         self.keep_points = int(keep_points)
-        # Sensor path: height_m above the floor below the axis, sampled every 0.25 m.
-        s = np.arange(sa - lead_m, sb + lead_m + 1e-9, 0.25)
-        self.path_s = s
-        self.path = axis_stations(scene, alignment, self.hc, s, height_m=height_m)
-        # A ball that holds the strip: points outside it skip the exact (slow) chainage.
-        self._ball_c = alignment.to_world(0.5 * (sa + sb), 0.0, self.hc)
+        self.path_s = path_s
+        self._ball_c = np.asarray(centre, dtype=np.float64)
         self._ball_r = float(np.linalg.norm(self.cells.points - self._ball_c, axis=1).max()
-                             + 2 * cell_m)
+                             + 2 * self.cell_m)
         #: Floor footprints per (speed, rate, mount): (k, 4) chainage, offset, height,
         #: time since the strip centre.
         self.kept: dict[tuple[float, float, str], Floats] = {}
+
+    @classmethod
+    def along_route(cls, scene: Scene, route: Route, sensor: SensorSpec, *,
+                    strip_m: tuple[float, float] | None = None, lead_m: float = 5.0,
+                    sample_m: float = 0.1, settings: Settings | None = None,
+                    seed: int = 0, reflectivity: Any = None, keep_points: int = 0
+                    ) -> Study:
+        """The study on any mesh: the sensor drives along ``route``
+        (``sensors.route.find_route``, found at the sensor's height) and the strip is
+        measured on the mesh's own triangles (``planning.mesh_surface``, samples no
+        larger than ``sample_m``), a point counted in the sample of its triangle it
+        lands in. Chainages are distances along the route (m)."""
+        from survey.analysis.surface import RouteFrame, mesh_surface
+
+        self = cls.__new__(cls)
+        self.scene, self.sensor = scene, sensor
+        _with_rate(sensor, 1.0)                        # kind check
+        self.frame = frame = RouteFrame(route.floor)
+        height_m = float(np.median(route.points[:, 2] - route.floor[:, 2]))
+        L = frame.length_m
+        if strip_m is None:
+            strip_m = (0.5 * L - 2.5, 0.5 * L + 2.5)
+        sa, sb = (float(v) for v in strip_m)
+        if not (0 <= sa - lead_m and sb + lead_m <= L and sb > sa):
+            raise StudyError(f"Expected the strip [{sa}, {sb}] m with {lead_m} m lead on "
+                             f"both sides inside the route [0, {L:.2f}] m, got it outside; "
+                             "shorten the strip or the lead.")
+        self.strip_m, self.lead_m = (sa, sb), float(lead_m)
+        self.cells = c = mesh_surface(scene, frame, sample_m=sample_m, height_m=height_m,
+                                      keep_floor=True, chainage_range_m=(sa, sb))
+        if len(c.area) == 0:
+            raise StudyError(f"Expected triangles along the strip [{sa}, {sb}] m, got none.")
+        self.cell_m = float(sample_m)
+        # Sample index by (triangle, sub-triangle) key, for the points' triangles.
+        self._kmax = int(c.split.max()) ** 2
+        key = c.triangle * self._kmax + c.sub
+        self._order = np.argsort(key)
+        self._keys = key[self._order]
+        s = np.arange(sa - lead_m, sb + lead_m + 1e-9, 0.25)
+        self.path = frame.to_world(s, 0.0, height_m)
+        self._finish(height_m, settings, seed, reflectivity, keep_points, s,
+                     frame.to_world(0.5 * (sa + sb), 0.0, height_m))
+        return self
+
+    def _cells_of(self, p: NDArray[Any], xyz: Floats, s: Floats, off: Floats,
+                  h: Floats) -> NDArray[np.int64]:
+        """Cell index (m,) of each point, -1 outside every cell of the strip."""
+        from survey.analysis.planning import Cells
+        from survey.analysis.surface import sub_index
+
+        if isinstance(self.cells, Cells):
+            c = self.cells
+            sa = self.strip_m[0]
+            phi = np.arctan2(off, h - self.hc)
+            ring = ((s - sa) / self.cell_m).astype(np.int64)
+            col = np.clip(((phi + np.pi) / (2 * np.pi) * self.n_a).astype(np.int64), 0,
+                          self.n_a - 1)
+            inside = (s >= sa) & (s < self.strip_m[1])
+            ring = np.clip(ring, 0, c.shape[0] - 1)
+            return np.where(inside, self._lookup[ring, col], -1)
+        # The mesh path: barycentric coordinates of each point in its own triangle.
+        tri = p["triangle"].astype(np.int64)
+        ok = tri >= 0
+        t = np.asarray(self.scene.faces)[np.maximum(tri, 0)]
+        v = np.asarray(self.scene.vertices, dtype=np.float64)
+        a = v[t[:, 0]]
+        e1, e2, w = v[t[:, 1]] - a, v[t[:, 2]] - a, xyz - a
+        g11, g12, g22 = (np.einsum("ni,ni->n", x, y) for x, y in
+                         ((e1, e1), (e1, e2), (e2, e2)))
+        r1, r2 = np.einsum("ni,ni->n", w, e1), np.einsum("ni,ni->n", w, e2)
+        det = np.maximum(g11 * g22 - g12 * g12, 1e-300)
+        sub = sub_index((g22 * r1 - g12 * r2) / det, (g11 * r2 - g12 * r1) / det,
+                        self.cells.split[np.maximum(tri, 0)])
+        key = np.maximum(tri, 0) * self._kmax + sub
+        j = np.clip(np.searchsorted(self._keys, key), 0, len(self._keys) - 1)
+        return np.where(ok & (self._keys[j] == key), self._order[j], -1)
 
     def __repr__(self) -> str:
         return (f"Study({self.sensor.name}, strip {self.strip_m[0]:g}-{self.strip_m[1]:g} "
@@ -203,17 +297,14 @@ class Study:
         near = np.einsum("ni,ni->n", xyz - self._ball_c, xyz - self._ball_c) <= \
             self._ball_r ** 2
         pts, xyz = pts[near], xyz[near]
-        s, off, h = self.al.to_local(xyz)
-        ins = (s >= sa) & (s < sb)
+        s, off, h = self.frame.to_local(xyz)
+        cell = self._cells_of(pts, xyz, s, off, h)
+        ins = cell >= 0
         if not ins.any():
             return
-        p = pts[ins]
+        p, cell = pts[ins], cell[ins]
         s, off, h = s[ins], off[ins], h[ins]
-        phi = np.arctan2(off, h - self.hc)
-        ring = np.clip(((s - sa) / self.cell_m).astype(np.int64), 0, c.shape[0] - 1)
-        col = np.clip(((phi + np.pi) / (2 * np.pi) * self.n_a).astype(np.int64), 0,
-                      self.n_a - 1)
-        np.add.at(tally.counts, (ring, col), 1)
+        np.add.at(tally.counts, cell, 1)
         # Rolling shutter: the sweep assembled with the pose at its start.
         fr = p["frame"].astype(np.int64)
         tf = t0 + fr / rate_hz
@@ -225,8 +316,7 @@ class Study:
         tally.dsq += float((dd * dd).sum())
         tally.nd += len(dd)
         # Forward floor beams for the line spacing.
-        cell = self._lookup[ring, col]
-        floor = (cell >= 0) & c.is_floor[np.maximum(cell, 0)]
+        floor = c.is_floor[cell]
         f = floor & (np.abs(p["azimuth"]) < FORWARD_AZ_RAD)
         for ch, frm, ss in zip(p["channel"][f], fr[f], s[f]):
             a = tally.fwd.setdefault((int(ch), int(frm)), [0.0, 0])
@@ -257,7 +347,7 @@ class Study:
         run = simulate_drive(self.scene, spec, traj, mnt, settings=self.settings,
                              seed=self.seed, reflectivity=self.refl, t_start=t0, t_end=t1)
         c = self.cells
-        tally = _Tally(np.zeros(c.shape, dtype=np.int64))
+        tally = _Tally(np.zeros(len(c.area), dtype=np.int64))
         for pts in run:
             if len(pts):
                 self._tally_chunk(tally, pts, traj, mnt, t0, t1, speed_mps, rate_hz)
@@ -267,7 +357,7 @@ class Study:
                 kp = kp[np.random.default_rng(0).choice(len(kp), self.keep_points,
                                                         replace=False)]
             self.kept[(float(speed_mps), float(rate_hz), mount)] = kp
-        got = tally.counts[c.ring, c.col]
+        got = tally.counts
         lin, flo = ~c.is_floor, c.is_floor
         dens_l = got[lin].sum() / max(c.area[lin].sum(), 1e-12)
         dens_f = got[flo].sum() / max(c.area[flo].sum(), 1e-12)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
+    from sensors.route import Route
     from survey.analysis.study import Study, StudyRow
 
 __all__ = ["plot_study", "study_csv", "study_markdown"]
@@ -36,14 +37,21 @@ def study_csv(rows: Sequence[StudyRow]) -> str:
 
 
 def study_markdown(rows: Sequence[StudyRow], sensor_name: str,
-                   strip: tuple[float, float], lead_m: float) -> str:
+                   strip: tuple[float, float], lead_m: float, *,
+                   route: Route | None = None) -> str:
     """Markdown table of the study rows; ``strip`` (start, end) chainages and
-    ``lead_m`` in m."""
+    ``lead_m`` in m; with ``route`` (a study on any mesh) the chainage is the distance
+    along it and the cells are the mesh's own triangles."""
+    where = "chainage"
+    if route is not None:
+        where = (f"distance along the route found in the mesh ({route.length_m:.1f} m, "
+                 f"smallest clearance {route.min_clearance_m:.2f} m; cells: the mesh's "
+                 "own triangles, cut into samples)")
     out = [f"# MLS study: {sensor_name}", "",
-           f"Evaluation strip: chainage {strip[0]:.1f}-{strip[1]:.1f} m; points counted "
+           f"Evaluation strip: {where} {strip[0]:.1f}-{strip[1]:.1f} m; points counted "
            f"while the sensor is within {lead_m:.1f} m of it (one pass). Densities at "
            "0 m/s are per sweep. Distortion: each sweep placed with the pose at its start, "
-           "against the truth; analytic maximum v/f.", "",
+           "against the truth; analytic maximum v/f (straight, level motion).", "",
            "| " + " | ".join(c[1] for c in _COLS) + " |",
            "|" + "---:|" * len(_COLS)]
     for r in rows:
@@ -87,7 +95,10 @@ def plot_study(study: Study, rows: Sequence[StudyRow], path: str | Path, *,
             ax.set_title(f"{study.sensor.name}, {m0} mount, {f0:g} Hz: floor footprint of "
                          "3 sweeps (every 6th channel)", fontsize=9)
         if i == n - 1:
-            ax.set_xlabel("chainage (m)")
+            from survey.analysis.surface import RouteFrame
+
+            ax.set_xlabel("distance along the route (m)"
+                          if isinstance(study.frame, RouteFrame) else "chainage (m)")
         else:
             ax.tick_params(labelbottom=False)
     for mount in sorted({r.mount for r in rows}):

@@ -59,11 +59,22 @@ def register(commands: CommandSet) -> None:
                     "preset's angular step and range, incidence, range) for stations on "
                     "the axis at fixed spacings, and optionally the smallest station set "
                     "reaching a target coverage (MILP, greedy bound). Writes plan.csv, "
-                    "plan.md, plan.json and coverage.png (unrolled chainage x angle).",
+                    "plan.md, plan.json and coverage.png (unrolled chainage x angle). "
+                    "On any mesh (no tunnel .json, or --along auto) the stations stand "
+                    "along the route found in the mesh and offset across it, coverage "
+                    "is measured on the mesh's own triangles (area-weighted), chainage "
+                    "is the distance along the route, and route.csv is written too.",
         epilog="Example: tunnelsim plan --mesh bfo.ply --sensor zf_imager_5016 "
                "--resolution high --spacing 5,10 --optimize --target 0.99 -o plan/")
     c.option("--mesh", required=True, path="in",
-             help="tunnel mesh (its .json gives the axis)")
+             help="tunnel mesh (its .json gives the axis), or any mesh")
+    _route_options(c, "stations")
+    c.option("--offsets", default="1", metavar="M[,M...]",
+             help="with --along auto and --optimize: candidate stations also this far "
+                  "left and right of the route, where they fit (default 1)")
+    c.option("--clearance", type=float, default=0.2, metavar="M",
+             help="with --along auto: smallest distance of a station from the mesh "
+                  "(default 0.2)")
     c.option("--sensor", default="zf_imager_5016", path="toml",
              help="TLS sensor name or .toml")
     c.option("--resolution", help="resolution preset (default: the sensor's)")
@@ -84,7 +95,8 @@ def register(commands: CommandSet) -> None:
     c.option("--range", type=float, default=30.0, metavar="M",
              help="range threshold in metres (default 30)")
     c.option("--cell", default="0.25,2", metavar="M,DEG",
-             help="lining cell size along (m) and around (deg) (default 0.25,2)")
+             help="lining cell size along (m) and around (deg) (default 0.25,2); with "
+                  "--along auto, M is the largest edge of a triangle sample")
     c.option("--height", type=float, default=1.5, metavar="M",
              help="instrument height above the floor (default 1.5)")
     c.option("-o", "--output", required=True, path="out", help="output folder")
@@ -102,7 +114,13 @@ def register(commands: CommandSet) -> None:
         epilog="Example: tunnelsim study --mesh bfo.ply --sensor robosense_airy --speeds "
                "0,1,3 --rates 10,20 --mounts down -o study/")
     c.option("--mesh", required=True, path="in",
-             help="tunnel mesh (its .json gives the axis)")
+             help="tunnel mesh (its .json gives the axis), or any mesh: then the sensor "
+                  "drives along the route found in it, the strip is in distance along "
+                  "the route and the cells are the mesh's own triangles")
+    _route_options(c, "the sensor")
+    c.option("--cell", type=float, default=0.1, metavar="M",
+             help="cell size (m): along the axis, or with --along auto the largest "
+                  "edge of a triangle sample (default 0.1)")
     c.option("--sensor", default="robosense_airy", path="toml", help="sensor name or .toml")
     c.option("--speeds", default="0,1,3", metavar="V[,V...]",
              help="speeds in m/s (default 0,1,3)")
@@ -123,6 +141,39 @@ def register(commands: CommandSet) -> None:
     c.option("--threads", type=int, help="Numba threads (default: all cores)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
     c.option("--quiet", action="store_true", help="print nothing on success")
+
+
+def _route_options(c, who: str) -> None:
+    """--along and --waypoints of plan and study."""
+    c.option("--along", choices=["centreline", "auto"],
+             help=f"centreline: {who} on the tunnel axis (needs the mesh's .json); auto: "
+                  "along the route found in the mesh (default: centreline when the "
+                  ".json gives the axis, else auto)")
+    c.option("--waypoints", path="in", metavar="CSV",
+             help="with --along auto: x,y[,z] rows the route passes in order")
+
+
+def _along(args) -> str:
+    """'centreline' or 'auto': --along, else centreline where the mesh's .json gives
+    the axis; --waypoints refused with the centreline."""
+    from survey.world.mesh import read_meta, sidecar
+
+    along = args.along
+    if along is None:
+        js = sidecar(args.mesh)
+        along = "centreline" if js.is_file() and \
+            {"alignment", "profile"} <= set(read_meta(js)) else "auto"
+    if args.waypoints and along != "auto":
+        raise TunnelsimCLIError("Expected --waypoints with --along auto, got it with the "
+                                "tunnel centreline (the mesh's .json gives the axis; pass "
+                                "--along auto).")
+    return along
+
+
+def _waypoints(args):
+    from sensors.route import read_waypoints
+
+    return read_waypoints(args.waypoints) if args.waypoints else None
 
 
 # ---------------------------------------------------------------------------- compare
@@ -268,7 +319,7 @@ def cmd_plan(args) -> int:
     import numpy as np
 
     from sensors import load_sensor
-    from survey.analysis.planning import Planner, Thresholds
+    from survey.analysis.planning import Planner, RoutePlanner, Thresholds
     from survey.clouds.axis import tunnel_frame
     from survey.report.planning import (
         plan_csv,
@@ -283,15 +334,30 @@ def cmd_plan(args) -> int:
     spec = load_sensor(args.sensor)
     cell_m, cell_deg = pair(args.cell, "--cell as M,DEG")
     spacings = floats(args.spacing, "--spacing")
-    scene, _, al, hc = tunnel_frame(args.mesh)
+    offsets = floats(args.offsets, "--offsets")
     th = Thresholds(args.spacing_mm / 1000.0, np.deg2rad(args.incidence_deg), args.range)
-    pl = Planner(scene, al, hc, spec, resolution=args.resolution, thresholds=th,
-                 cell_m=cell_m, cell_rad=np.deg2rad(cell_deg), height_m=args.height)
+    along = _along(args)
+    if along == "auto":
+        from sensors.meshes import load_mesh
+
+        wp = _waypoints(args)
+        scene, _ = load_mesh(args.mesh)
+        pl: Planner = RoutePlanner(scene, spec, waypoints=wp, resolution=args.resolution,
+                                   thresholds=th, sample_m=cell_m, height_m=args.height,
+                                   clearance_m=args.clearance)
+    else:
+        scene, _, al, hc = tunnel_frame(args.mesh)
+        pl = Planner(scene, al, hc, spec, resolution=args.resolution, thresholds=th,
+                     cell_m=cell_m, cell_rad=np.deg2rad(cell_deg), height_m=args.height)
     out = out_dir(args.output, args.force)
     plans = [pl.evaluate(pl.spaced(sp), f"every {sp:g} m") for sp in spacings]
     info = None
     if args.optimize:
-        cand = pl.spaced(args.candidate_step)
+        if isinstance(pl, RoutePlanner):
+            side = np.abs(np.asarray(offsets))
+            cand = pl.candidates(args.candidate_step, np.concatenate([side, -side]))
+        else:
+            cand = pl.spaced(args.candidate_step)
         best, greedy, info = pl.optimize(cand, target=args.target,
                                          time_limit_s=args.time_limit)
         plans += [best, greedy]
@@ -302,8 +368,11 @@ def cmd_plan(args) -> int:
     write_text(out / "plan.md", md)
     plot_coverage(plans, pl, out / "coverage.png")
     write_json(out / "plan.json", plan_summary(plans, pl, info))
-    say(args, md.split("\n## Largest")[0].rstrip() +
-        f"\n-> {out}/ (plan.csv, plan.md, plan.json, coverage.png)")
+    files = "plan.csv, plan.md, plan.json, coverage.png"
+    if isinstance(pl, RoutePlanner):
+        pl.route.write_csv(out / "route.csv")
+        files += ", route.csv"
+    say(args, md.split("\n## Largest")[0].rstrip() + f"\n-> {out}/ ({files})")
     return 0
 
 
@@ -322,10 +391,23 @@ def cmd_study(args) -> int:
     speeds = floats(args.speeds, "--speeds")
     rates = floats(args.rates, "--rates")
     mounts = [m.strip() for m in args.mounts.split(",") if m.strip()]
-    scene, refl, al, hc = tunnel_frame(args.mesh)
-    st = Study(scene, al, hc, spec, strip_m=strip, lead_m=args.lead, height_m=args.height,
-               settings=Settings.ideal() if args.ideal else None, seed=args.seed,
-               reflectivity=refl if refl is not None else 0.5, keep_points=40_000)
+    kw = dict(strip_m=strip, lead_m=args.lead,
+              settings=Settings.ideal() if args.ideal else None, seed=args.seed,
+              keep_points=40_000)
+    route = None
+    if _along(args) == "auto":
+        from sensors.meshes import load_mesh
+        from sensors.route import find_route
+
+        wp = _waypoints(args)
+        scene, refl = load_mesh(args.mesh)
+        route = find_route(scene, waypoints=wp, height_m=args.height)
+        st = Study.along_route(scene, route, spec, sample_m=args.cell,
+                               reflectivity=refl if refl is not None else 0.5, **kw)
+    else:
+        scene, refl, al, hc = tunnel_frame(args.mesh)
+        st = Study(scene, al, hc, spec, height_m=args.height, cell_m=args.cell,
+                   reflectivity=refl if refl is not None else 0.5, **kw)
     out = out_dir(args.output, args.force)
 
     def progress(i, n):
@@ -337,11 +419,15 @@ def cmd_study(args) -> int:
     if not args.quiet and sys.stderr.isatty():
         sys.stderr.write("\n")
     write_text(out / "study.csv", study_csv(rows))
-    md = study_markdown(rows, spec.name, st.strip_m, st.lead_m)
+    md = study_markdown(rows, spec.name, st.strip_m, st.lead_m, route=route)
     write_text(out / "study.md", md)
     plot_study(st, rows, out / "study.png", rings_mount="down" if "down" in mounts else None,
                rings_rate=rates[0])
-    say(args, md.rstrip() + f"\n-> {out}/ (study.csv, study.md, study.png)")
+    files = "study.csv, study.md, study.png"
+    if route is not None:
+        route.write_csv(out / "route.csv")
+        files += ", route.csv"
+    say(args, md.rstrip() + f"\n-> {out}/ ({files})")
     return 0
 
 
