@@ -6,7 +6,11 @@ ends come to the mesh's open ends, and the time taken.
 Input: the folder of the DARPA SubT tiles (``../shared/data/meshes``, see its README);
 the meshes ``cave_straight_80m.ply`` and ``tunnel_bend_left.ply`` are routed, with
 ``--all`` the straight tiles too, and with ``--big`` a generated 1M-triangle, 300 m
-horseshoe tube (``raytrace.shapes.tunnel_tube``) for the time on a large mesh.
+horseshoe tube (``raytrace.shapes.tunnel_tube``) for the time on a large mesh, and the
+generated ``junction`` preset (90-degree bend, T-junction). Along each route the
+``--platforms`` are driven at 1 m/s (``sensors.platform.platform_trajectory``): the
+smallest clearance of their poses and the largest speed, acceleration, jerk and yaw
+rate of the sensor poses, against the platform's limits.
 
 Usage::
 
@@ -57,11 +61,52 @@ def brute_distance(points, vertices, faces):
     return out
 
 
-def check(name, scene, height_m):
+def motion(t, p, q):
+    """Largest horizontal speed, acceleration, jerk and yaw rate of a trajectory's
+    samples (finite differences), as its TUM file gives them."""
+    from scipy.spatial.transform import Rotation
+
+    yaw = np.unwrap(Rotation.from_quat(q).as_euler("ZYX")[:, 0])
+    dt = np.diff(t)
+    v = np.diff(p[:, :2], axis=0) / dt[:, None]
+    a = np.diff(v, axis=0) / (0.5 * (dt[1:] + dt[:-1]))[:, None]
+    j = np.diff(a, axis=0) / dt[1:-1, None]
+    n = np.linalg.norm
+    return (n(v, axis=1).max(), n(a, axis=1).max(), n(j, axis=1).max(),
+            np.abs(np.diff(yaw) / dt).max())
+
+
+def drive(scene, route, space, platform):
+    """The platform driven along the route at 1 m/s: duration, smallest pose clearance
+    and the largest motion figures of its poses against the platform's limits."""
+    from sensors.platform import platform_trajectory
+    from sensors.platform_spec import load_platform
+
+    spec = load_platform(platform)
+    t0 = time.perf_counter()
+    traj = platform_trajectory(route, spec, 1.0, scene=scene)
+    secs = time.perf_counter() - t0
+    p, q = traj.positions, traj.rotations.as_quat()
+    clear = float(space.distance(p[::5]).min())
+    v, a, j, w = motion(traj.times, p, q)
+    lim = spec.limits
+    print(f"  {platform}: {traj.duration_s:.1f} s for {route.length_m:.1f} m (planned in "
+          f"{secs:.2f} s), smallest pose clearance {clear:.3f} m; sensor poses: speed "
+          f"{v:.2f} m/s, acceleration {a:.2f} m/s^2, jerk {j:.1f} m/s^3, yaw rate "
+          f"{np.degrees(w):.1f} deg/s (limits {lim.max_speed_mps:g} m/s, "
+          f"{lim.max_accel_mps2:g} m/s^2, {lim.max_jerk_mps3:g} m/s^3, "
+          f"{np.degrees(lim.max_yaw_rate_radps):.0f} deg/s)")
+    return dict(platform=platform, clearance_m=clear, accel=a, jerk=j,
+                yaw_dps=float(np.degrees(w)))
+
+
+def check(name, scene, height_m, platforms=()):
+    from sensors.freespace import free_space
     from sensors.route import find_route
 
     t = time.perf_counter()
-    route = find_route(scene, height_m=height_m)
+    space = free_space(scene)
+    route = find_route(scene, height_m=height_m, space=space)
     seconds = time.perf_counter() - t
     v, f = np.asarray(scene.vertices), np.asarray(scene.faces)
     brute = brute_distance(route.points, v, f)
@@ -79,6 +124,8 @@ def check(name, scene, height_m):
           f"(asked {height_m:g})")
     print(f"  ends {ends[0]:.2f} m and {ends[1]:.2f} m from the mesh's box in plan "
           f"(its open ends lie on the box)")
+    for pf in platforms:
+        drive(scene, route, space, pf)
     return dict(name=name, length_m=route.length_m, min_clearance_m=route.min_clearance_m,
                 seconds=seconds)
 
@@ -89,6 +136,8 @@ def main():
     ap.add_argument("--height", type=float, default=0.5, help="sensor height (m)")
     ap.add_argument("--all", action="store_true", help="the straight tiles too")
     ap.add_argument("--big", action="store_true", help="a generated 1M-triangle tube too")
+    ap.add_argument("--platforms", default="ground_robot,walker",
+                    help="platforms driven along each route at 1 m/s ('' for none)")
     args = ap.parse_args()
     from sensors.meshes import load_mesh
 
@@ -100,13 +149,20 @@ def main():
     rows = []
     for n in names:
         scene, _ = load_mesh(folder / n)
-        rows.append(check(n, scene, args.height))
+        rows.append(check(n, scene, args.height,
+                          [p for p in args.platforms.split(",") if p]))
     if args.big:
         from raytrace import Scene
         from raytrace.shapes import tunnel_tube
 
         v, f = tunnel_tube(1_000_000, length_m=300.0, seed=1)
         rows.append(check("tunnel_tube 1M, 300 m", Scene(v, f), args.height))
+        from survey.world.presets import preset
+
+        tun = preset("junction", edge_length_m=0.1)[0]
+        scene = Scene(tun.vertices, tun.faces)
+        rows.append(check(f"junction preset ({len(tun.faces):,} triangles)", scene,
+                          args.height, [p for p in args.platforms.split(",") if p]))
     print("\n| mesh | route (m) | smallest clearance (m) | time (s) |\n|---|---|---|---|")
     for r in rows:
         print(f"| {r['name']} | {r['length_m']:.1f} | {r['min_clearance_m']:.3f} | "
