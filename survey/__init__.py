@@ -70,6 +70,20 @@ _EXPORTS = {
     "survey.report.reconstruct": ("plot_support",),
     "survey.report.demo": ("demo_summary", "summary_markdown", "cloud_c2m_rms"),
     "survey.report.slam": ("plot_slam", "slam_report"),
+    "survey.analysis.design": ("DesignProfile", "read_design_profile"),
+    "survey.analysis.sections": ("SectionCut", "cut_cloud", "cut_file", "cut_mesh",
+                                 "section_chainages"),
+    "survey.analysis.overbreak": ("Section", "SectionReport", "Volume", "compare_sections"),
+    "survey.analysis.rings": ("CircleFit", "EllipseFit", "RingFit", "fit_circle",
+                              "fit_ellipse", "fit_rings"),
+    "survey.analysis.convergence": ("Chords", "RadialChange", "chords", "radial_change",
+                                    "sections_every"),
+    "survey.analysis.m3c2": ("M3C2", "M3C2Params", "M3C2Result", "lod95", "m3c2",
+                             "subsample", "towards_axis"),
+    "survey.report.sections": ("plot_rings", "plot_section", "rings_csv", "rings_markdown",
+                               "sections_csv", "sections_markdown", "volumes_csv"),
+    "survey.report.epochs": ("chords_csv", "convergence_markdown", "m3c2_markdown",
+                             "plot_m3c2_histogram", "plot_radial", "radial_csv"),
     "survey.export.gazebo": ("export_gazebo", "lidar_sdf"),
     "survey.errors": ("TunnelsimError", "AlignmentError", "CloudFileError", "CompareError",
                       "ControlPointError", "DeformationError", "DriftError", "FeatureError",
@@ -126,6 +140,20 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.report.reconstruct import plot_support
     from survey.report.demo import demo_summary, summary_markdown, cloud_c2m_rms
     from survey.report.slam import plot_slam, slam_report
+    from survey.analysis.design import DesignProfile, read_design_profile
+    from survey.analysis.sections import (SectionCut, cut_cloud, cut_file, cut_mesh,
+        section_chainages)
+    from survey.analysis.overbreak import Section, SectionReport, Volume, compare_sections
+    from survey.analysis.rings import (CircleFit, EllipseFit, RingFit, fit_circle,
+        fit_ellipse, fit_rings)
+    from survey.analysis.convergence import (Chords, RadialChange, chords, radial_change,
+        sections_every)
+    from survey.analysis.m3c2 import (M3C2, M3C2Params, M3C2Result, lod95, m3c2, subsample,
+        towards_axis)
+    from survey.report.sections import (plot_rings, plot_section, rings_csv, rings_markdown,
+        sections_csv, sections_markdown, volumes_csv)
+    from survey.report.epochs import (chords_csv, convergence_markdown, m3c2_markdown,
+        plot_m3c2_histogram, plot_radial, radial_csv)
     from survey.export.gazebo import export_gazebo, lidar_sdf
     from survey.errors import (TunnelsimError, AlignmentError, CloudFileError, CompareError,
         ControlPointError, DeformationError, DriftError, FeatureError, GazeboExportError,

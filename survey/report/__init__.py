@@ -7,8 +7,15 @@ from .study import plot_study, study_csv, study_markdown
 from .reconstruct import plot_support
 from .demo import cloud_c2m_rms, demo_summary, summary_markdown
 from .slam import plot_slam, slam_report
+from .sections import (plot_rings, plot_section, rings_csv, rings_markdown, sections_csv,
+                       sections_markdown, volumes_csv)
+from .epochs import (chords_csv, convergence_markdown, m3c2_markdown, plot_m3c2_histogram,
+                     plot_radial, radial_csv)
 
 __all__ = ["cloud_c2m_rms", "plan_summary", "drift_report", "helmert_report", "plot_histogram", "stats_csv",
            "stats_markdown", "plan_csv", "plan_markdown", "plot_coverage", "plot_study",
            "study_csv", "study_markdown", "plot_support", "demo_summary",
-           "summary_markdown", "plot_slam", "slam_report"]
+           "summary_markdown", "plot_slam", "slam_report",
+           "plot_rings", "plot_section", "rings_csv", "rings_markdown", "sections_csv",
+           "sections_markdown", "volumes_csv", "chords_csv", "convergence_markdown",
+           "m3c2_markdown", "plot_m3c2_histogram", "plot_radial", "radial_csv"]

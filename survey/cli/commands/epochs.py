@@ -1,0 +1,271 @@
+"""Monitoring commands (issue 17): m3c2 (distances between epochs with LoD95) and
+convergence (chords between control points, radial change per section)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from survey.cli.common import CommandSet, floats, numbers, out_dir, say, write_json, write_text
+from survey.errors import TunnelsimCLIError
+
+
+def register(commands: CommandSet) -> None:
+    """Add m3c2 and convergence."""
+    c = commands.add(
+        "m3c2", cmd_m3c2,
+        help="M3C2 distances between two epochs, with LoD95 and significance",
+        description="M3C2 (Lague et al. 2013) with py4dgeo's parameters: normals from "
+                    "epoch 1 at the --normal-radii (highest planarity wins), a cylinder "
+                    "of --cyl-radius and half-length --max-depth along each normal, "
+                    "distance = mean (or --robust: median) of epoch 2 minus epoch 1, "
+                    "LoD95 = 1.96 (sqrt(s1²/n1 + s2²/n2) + --reg-error). Writes the core "
+                    "points with the fields distance, lod, significant, spread1/2, n1/2, "
+                    "nx/ny/nz (.las/.laz), and _report.md, .json, .png beside it. Epochs "
+                    "stating different CRSs, or lying apart, are refused.",
+        epilog="Example: tunnelsim m3c2 e1.laz e2.laz --core-spacing 0.5 --cyl-radius 0.1 "
+               "--max-depth 0.2 --normal-radii 0.1,0.2 --orient axis --tunnel t.json "
+               "-o m3c2.laz")
+    c.option("epoch1", path="in", help="earlier epoch (cloud)")
+    c.option("epoch2", path="in", help="later epoch (cloud)")
+    c.option("-o", "--output", required=True, path="out",
+             help="core points with the M3C2 fields (.las/.laz)")
+    g = c.exclusive()
+    c.option("--core", path="in", group=g,
+             help="core points (a cloud; LAS/LAZ fields are kept); default: epoch 1")
+    c.option("--core-spacing", type=float, metavar="M", group=g,
+             help="core points: epoch 1 subsampled to one point per M-metre cell")
+    c.option("--cyl-radius", type=float, required=True, metavar="M",
+             help="projection cylinder radius in m (py4dgeo cyl_radius; half "
+                  "CloudCompare's projection scale)")
+    c.option("--max-depth", type=float, required=True, metavar="M",
+             help="cylinder half-length along the normal in m (py4dgeo max_distance)")
+    c.option("--normal-radii", metavar="M[,M...]",
+             help="normal radii in m (py4dgeo normal_radii; half CloudCompare's normal "
+                  "scales); default: 2x the cylinder radius")
+    c.option("--reg-error", type=float, default=0.0, metavar="M",
+             help="registration error in m, added to the LoD95 (default 0)")
+    c.option("--robust", action="store_true", help="median and IQR instead of mean and std")
+    c.option("--orient", default="z", metavar="z|axis|X,Y,Z",
+             help="normal orientation: +Z (default, py4dgeo's), towards the tunnel axis "
+                  "(needs --tunnel; positive distance = convergence), or a vector")
+    c.option("--tunnel", path="in", help="tunnel JSON (alignment and profile) for --orient axis")
+    c.option("--allow-crs-mismatch", action="store_true",
+             help="compare epochs that state different CRSs (refused by default)")
+
+    c = commands.add(
+        "convergence", cmd_convergence,
+        help="convergence between epochs: chords between points, radial change by angle",
+        description="Chord lengths between named points of each section in two epochs "
+                    "(--control1/--control2: tunnel JSONs with control points, or "
+                    "control-point CSVs) and, with two clouds, the radial change by angle "
+                    "about the section centre at --at chainages (or --every M), in the "
+                    "alignment frame of --tunnel. Positive = convergence. Writes "
+                    "convergence.md, convergence.json, chords.csv, radial.csv and "
+                    "radial.png into the output folder.",
+        epilog="Example: tunnelsim convergence e1.laz e2.laz --tunnel t.json --control1 "
+               "t.json --control2 t2.json --every 10 -o conv/")
+    c.option("epochs", nargs="*", metavar="EPOCH", path="in",
+             help="two clouds (earlier, later) for the radial change; none for chords only")
+    c.option("-o", "--output", required=True, path="out", help="output folder")
+    c.option("--tunnel", required=True, path="in",
+             help="tunnel JSON: the alignment and the profile's centre")
+    c.option("--control1", path="in", help="points of epoch 1 (tunnel JSON or CSV)")
+    c.option("--control2", path="in", help="points of epoch 2 (tunnel JSON or CSV)")
+    c.option("--sigma-mm", type=float, metavar="MM",
+             help="point precision per coordinate (mm): chords get LoD95 = 3.92 sigma")
+    g = c.exclusive()
+    c.option("--at", metavar="S[,S...]", group=g, help="section chainages in m")
+    c.option("--every", type=float, metavar="M", group=g, help="a section every M metres")
+    c.option("--band", type=float, default=0.25, metavar="M",
+             help="half-width of a section along the axis in m (default 0.25)")
+    c.option("--angle-step", type=float, default=5.0, metavar="DEG",
+             help="angular bin in degrees (default 5)")
+    c.option("--allow-crs-mismatch", action="store_true",
+             help="compare epochs that state different CRSs (refused by default)")
+    c.option("--force", action="store_true", help="write into a non-empty folder")
+
+
+# ---------------------------------------------------------------------------- shared
+def _check_crs(args, paths) -> str | None:
+    """Refuse (unless --allow-crs-mismatch) inputs stating different CRSs; returns the
+    first stated CRS text (the outputs state it)."""
+    from sensors.crs import CRSError, crs_mismatch, mismatch_message
+    from survey.clouds.cloudio import cloud_crs_text
+
+    stated = [(str(p), cloud_crs_text(p)) for p in paths]
+    if not args.allow_crs_mismatch:
+        pair_ = crs_mismatch(stated)
+        if pair_ is not None:
+            raise CRSError(mismatch_message(*pair_, what="epochs",
+                                            hint="reproject one epoch into the other's "
+                                                 "CRS first, or pass --allow-crs-mismatch "
+                                                 "if a label is wrong"))
+    return next((c for _, c in stated if c is not None), None)
+
+
+def _tunnel(path):
+    """(Alignment, profile centre (2,)) of a tunnel JSON."""
+    from survey.errors import TunnelFileError
+    from survey.world.alignment import Alignment
+    from survey.world.mesh import read_meta
+    from survey.world.profiles import Profile
+
+    meta = read_meta(path)
+    if "alignment" not in meta or "profile" not in meta:
+        raise TunnelFileError(f"Expected 'alignment' and 'profile' in '{path}' (a JSON "
+                              "written by 'tunnelsim tunnel'), got neither.")
+    return Alignment.from_dict(meta["alignment"]), Profile.from_dict(meta["profile"]).centroid
+
+
+def _epoch_points(path):
+    """Points of an epoch: a cloud, or a mesh's vertices."""
+    from survey.clouds.cloudio import read_reference
+
+    return read_reference(path)[0]
+
+
+# ---------------------------------------------------------------------------- m3c2
+def _m3c2_params(args):
+    from survey.analysis.m3c2 import M3C2Params
+
+    radii = floats(args.normal_radii, "--normal-radii") if args.normal_radii else \
+        [2.0 * args.cyl_radius] if args.cyl_radius and args.cyl_radius > 0 else []
+    return M3C2Params(args.cyl_radius, args.max_depth, tuple(radii), args.reg_error,
+                      args.robust)
+
+
+def cmd_m3c2(args) -> int:
+    import numpy as np
+
+    from survey.analysis.m3c2 import CHUNK, M3C2, M3C2Result, subsample, towards_axis
+    from survey.clouds.cloudio import annotate_las, iter_points, write_points_las
+    from survey.report.epochs import m3c2_markdown, m3c2_summary, plot_m3c2_histogram
+
+    out = Path(args.output)
+    if out.suffix.lower() not in (".las", ".laz"):
+        raise TunnelsimCLIError(f"Expected -o as .las/.laz, got '{out}'.")
+    if not out.parent.exists():
+        raise TunnelsimCLIError(f"Expected an existing folder for '{out}', got none; "
+                                "create it first.")
+    prm = _m3c2_params(args)
+    orient = args.orient.strip().lower()
+    axis = None
+    vector: tuple[float, ...] = (0.0, 0.0, 1.0)
+    if orient == "axis":
+        if not args.tunnel:
+            raise TunnelsimCLIError("Expected --tunnel T.json with --orient axis (the "
+                                    "alignment gives the axis), got none.")
+        axis = _tunnel(args.tunnel)
+    elif orient != "z":
+        vector = tuple(numbers(args.orient, "--orient as z, axis or X,Y,Z", 3))
+    inputs = [args.epoch1, args.epoch2] + ([args.core] if args.core else [])
+    crs = _check_crs(args, inputs)
+    e1, e2 = _epoch_points(args.epoch1), _epoch_points(args.epoch2)
+    job = M3C2(e1, e2, prm)
+    say(args, f"M3C2 on {len(e1):,} and {len(e2):,} points...")
+
+    def run(xyz):
+        tw = None if axis is None else towards_axis(axis[0], xyz, axis[1])
+        return job.compute(xyz, orientation=vector, towards=tw)
+
+    parts: list = []
+    if args.core and Path(args.core).suffix.lower() in (".las", ".laz"):
+        def annotate(xyz):
+            r = run(xyz)
+            parts.append(r)
+            return r.fields()
+        annotate_las(args.core, out, annotate, chunk=CHUNK)
+    else:
+        core = np.concatenate(list(iter_points(args.core))) if args.core else \
+            subsample(e1, args.core_spacing) if args.core_spacing else e1
+        parts = [run(core[a:a + CHUNK]) for a in range(0, len(core), CHUNK)]
+        res = M3C2Result.concatenate(parts)
+        write_points_las(out, core, res.fields(), crs=crs)
+    res = M3C2Result.concatenate(parts)
+    summ = m3c2_summary(res.distance, res.lod, res.significant, prm,
+                        epoch1=str(args.epoch1), epoch2=str(args.epoch2),
+                        orientation=orient)
+    write_json(out.with_name(out.stem + ".json"), summ)
+    write_text(out.with_name(out.stem + "_report.md"),
+               m3c2_markdown(summ, title=f"M3C2 {Path(args.epoch1).name} -> "
+                                         f"{Path(args.epoch2).name}"))
+    plot_m3c2_histogram(res.distance, res.significant, out.with_name(out.stem + ".png"))
+    say(args, f"M3C2: {summ['with_distance']:,} of {summ['core_points']:,} core points, "
+              f"median {1000 * summ['median_m']:.2f} mm, {summ['significant']:,} "
+              f"significant (median LoD95 {1000 * summ['median_lod_m']:.2f} mm) -> "
+              f"{out.name}, {out.stem}_report.md, {out.stem}.json, {out.stem}.png")
+    return 0
+
+
+# ---------------------------------------------------------------------------- convergence
+def _named_points(path):
+    """{id: xyz} of a tunnel JSON's control points or a control-point CSV."""
+    import numpy as np
+
+    from survey.analysis.convergence import control_points
+    from survey.world.mesh import read_meta
+
+    if Path(path).suffix.lower() == ".json":
+        return control_points(read_meta(path))
+    from survey.adjust.controlpoints import read_control_points
+
+    cp = read_control_points(path)
+    return {k: np.asarray(v, dtype=np.float64) for k, v in zip(cp.ids, cp.xyz)}
+
+
+def cmd_convergence(args) -> int:
+    import numpy as np
+
+    from survey.analysis.convergence import chords, radial_change, sections_every
+    from survey.report.epochs import (
+        chords_csv,
+        convergence_markdown,
+        plot_radial,
+        radial_csv,
+    )
+
+    if len(args.epochs) not in (0, 2):
+        raise TunnelsimCLIError(f"Expected two epochs (earlier, later) or none, got "
+                                f"{len(args.epochs)}.")
+    if bool(args.control1) != bool(args.control2):
+        raise TunnelsimCLIError("Expected --control1 and --control2 together, got one.")
+    if not args.epochs and not args.control1:
+        raise TunnelsimCLIError("Expected two epochs or --control1/--control2, got "
+                                "neither: nothing to compare.")
+    if args.epochs and not (args.at or args.every):
+        raise TunnelsimCLIError("Expected --at S[,S...] or --every M with epochs, got "
+                                "neither.")
+    al, centre = _tunnel(args.tunnel)
+    sigma = None if args.sigma_mm is None else args.sigma_mm / 1000.0
+    ch = None
+    if args.control1:
+        ch = chords(_named_points(args.control1), _named_points(args.control2),
+                    alignment=al, sigma_m=sigma)
+    changes: list = []
+    if args.epochs:
+        _check_crs(args, args.epochs)
+        at = floats(args.at, "--at") if args.at else sections_every(al, args.every)
+        changes = radial_change(_epoch_points(args.epochs[0]),
+                                _epoch_points(args.epochs[1]), al, at, centre=centre,
+                                band_m=args.band, angle_step_rad=np.deg2rad(args.angle_step))
+    out = out_dir(args.output, args.force)
+    md = convergence_markdown(ch, changes)
+    write_text(out / "convergence.md", md)
+    said = ["convergence.md", "convergence.json"]
+    summary: dict = {"chords": [] if ch is None else ch.rows(), "sections": []}
+    if ch is not None:
+        write_text(out / "chords.csv", chords_csv(ch))
+        said.append("chords.csv")
+    if changes:
+        from survey.analysis.convergence import summarise
+
+        summary["sections"] = summarise(changes)
+        write_text(out / "radial.csv", radial_csv(changes))
+        plot_radial(changes, out / "radial.png")
+        said += ["radial.csv", "radial.png"]
+    write_json(out / "convergence.json", summary)
+    say(args, md.rstrip() + f"\n-> {out}/ ({', '.join(said)})")
+    return 0
+
+
+__all__ = ["cmd_convergence", "cmd_m3c2", "register"]

@@ -1,0 +1,250 @@
+"""Monitoring commands (issue 17): sections (as-built against design) and rings."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from survey.cli.common import CommandSet, floats, out_dir, pair, say, write_json, write_text
+from survey.errors import TunnelsimCLIError
+
+#: Points of the input used to fit an axis (--fit-axis), a seeded random subset.
+AXIS_POINTS = 200_000
+
+
+def _cut_options(c) -> None:
+    """Input, axis, chainages and band options shared by sections and rings."""
+    c.option("input", path="in",
+             help="cloud (.las/.laz/.ply/.xyz/.txt/.csv/.npz/.e57) or mesh (.ply with "
+                  "faces, .obj/.stl/.off)")
+    c.option("--tunnel-json", path="in",
+             help="tunnel JSON whose alignment gives chainage and the section frame "
+                  "(default: the .json beside a tunnel .ply)")
+    c.option("--fit-axis", action="store_true",
+             help="fit the axis to the input instead (chainage from 0 at one end; the "
+                  "section frame is centred on the profile centre)")
+    c.option("--every", type=float, metavar="M",
+             help="a section every M metres of chainage (at whole multiples of M)")
+    c.option("--at", metavar="C[,C...]", help="sections at these chainages (m)")
+    c.option("--width", type=float, default=0.05, metavar="M",
+             help="half-width of each band along the axis, m (default 0.05; a mesh is "
+                  "cut by the plane itself)")
+    c.option("--max-points", type=int, default=1_000_000, metavar="N",
+             help="most points kept per section (a random subset beyond; default 1e6)")
+    c.option("-o", "--output", required=True, path="out", help="output folder")
+    c.option("--force", action="store_true", help="write into a non-empty folder")
+
+
+def register(commands: CommandSet) -> None:
+    """Add sections and rings."""
+    c = commands.add(
+        "sections", cmd_sections, seeded=True,
+        help="cross-sections against the design: over-/under-break, areas, volumes",
+        description="Cut a cloud (streamed chunk by chunk) or a mesh into cross-sections "
+                    "at chainages of the tunnel's alignment, compare each with the design "
+                    "profile (the tunnel JSON's, or a polyline file of y,z vertices in the "
+                    "section frame: offset left, height above the alignment) and write an "
+                    "as-built report: sections.csv (max/min/mean deviation, over- and "
+                    "underbreak areas, tolerance classes), volumes.csv (average end areas), "
+                    "contours.csv (the as-built line), report.md, report.json and one "
+                    "section_<km>+<m>.png per chainage.",
+        epilog="Example: tunnelsim sections scan.laz --tunnel-json bfo.json --every 5 "
+               "-o sections/")
+    _cut_options(c)
+    c.option("--design", path="in",
+             help="design profile file (CSV/TXT of y,z in the section frame; default: "
+                  "the tunnel JSON's profile)")
+    c.option("--design-order", choices=["file", "angle"], default="file",
+             help="vertex order of --design: as in the file, or sorted by angle about "
+                  "their centroid (digitised points saved sorted by x)")
+    c.option("--design-shift", metavar="DY,DZ",
+             help="move --design by DY,DZ metres into the section frame (a profile in "
+                  "drawing coordinates)")
+    c.option("--design-closed", choices=["auto", "yes", "no"], default="auto",
+             help="whether --design is a closed profile (auto: see the docs)")
+    c.option("--bin", type=float, default=0.05, metavar="M",
+             help="bin length along the design for the as-built line, m (default 0.05)")
+    c.option("--tolerance", metavar="MM[,MM...]",
+             help="deviation class edges in mm (default -20,0,50,100,200)")
+    c.option("--no-plots", action="store_true", help="write no section PNGs")
+
+    c = commands.add(
+        "rings", cmd_rings, seeded=True,
+        help="best-fit circle and ellipse per section: diameters, ovality, centre offset",
+        description="Cut a cloud or a mesh into cross-sections as 'sections' does and fit "
+                    "a circle and an ellipse to each (algebraic start, then orthogonal-"
+                    "distance Gauss-Newton/LM; outliers beyond 3 robust sigma dropped): "
+                    "rings.csv, rings.md, rings.json and rings.png (diameters, ovality, "
+                    "centre offset from the design centre along the chainage).",
+        epilog="Example: tunnelsim rings tbm_scan.laz --tunnel-json tbm.json --every 1.5 "
+               "--width 0.02 -o rings/")
+    _cut_options(c)
+    c.option("--nominal-diameter", type=float, metavar="M",
+             help="nominal diameter for the ovality (default: the mean of the fitted "
+                  "axes)")
+    c.option("--min-height", type=float, metavar="M",
+             help="use only points at least this high in the section frame (leave out "
+                  "the invert, track bed or walkway)")
+
+
+def _alignment(args):
+    """(Alignment, Profile or None): from --tunnel-json (or the JSON beside a tunnel
+    PLY) or fitted to the input (--fit-axis)."""
+    from survey.world.alignment import Alignment
+    from survey.world.mesh import read_meta, sidecar
+    from survey.world.profiles import Profile
+
+    js = args.tunnel_json
+    if js is None and not args.fit_axis and Path(args.input).suffix.lower() == ".ply" \
+            and sidecar(args.input).is_file():
+        js = str(sidecar(args.input))
+    if js is not None and args.fit_axis:
+        raise TunnelsimCLIError("Expected --tunnel-json or --fit-axis, got both.")
+    if js is None and not args.fit_axis:
+        raise TunnelsimCLIError("Expected --tunnel-json T.json (the alignment) or "
+                                "--fit-axis, got neither.")
+    if js is not None:
+        meta = read_meta(js)
+        if not isinstance(meta.get("alignment"), dict):
+            raise TunnelsimCLIError(f"Expected an 'alignment' in '{js}' (a JSON written by "
+                                    "'tunnelsim tunnel'), got none.")
+        prof = Profile.from_dict(meta["profile"]) if isinstance(meta.get("profile"),
+                                                                dict) else None
+        return Alignment.from_dict(meta["alignment"]), prof
+    return _fitted_axis(args), None
+
+
+def _fitted_axis(args):
+    """An alignment fitted to a seeded random subset of the input's points."""
+    import numpy as np
+
+    from survey.analysis.sections import MESH_SUFFIXES
+    from survey.clouds.axis import estimate_axis
+    from survey.clouds.cloudio import iter_points, read_reference
+
+    p = Path(args.input)
+    if p.suffix.lower() in MESH_SUFFIXES + (".ply",):
+        v, _ = read_reference(p)
+        pts = v
+    else:
+        rng = np.random.default_rng(args.seed)
+        keep, keys = np.empty((0, 3)), np.empty(0)
+        for chunk in iter_points(p):   # bottom-k: a uniform subset, bounded memory
+            keep = np.vstack([keep, chunk])
+            keys = np.concatenate([keys, rng.random(len(chunk))])
+            if len(keys) > AXIS_POINTS:
+                sel = np.argpartition(keys, AXIS_POINTS - 1)[:AXIS_POINTS]
+                keep, keys = keep[sel], keys[sel]
+        pts = keep
+    al, _ = estimate_axis(pts)
+    return al
+
+
+def _chainages(args, al):
+    from survey.analysis.sections import section_chainages
+
+    if (args.every is None) == (args.at is None):
+        raise TunnelsimCLIError("Expected --every M or --at C[,C...] (section chainages), "
+                                f"got {'both' if args.every is not None else 'neither'}.")
+    at = floats(args.at, "--at") if args.at is not None else None
+    return section_chainages(al, every_m=args.every, at=at, half_width_m=args.width)
+
+
+def _design(args, prof, fitted):
+    """The design profile: --design, or the tunnel JSON's profile."""
+    from survey.analysis.design import DesignProfile, read_design_profile
+
+    if args.design is not None:
+        shift = pair(args.design_shift, "--design-shift as DY,DZ in metres") \
+            if args.design_shift else (0.0, 0.0)
+        closed = {"auto": None, "yes": True, "no": False}[args.design_closed]
+        d = read_design_profile(args.design, closed=closed, order=args.design_order,
+                                shift_m=shift)
+    elif prof is not None:
+        d = DesignProfile.from_profile(prof)
+    else:
+        raise TunnelsimCLIError("Expected --design FILE with --fit-axis (there is no "
+                                "tunnel JSON profile), got none.")
+    if fitted:
+        # DECISION: a fitted axis runs through the profile's mid-range centre
+        # (survey.clouds.axis.estimate_axis), so the design is centred the same way.
+        y0, y1, z0, z1 = d.extent()
+        d = d.shifted(-0.5 * (y0 + y1), -0.5 * (z0 + z1))
+    return d
+
+
+def _cuts(args, al, chainages):
+    from survey.analysis.sections import cut_file
+
+    if args.width is None or not args.width >= 0:
+        raise TunnelsimCLIError(f"Expected --width >= 0 m, got {args.width}.")
+    return cut_file(args.input, al, chainages, args.width, max_points=args.max_points,
+                    seed=args.seed)
+
+
+def cmd_sections(args) -> int:
+    import numpy as np
+
+    from survey.analysis.overbreak import TOLERANCE_EDGES_M, compare_sections
+    from survey.report.sections import (contours_csv, plot_section, section_png_name,
+                                        sections_csv, sections_markdown, volumes_csv)
+
+    if not Path(args.input).is_file():
+        raise TunnelsimCLIError(f"Expected an input cloud or mesh, got '{args.input}' which "
+                                "does not exist.")
+    edges = TOLERANCE_EDGES_M if args.tolerance is None else \
+        tuple(np.asarray(floats(args.tolerance, "--tolerance")) / 1000.0)
+    al, prof = _alignment(args)
+    design = _design(args, prof, args.fit_axis)
+    chainages = _chainages(args, al)
+    out = out_dir(args.output, args.force)
+    cuts = _cuts(args, al, chainages)
+    rep = compare_sections(cuts, design, alignment=al, bin_m=args.bin,
+                           tolerance_edges_m=edges, seed=args.seed)
+    write_text(out / "sections.csv", sections_csv(rep))
+    write_text(out / "volumes.csv", volumes_csv(rep))
+    write_text(out / "contours.csv", contours_csv(rep))
+    write_json(out / "report.json", rep.to_dict())
+    write_text(out / "report.md", sections_markdown(rep, source=Path(args.input).name,
+                                                    plots=not args.no_plots))
+    if not args.no_plots:
+        for s in rep.sections:
+            plot_section(s, rep, out / section_png_name(s.chainage_m))
+    worst = max(rep.sections, key=lambda s: s.max_m)
+    say(args, f"{len(rep.sections)} sections against '{design.name}': overbreak "
+              f"{rep.overbreak_m3:.3f} m^3, underbreak {rep.underbreak_m3:.3f} m^3; largest "
+              f"overbreak {1000 * worst.max_m:.0f} mm at {worst.chainage_m:g} m -> {out}/")
+    return 0
+
+
+def cmd_rings(args) -> int:
+    import numpy as np
+
+    from survey.analysis.design import DesignProfile
+    from survey.analysis.rings import fit_rings
+    from survey.analysis.sections import SectionCut
+    from survey.report.sections import plot_rings, rings_csv, rings_markdown
+
+    if not Path(args.input).is_file():
+        raise TunnelsimCLIError(f"Expected an input cloud or mesh, got '{args.input}' which "
+                                "does not exist.")
+    al, prof = _alignment(args)
+    chainages = _chainages(args, al)
+    out = out_dir(args.output, args.force)
+    cuts = _cuts(args, al, chainages)
+    if args.min_height is not None:
+        cuts = [SectionCut(c.chainage_m, c.half_width_m, c.yz[c.yz[:, 1] >= args.min_height],
+                           c.n_in_band) for c in cuts]
+    ref = DesignProfile.from_profile(prof).centre if prof is not None else np.zeros(2)
+    rings = fit_rings(cuts, reference_centre=ref, nominal_diameter_m=args.nominal_diameter)
+    write_text(out / "rings.csv", rings_csv(rings))
+    write_text(out / "rings.md", rings_markdown(rings, source=Path(args.input).name))
+    write_json(out / "rings.json", [r.to_dict() for r in rings])
+    plot_rings(rings, out / "rings.png")
+    dmax = max(r.ellipse.diameters_m[0] for r in rings)
+    dmin = min(r.ellipse.diameters_m[1] for r in rings)
+    say(args, f"{len(rings)} rings: diameters {1000 * dmin:.1f} to {1000 * dmax:.1f} mm, "
+              f"largest ovality {100 * max(r.ovality for r in rings):.3f} % -> {out}/")
+    return 0
+
+
+__all__ = ["AXIS_POINTS", "cmd_rings", "cmd_sections", "register"]
