@@ -61,11 +61,47 @@ class ReconstructedTunnel:
         return float(np.mean(self.support == 0))
 
 
+def extend_chainage(alignment: Alignment, points: ArrayLike, s: ArrayLike
+                    ) -> NDArray[np.float64]:
+    """Chainages (n,) of points (n, 3) with the alignment extended straight beyond its
+    ends: ``Alignment.to_local`` gives a point beyond an end that end's chainage; here
+    it gets the end chainage plus its distance along the end tangent (negative before
+    the start)."""
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    s = np.array(s, dtype=np.float64)
+    c0, c1 = alignment.chainage_range
+    for end in (c0, c1):
+        at = np.flatnonzero(s == end)
+        if len(at):
+            xy, th, _ = alignment.plan(np.full(len(at), end))
+            d = p[at, :2] - xy
+            along = d[:, 0] * np.cos(th) + d[:, 1] * np.sin(th)
+            s[at] = end + (np.minimum(along, 0.0) if end == c0 else np.maximum(along, 0.0))
+    return s
+
+
+def to_world_extended(alignment: Alignment, chainage: ArrayLike, offset: ArrayLike,
+                      height: ArrayLike) -> NDArray[np.float64]:
+    """``Alignment.to_world`` with chainages beyond the ends on the end tangent, at the
+    end's elevation (the straight extension of ``extend_chainage``)."""
+    s = np.asarray(chainage, dtype=np.float64)
+    c0, c1 = alignment.chainage_range
+    sc = np.clip(s, c0, c1)
+    w = alignment.to_world(sc, offset, height)
+    beyond = s - sc
+    if np.any(beyond != 0):
+        th = alignment.heading(sc)
+        w[..., 0] += beyond * np.cos(th)
+        w[..., 1] += beyond * np.sin(th)
+    return w
+
+
 def reconstruct_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
                        centre_height_m: float | None = None, cell_m: float = 0.1,
                        cell_rad: float = np.deg2rad(2.0), min_points: int = 3,
                        margin_m: float = 0.0,
-                       rows_at: ArrayLike | None = None) -> ReconstructedTunnel:
+                       rows_at: ArrayLike | None = None,
+                       end_reach_m: float | None = None) -> ReconstructedTunnel:
     """Mesh a tunnel lining from points (see module doc).
 
     alignment, centre_height_m : optional known centreline and height of the profile
@@ -76,6 +112,12 @@ def reconstruct_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
     rows_at : optional increasing chainages of the mesh rings (e.g. the chainages of
         measured profiles); each point goes to the nearest ring within half the local
         spacing. Default: rings every ``cell_m``.
+    end_reach_m : how far beyond the alignment's ends points still count (m), measured
+        along the end tangent; the rings may then lie beyond the ends (the alignment
+        extended straight). Default: with ``rows_at``, half the spacing of the end rings
+        (a profile whose plane is not quite normal to an estimated axis keeps the part
+        that lies beyond the axis's end: without it the first ring lost a wall at
+        Ringo's portal and was filled by a chord 0.5 m inside); else 0.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or not np.isfinite(p).all():
@@ -87,7 +129,16 @@ def reconstruct_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
                                   f"{cell_m}, {cell_rad}.")
     alignment, hc, s, off, h, phi, rho = unroll(p, alignment, centre_height_m)
     c0, c1 = alignment.chainage_range
-    use = (s > c0 + 1e-9) & (s < c1 - 1e-9)
+    s = extend_chainage(alignment, p, s)
+    if end_reach_m is None:
+        if rows_at is None:
+            end_reach_m = 0.0
+        else:
+            r = np.asarray(rows_at, dtype=np.float64)
+            end_reach_m = 0.5 * float(min(r[1] - r[0], r[-1] - r[-2])) if len(r) > 1 else 0.0
+    use = (s >= c0 - end_reach_m) & (s <= c1 + end_reach_m)
+    if end_reach_m == 0.0:
+        use &= (s > c0 + 1e-9) & (s < c1 - 1e-9)
     if use.sum() == 0:
         raise ReconstructionError("Expected points along the alignment, got none within "
                                   "its chainage range.")
@@ -129,7 +180,8 @@ def reconstruct_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
     ac = -np.pi + (np.arange(n_a) + 0.5) * da
     o = grid * np.sin(ac)[None, :]
     z = hc + grid * np.cos(ac)[None, :]
-    verts = alignment.to_world(np.broadcast_to(sc[:, None], grid.shape), o, z).reshape(-1, 3)
+    verts = to_world_extended(alignment, np.broadcast_to(sc[:, None], grid.shape), o,
+                              z).reshape(-1, 3)
     # Faces: grid quads. The angle runs bottom -> right wall -> crown -> left wall,
     # clockwise in the (offset, height) plane, so (a, b, c) winds the normals inwards.
     a_ = (np.arange(n_s - 1)[:, None] * n_a + np.arange(n_a)[None, :]).ravel()
@@ -178,10 +230,11 @@ def poisson_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
     flip = np.einsum("ij,ij->i", n, axis - (p - origin)) < 0
     n[flip] *= -1.0                                   # towards the axis (the scanner side)
     pc.normals = o3d.utility.Vector3dVector(n)
-    mesh, dens = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pc, depth=depth)
+    mesh, o3d_dens = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pc,
+                                                                                depth=depth)
     v = np.asarray(mesh.vertices) + origin
     f = np.asarray(mesh.triangles).astype(np.int64)
-    dens = np.asarray(dens)
+    dens = np.asarray(o3d_dens, dtype=np.float64)
     sv, _, _ = alignment.to_local(v)
     keep = (dens >= np.quantile(dens, density_quantile)) & (sv >= s.min()) & (sv <= s.max())
     f = f[keep[f].all(axis=1)]
