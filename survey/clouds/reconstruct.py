@@ -114,10 +114,10 @@ def reconstruct_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
         spacing. Default: rings every ``cell_m``.
     end_reach_m : how far beyond the alignment's ends points still count (m), measured
         along the end tangent; the rings may then lie beyond the ends (the alignment
-        extended straight). Default: with ``rows_at``, half the spacing of the end rings
-        (a profile whose plane is not quite normal to an estimated axis keeps the part
-        that lies beyond the axis's end: without it the first ring lost a wall at
-        Ringo's portal and was filled by a chord 0.5 m inside); else 0.
+        extended straight). Default: with ``rows_at``, as far as the end rings' halves
+        reach (an estimated axis ends ~2 m inside the data, and a profile whose plane is
+        not quite normal to it has a part beyond its end: without them the first ring
+        lost a wall at Ringo's portal and was filled by a chord 0.5 m inside); else 0.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or not np.isfinite(p).all():
@@ -133,9 +133,13 @@ def reconstruct_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
     if end_reach_m is None:
         if rows_at is None:
             end_reach_m = 0.0
-        else:
-            r = np.asarray(rows_at, dtype=np.float64)
-            end_reach_m = 0.5 * float(min(r[1] - r[0], r[-1] - r[-2])) if len(r) > 1 else 0.0
+        else:               # as far as the end rings' own halves reach
+            r = np.asarray(rows_at, dtype=np.float64).reshape(-1)
+            if len(r) > 1:
+                end_reach_m = max(0.0, c0 - (r[0] - 0.5 * (r[1] - r[0])),
+                                  (r[-1] + 0.5 * (r[-1] - r[-2])) - c1)
+            else:
+                end_reach_m = 0.0
     use = (s >= c0 - end_reach_m) & (s <= c1 + end_reach_m)
     if end_reach_m == 0.0:
         use &= (s > c0 + 1e-9) & (s < c1 - 1e-9)
