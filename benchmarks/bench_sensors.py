@@ -1,11 +1,19 @@
 """Sensor benchmark: a full Z+F IMAGER 5016 station streamed to LAZ, against Open3D's
-bare casting of the same rays, in one run.
+bare casting of the same rays and against lazrs compressing the same points alone, and
+a RoboSense Airy drive end to end to LAZ/LAS/NPZ against real time, in one run.
 
 * ``ours``: ``sensors.simulate_station`` end to end: pattern generation, casting (cube
   map from the station), return physics (noise, jitter, detection, intensity) and the
   LAZ writer (compact extra bytes, the station default), into a temporary file.
 * ``open3d``: the same rays (same pattern, generated outside the timing) through
   ``open3d.t.geometry.RaycastingScene.cast_rays`` in chunks of 1M rays; casting only.
+* ``lazrs``: the station's points (written to LAS by ``ours`` first, untimed) compressed
+  to LAZ by laspy + lazrs alone, chunk by chunk: the floor for ``ours`` to LAZ.
+* ``drive``: the Airy at 1 m/s along the centreline of the same tunnel (0.5 m above the
+  floor, from chainage 50 m) for ``--drive-s`` seconds, simulated and written by
+  ``Run.write`` (writer thread on), once per ``--drive-formats`` entry, plus a pass
+  without writing (``sim``): wall time, real-time factor (simulated seconds / wall
+  seconds) and M points/s.
 
 Each engine runs in its own subprocess; peak memory is its maximum RSS. The mesh is the
 ``bfo`` preset (300 m gallery with cables, niches, bolts and prisms) at the edge length
@@ -16,6 +24,7 @@ Usage::
 
     python benchmarks/bench_sensors.py                       # superhigh: 225M rays
     python benchmarks/bench_sensors.py --resolution high --json out.json
+    python benchmarks/bench_sensors.py --engines drive --drive-s 60
 
 Needs the ``bench`` extra (open3d); Open3D also needs libusb-1.0 (Debian:
 ``apt-get install libusb-1.0-0``).
@@ -99,6 +108,81 @@ def _open3d(a) -> dict:
             "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
 
 
+def _lazrs(a) -> dict:
+    """lazrs alone: the station's LAS records (from ``ours``, untimed) to LAZ."""
+    import laspy
+
+    from raytrace import Scene
+    from sensors import simulate_station
+
+    tun, at = _world(a.edge)
+    scene = Scene(tun.vertices, tun.faces)
+    src = Path(a.tmp) / "station_for_lazrs.las"
+    run = simulate_station(scene, "zf_imager_5016", at, resolution=a.resolution,
+                           reflectivity=tun.reflectivity)
+    run.write(src, fields=a.fields)
+    wall = 0.0
+    with laspy.open(src) as r:
+        head = r.header
+        n = head.point_count
+        # Same chunks as the writer's (one per simulated chunk, ~1M pulses).
+        with laspy.open(Path(a.tmp) / "lazrs.laz", mode="w", header=head,
+                        do_compress=True) as w:
+            for rec in r.chunk_iterator(1 << 20):
+                t0 = time.perf_counter()
+                w.write_points(rec)
+                wall += time.perf_counter() - t0
+            t0 = time.perf_counter()
+        wall += time.perf_counter() - t0                  # the close (last chunk)
+    return {"engine": "lazrs", "triangles": int(len(tun.faces)), "build_s": 0.0,
+            "rays": run.n_pulses, "points": int(n), "wall_s": wall,
+            "mrays_per_s": run.n_pulses / wall / 1e6,
+            "file_mb": (Path(a.tmp) / "lazrs.laz").stat().st_size / 2**20,
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}
+
+
+def _drive(a) -> list[dict]:
+    from raytrace import Scene
+    from sensors import Mount, Trajectory, load_sensor, simulate_drive
+
+    tun, _ = _world(a.edge)
+    scene = Scene(tun.vertices, tun.faces)
+    s = np.array([50.0, 50.0 + a.drive_s + 1.0])
+    truth = Trajectory.along_polyline(tun.alignment.to_world(s, 0.0, 0.5), 1.0)
+    sensor = load_sensor("robosense_airy")
+
+    def run(d):
+        return simulate_drive(scene, sensor, truth, Mount(), seed=1,
+                              reflectivity=tun.reflectivity, t_end=truth.start_s + d)
+    # Compile every kernel outside the timing (a short drive, every format).
+    for spec in a.drive_formats:
+        fmt, fields = spec.split(":")
+        run(0.1).write(Path(a.tmp) / f"warm.{fmt}", fields=fields)
+    rows = []
+    for spec in ["sim:-"] + list(a.drive_formats):
+        fmt, fields = spec.split(":")
+        r = run(a.drive_s)
+        t0 = time.perf_counter()
+        c0 = time.process_time()
+        if fmt == "sim":
+            n = sum(len(c) for c in r)
+            size = 0.0
+        else:
+            out = Path(a.tmp) / f"drive.{fmt}"
+            n = r.write(out, fields=fields)["points"]
+            size = out.stat().st_size / 2**20
+            out.unlink()
+        wall = time.perf_counter() - t0
+        rows.append({"engine": f"drive {fmt}" + ("" if fmt in ("sim", "npz", "ply")
+                                                 else f" {fields}"),
+                     "simulated_s": a.drive_s, "pulses": r.n_pulses, "points": int(n),
+                     "wall_s": wall, "cpu_s": time.process_time() - c0,
+                     "realtime_factor": a.drive_s / wall, "mpoints_per_s": n / wall / 1e6,
+                     "file_mb": size,
+                     "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024})
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--resolution", default="superhigh")
@@ -107,33 +191,59 @@ def main():
                          "all; 0.09 m: ~1M)")
     ap.add_argument("--format", default="laz", choices=["laz", "las", "npz", "ply"])
     ap.add_argument("--fields", default="compact", choices=["compact", "full"])
-    ap.add_argument("--engines", nargs="+", default=["ours", "open3d"])
+    ap.add_argument("--engines", nargs="+", default=["ours", "open3d", "lazrs", "drive"],
+                    choices=["ours", "open3d", "lazrs", "drive"])
+    ap.add_argument("--drive-s", type=float, default=60.0,
+                    help="simulated seconds of the Airy drive (default 60, as issue 16)")
+    ap.add_argument("--drive-formats", nargs="+",
+                    default=["laz:compact", "laz:full", "las:full", "npz:full"],
+                    help="FORMAT:FIELDS entries written by the drive rows")
     ap.add_argument("--json", help="write the figures to this file")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--tmp", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
-        print(json.dumps({"ours": _ours, "open3d": _open3d}[a.child](a)))
+        print(json.dumps({"ours": _ours, "open3d": _open3d, "lazrs": _lazrs,
+                          "drive": _drive}[a.child](a)))
         return
-    rows = []
+    rows: list[dict] = []
+    drives: list[dict] = []
     with tempfile.TemporaryDirectory() as tmp:
         for eng in a.engines:
             cmd = [sys.executable, __file__, "--child", eng, "--tmp", tmp, "--resolution",
                    a.resolution, "--edge", str(a.edge), "--format", a.format, "--fields",
-                   a.fields]
+                   a.fields, "--drive-s", str(a.drive_s), "--drive-formats",
+                   *a.drive_formats]
             out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
-            rows.append(json.loads(out.strip().splitlines()[-1]))
+            got = json.loads(out.strip().splitlines()[-1])
+            if eng == "drive":
+                drives += got
+                for r in got:
+                    print(f"{r['engine']:22s} {r['simulated_s']:.0f} s, {r['points']:,} "
+                          f"points: {r['wall_s']:.1f} s wall ({r['cpu_s']:.1f} s CPU), "
+                          f"{r['realtime_factor']:.2f}x real time, "
+                          f"{r['mpoints_per_s']:.2f} M points/s, file "
+                          f"{r['file_mb']:.0f} MB, peak RSS {r['peak_rss_mb']:.0f} MB",
+                          flush=True)
+                continue
+            rows.append(got)
             r = rows[-1]
             print(f"{r['engine']:7s} {r['triangles']:,} triangles, {r['rays']:,} rays -> "
                   f"{r['points']:,} points: {r['wall_s']:.1f} s, {r['mrays_per_s']:.2f} "
                   f"Mrays/s, peak RSS {r['peak_rss_mb']:.0f} MB, file {r['file_mb']:.0f} MB",
                   flush=True)
-    if len(rows) == 2:
+    by = {r["engine"]: r for r in rows}
+    if "ours" in by and "open3d" in by:
         print(f"ratio ours end-to-end / Open3D bare casting: "
-              f"{rows[0]['mrays_per_s'] / rows[1]['mrays_per_s']:.2f}")
+              f"{by['ours']['mrays_per_s'] / by['open3d']['mrays_per_s']:.2f}")
+    if "ours" in by and "lazrs" in by and a.format == "laz":
+        print(f"ratio ours end-to-end to LAZ / lazrs compressing the same points alone: "
+              f"{by['ours']['mrays_per_s'] / by['lazrs']['mrays_per_s']:.2f}")
     if a.json:
         Path(a.json).write_text(json.dumps({"resolution": a.resolution, "format": a.format,
-                                            "fields": a.fields, "rows": rows}, indent=1))
+                                            "fields": a.fields, "rows": rows,
+                                            "drive_s": a.drive_s, "drives": drives},
+                                           indent=1))
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """The simulated point record: ``POINT_DTYPE``, shared by the simulation loop (which
-fills it) and the file writers (which store it).
+fills it) and the file writers (which store it), and ``FILE_FIELDS``, the one table of
+the names those fields carry in files.
 
 Fields (SI, radians):
 
@@ -13,13 +14,27 @@ Fields (SI, radians):
 - ``intensity`` in [0, 1]; ``incidence`` (rad) between beam and surface normal, in
   [0, pi/2] (0 for particles); ``triangle``: input face index (-1 for particles);
   ``flag``: 1 surface, 2 particle, 3 mixed.
+
+File names (issue 22): every file format (LAS/LAZ, PLY, NPZ) names a field as LAS does,
+``FILE_FIELDS`` below: ``sensor_x, sensor_y, sensor_z`` for ``sx, sy, sz`` and
+``gps_time`` for ``time`` (the pulse time in the trajectory's time base, in the slot
+LAS calls GPS time); the other names are the same in memory and in files. In LAS, x, y,
+z are the scaled coordinates, ``intensity`` is the standard dimension (x 65535, uint16)
+and ``gps_time`` the standard one; the rest are extra bytes. PLY and NPZ store every
+field as ``POINT_DTYPE`` holds it (float ``intensity`` in [0, 1]). Files written before
+this naming hold ``sx, sy, sz, time`` in PLY and NPZ: readers take both
+(``point_field``).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["FIELD_NAMES", "FIELD_UNITS", "POINT_DTYPE", "XYZ"]
+__all__ = ["FIELD_NAMES", "FIELD_UNITS", "FILE_DTYPE", "FILE_FIELDS", "FILE_NAMES",
+           "LAS_COMPACT", "LAS_EXTRA", "POINT_DTYPE", "XYZ", "FileField", "field_offset",
+           "file_records", "point_field"]
 
 #: One simulated return (a structured NumPy dtype, native byte order).
 POINT_DTYPE = np.dtype([
@@ -34,10 +49,116 @@ FIELD_NAMES: tuple[str, ...] = tuple(POINT_DTYPE.names or ())
 #: The world-coordinate fields.
 XYZ = ("x", "y", "z")
 
+
+@dataclass(frozen=True)
+class FileField:
+    """How one ``POINT_DTYPE`` field is named and stored in files.
+
+    field : str
+        The ``POINT_DTYPE`` name (in memory).
+    name : str
+        The name in every file format (LAS dimension, PLY property, NPZ array).
+    unit : str
+        SI unit ("m", "s", "rad"; "1" for counts, indices and fractions).
+    las : str
+        How LAS/LAZ stores it: "xyz" (scaled integer coordinates), "standard" (a
+        point format 6 dimension of that name) or an extra-bytes type ("f8", "u4", ...).
+    old_name : str
+        The PLY/NPZ name of files written before this naming (== ``name`` where it
+        did not change).
+    """
+
+    field: str
+    name: str
+    unit: str
+    las: str
+    old_name: str
+
+
+# DECISION: the LAS names for every format (not the in-memory ones): LAS is the format
+# other tools read (CloudCompare, PDAL, laspy users look for gps_time), its standard
+# dimensions cannot be renamed, and sensor_x says what sx leaves to guess. The LAS
+# extra-bytes types are the ones written since the first LAS writer (channel, column
+# and frame as uint32), so LAS files stay byte-identical.
+FILE_FIELDS: tuple[FileField, ...] = (
+    FileField("x", "x", "m", "xyz", "x"),
+    FileField("y", "y", "m", "xyz", "y"),
+    FileField("z", "z", "m", "xyz", "z"),
+    FileField("sx", "sensor_x", "m", "f8", "sx"),
+    FileField("sy", "sensor_y", "m", "f8", "sy"),
+    FileField("sz", "sensor_z", "m", "f8", "sz"),
+    FileField("range", "range", "m", "f8", "range"),
+    FileField("azimuth", "azimuth", "rad", "f4", "azimuth"),
+    FileField("elevation", "elevation", "rad", "f4", "elevation"),
+    FileField("time", "gps_time", "s", "standard", "time"),
+    FileField("channel", "channel", "1", "u4", "channel"),
+    FileField("column", "column", "1", "u4", "column"),
+    FileField("frame", "frame", "1", "u4", "frame"),
+    FileField("intensity", "intensity", "1", "standard", "intensity"),
+    FileField("incidence", "incidence", "rad", "f4", "incidence"),
+    FileField("triangle", "triangle", "1", "i4", "triangle"),
+    FileField("flag", "flag", "1", "u1", "flag"),
+)
+
+#: ``POINT_DTYPE`` field -> its name in files.
+FILE_NAMES: dict[str, str] = {f.field: f.name for f in FILE_FIELDS}
+
 #: Unit of every ``POINT_DTYPE`` field ("1" for counts, indices and fractions); the
 #: module docstring gives each field's meaning. Angles are radians.
-FIELD_UNITS: dict[str, str] = {
-    **dict.fromkeys(("x", "y", "z", "sx", "sy", "sz", "range"), "m"),
-    **dict.fromkeys(("azimuth", "elevation", "incidence"), "rad"), "time": "s",
-    **dict.fromkeys(("channel", "column", "frame", "intensity", "triangle", "flag"), "1"),
-}
+FIELD_UNITS: dict[str, str] = {f.field: f.unit for f in FILE_FIELDS}
+
+def field_offset(dtype: np.dtype, name: str) -> int:
+    """Byte offset of field ``name`` in the records of the structured ``dtype``."""
+    fields = dtype.fields
+    if fields is None or name not in fields:
+        raise KeyError(f"Expected a field {name!r} in {dtype}, got none.")
+    return int(fields[name][1])
+
+
+#: ``POINT_DTYPE``'s layout under the file names: a chunk viewed with it is written to
+#: PLY or NPZ without a copy.
+FILE_DTYPE = np.dtype({"names": [FILE_NAMES[n] for n in FIELD_NAMES],
+                       "formats": [POINT_DTYPE[n] for n in FIELD_NAMES],
+                       "offsets": [field_offset(POINT_DTYPE, n) for n in FIELD_NAMES],
+                       "itemsize": POINT_DTYPE.itemsize})
+
+#: LAS extra bytes of the "full" layout, in record order: (file name, POINT_DTYPE
+#: field, stored type).
+LAS_EXTRA: tuple[tuple[str, str, str], ...] = tuple(
+    (f.name, f.field, f.las) for f in FILE_FIELDS if f.las not in ("xyz", "standard"))
+
+#: Extra bytes of the "compact" LAS layout (the default for TLS stations, whose
+#: sensor-frame coordinates, range and angles follow from the world point and the
+#: station pose stored in the tunnelsim VLR).
+LAS_COMPACT: tuple[str, ...] = ("channel", "column", "triangle", "flag")
+
+_BY_NAME = {**{f.old_name: f.field for f in FILE_FIELDS},
+            **{f.name: f.field for f in FILE_FIELDS}}
+
+# Import-time guard: FILE_FIELDS lists every field once, in record order (the order
+# of LAS extra bytes, PLY properties and NPZ arrays).
+if tuple(FILE_NAMES) != FIELD_NAMES or len(set(FILE_NAMES.values())) != len(FILE_FIELDS):
+    raise AssertionError("FILE_FIELDS must name every POINT_DTYPE field once, in order")
+
+
+def point_field(name: str) -> str | None:
+    """The ``POINT_DTYPE`` field a file's dimension, property or array ``name`` holds
+    (the current file name or the one of earlier versions; case as written), or None
+    for a name that is not one of tunnelsim's.
+
+    >>> point_field("sensor_x"), point_field("sx"), point_field("gps_time")
+    ('sx', 'sx', 'time')
+    """
+    return _BY_NAME.get(name)
+
+
+def file_records(points: np.ndarray) -> np.ndarray:
+    """The records ``points`` (n,) with the file names (``FILE_DTYPE``): a view of an
+    array of exactly ``POINT_DTYPE``, else a copy of its ``POINT_DTYPE`` fields."""
+    pts = np.asarray(points)
+    if pts.dtype == POINT_DTYPE:
+        return pts.view(FILE_DTYPE)
+    out = np.empty(pts.shape, dtype=FILE_DTYPE)
+    for n in FIELD_NAMES:
+        out[FILE_NAMES[n]] = pts[n]
+    return out

@@ -40,9 +40,10 @@ from typing import Any, Self
 import numpy as np
 
 from .errors import PointFileError
+from .fields import field_offset
 from .stream import AtomicStream, deferred_interrupt
 
-__all__ = ["CRS_USER", "LAS_SCALE", "LasSource", "LasWriter", "is_crs_record",
+__all__ = ["CRS_USER", "LAS_SCALE", "LasRecords", "LasSource", "LasWriter", "is_crs_record",
            "las_crs_wkt", "offsets_near", "output_header", "point_records", "quantize",
            "set_las_crs", "write_las"]
 
@@ -336,6 +337,117 @@ def point_records(header: Any, xyz: np.ndarray,
     for name, v in (fields or {}).items():
         a[name] = v
     return rec
+
+
+class LasRecords:
+    """Point records for ``header`` built into one reused buffer (a stream of chunks
+    would otherwise allocate, and page in, a new record array per chunk).
+
+    ``fill`` returns a laspy ``ScaleAwarePointRecord`` that views the buffer: it is
+    valid until the next ``fill`` (hand it to a writer before then). The coordinates
+    are quantised as ``quantize`` does it, column by column with the same arithmetic
+    (same integers); every other dimension holds what NumPy's assignment would put
+    there (files are byte-identical to ``point_records``'s).
+
+    DECISION: not field by field. The computed dimensions go into a small packed
+    array first; it and the ``copies`` from the caller's records are then moved into
+    the LAS records as runs of adjacent bytes (a NumPy void-field copy per run, a
+    memcpy per record): a full Airy record is 2 runs from the packed array and 5 from
+    the POINT_DTYPE records, not 23 typed field assignments, each of which reads
+    every cache line of both arrays. Measured per 860k points (2-core VM): typed
+    assignment 0.27 s, a byte-copy Numba kernel 0.10 s CPU, void runs 0.036 s CPU.
+    """
+
+    def __init__(self, header: Any) -> None:
+        self.header = header
+        self.dtype = header.point_format.dtype()
+        self._buf = np.empty(0, dtype=self.dtype)
+        self._aux = np.empty(0, dtype=np.uint8)
+        self._scales = np.asarray(header.scales, dtype=np.float64)
+        self._offsets = np.asarray(header.offsets, dtype=np.float64)
+
+    def _bytes_alike(self, name: str, src: np.dtype) -> bool:
+        dst = self.dtype[name]
+        if src.shape or dst.shape or src.itemsize != dst.itemsize or \
+                not (src.isnative and dst.isnative):
+            return False
+        return src == dst or (src.kind in "iu" and dst.kind in "iu")
+
+    def fill(self, xyz: tuple[np.ndarray, np.ndarray, np.ndarray] | np.ndarray,
+             fields: Mapping[str, Any] | None = None, *, records: np.ndarray | None = None,
+             copies: Mapping[str, str] | None = None) -> Any:
+        """Records with coordinates ``xyz`` (three (n,) columns, or (n, 3)), the
+        dimensions ``fields`` {name: (n,) array or scalar} (raw names such as
+        ``bit_fields`` accepted) and ``copies`` {dimension: field of ``records``}
+        (a structured (n,) array; an integer field goes to an integer dimension of its
+        size as NumPy casts it); zero elsewhere. Raises ``PointFileError`` for NaN or
+        for coordinates beyond the int32 range, and for an unknown dimension."""
+        import laspy
+
+        cols = [np.asarray(v, dtype=np.float64) for v in
+                (xyz.T if isinstance(xyz, np.ndarray) else xyz)]
+        n = len(cols[0])
+        fields = dict(fields or {})
+        copies = dict(copies or {})
+        names = self.dtype.names or ()
+        unknown = sorted((set(fields) | set(copies)) - set(names[3:]))
+        if unknown:
+            raise PointFileError(f"Expected dimensions of point format "
+                                 f"{self.header.point_format.id} with its extra bytes "
+                                 f"(X, Y, Z from `xyz`), got {unknown}.")
+        if copies and records is None:
+            raise PointFileError("Expected the `records` that `copies` names fields of, "
+                                 "got none.")
+        for name in [k for k, f in copies.items()
+                     if not self._bytes_alike(k, records.dtype[f])]:   # type: ignore[union-attr]
+            fields[name] = records[copies.pop(name)]                   # type: ignore[index]
+        # The dimensions computed here, packed in record order (X, Y, Z first).
+        own = [k for k in names if k not in copies]
+        aux_dt = np.dtype([(k, self.dtype[k]) for k in own])
+        if len(self._buf) < n:
+            self._buf = np.empty(n, dtype=self.dtype)
+        if len(self._aux) < n * aux_dt.itemsize:
+            self._aux = np.empty(n * aux_dt.itemsize, dtype=np.uint8)
+        a = self._buf[:n]
+        aux = self._aux[:n * aux_dt.itemsize].view(aux_dt)
+        for k, name in enumerate("XYZ"):
+            q = np.round((cols[k] - self._offsets[k]) / self._scales[k])
+            if not (np.abs(q) < 2**31 - 1).all():
+                quantize(np.stack(cols, 1), self._scales, self._offsets)   # raises
+            aux[name] = q
+        for name in own[3:]:
+            aux[name] = fields.get(name, 0)
+        if n:
+            _copy_runs(aux, a, [(field_offset(aux_dt, k), field_offset(self.dtype, k),
+                                 aux_dt[k].itemsize) for k in own])
+            if copies and records is not None:
+                _copy_runs(records, a, [(field_offset(records.dtype, f),
+                                         field_offset(self.dtype, k),
+                                         self.dtype[k].itemsize)
+                                        for k, f in copies.items()])
+        return laspy.ScaleAwarePointRecord(a, self.header.point_format, self._scales,
+                                           self._offsets)
+
+
+def _copy_runs(src: np.ndarray, dst: np.ndarray, moves: list[tuple[int, int, int]]
+               ) -> None:
+    """Copy the bytes (source offset, target offset, count) of every record of ``src``
+    (n,) into those of ``dst`` (n,), adjacent moves merged into one run each."""
+    runs: list[list[int]] = []
+    for s, d, k in sorted(moves):
+        if runs and runs[-1][0] + runs[-1][2] == s and runs[-1][1] + runs[-1][2] == d:
+            runs[-1][2] += k
+        else:
+            runs.append([s, d, k])
+    names = [f"r{j}" for j in range(len(runs))]
+    src_v = src.view(np.dtype({"names": names, "formats": [f"V{r[2]}" for r in runs],
+                               "offsets": [r[0] for r in runs],
+                               "itemsize": src.dtype.itemsize}))
+    dst_v = dst.view(np.dtype({"names": names, "formats": [f"V{r[2]}" for r in runs],
+                               "offsets": [r[1] for r in runs],
+                               "itemsize": dst.dtype.itemsize}))
+    for name in names:
+        dst_v[name] = src_v[name]
 
 
 class LasWriter(AtomicStream):

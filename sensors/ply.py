@@ -298,8 +298,14 @@ class PlyWriter(AtomicStream):
                 lines.append(f"property list uchar {ty} {field}" if disk[field].shape
                              else f"property {ty} {field}")
         lines.append("end_header")
+        header = "\n".join(lines) + "\n"
+        if not header.isascii():
+            bad = next(line for line in lines if not line.isascii())
+            raise PointFileError(f"Expected ASCII PLY element and property names and "
+                                 f"comments, got {bad!r}; the source file's header is "
+                                 "damaged.")
         super().__init__(path)
-        self._fh.write(("\n".join(lines) + "\n").encode("ascii"))
+        self._fh.write(header.encode("ascii"))
 
     def write(self, name: str, records: np.ndarray) -> None:
         """Append ``records`` (structured, with at least the element's fields) to
@@ -308,6 +314,12 @@ class PlyWriter(AtomicStream):
             self._finish_element()
         dt, disk = self._elements[self._current][1], self._disk[self._current]
         rec = np.asarray(records)
+        if rec.dtype == disk:
+            # Already the stored layout (a packed little-endian record without lists,
+            # as sensors.fields.FILE_DTYPE): written as it lies, without a copy.
+            self._fh.write(np.ascontiguousarray(rec).data)
+            self._counts[self._current] += len(rec)
+            return
         out = np.empty(len(rec), dtype=disk)
         for field in dt.names or ():
             out[field] = rec[field]

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import os
+import queue
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, Any, Self
 
@@ -21,7 +22,7 @@ from raytrace.fileio import atomic_writer
 
 from .errors import PointFileError
 
-__all__ = ["AtomicStream", "Stream", "deferred_interrupt"]
+__all__ = ["AtomicStream", "Background", "Stream", "deferred_interrupt"]
 
 
 class Stream:
@@ -105,3 +106,77 @@ def deferred_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGINT, old)
         if got:
             raise KeyboardInterrupt
+
+
+class Background:
+    """Run ``work(item)`` on a worker thread, item by item in order, while the caller
+    goes on (a writer thread: the caller simulates the next chunk while this one is
+    turned into records and compressed; lazrs, zlib and file writes release the GIL).
+
+    ``put`` blocks while ``depth`` items wait (memory stays bounded); an exception in
+    ``work`` stops the worker and is raised again by the next ``put`` or by ``finish``.
+    ``finish`` waits for every item; ``cancel`` drops what waits and waits for the item
+    under way (a fraction of a second), so that the caller may then discard the file.
+    """
+
+    def __init__(self, work: Callable[[Any], None], *, depth: int = 2,
+                 name: str = "tunnelsim-writer") -> None:
+        self._work = work
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=max(1, int(depth)))
+        self._error: BaseException | None = None
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is _DONE:
+                return
+            if self._error is not None or self._stop.is_set():
+                continue            # drain: the caller is told at its next call
+            try:
+                self._work(item)
+            except BaseException as exc:   # handed to the caller's thread
+                self._error = exc
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def put(self, item: Any) -> None:
+        """Queue ``item`` (blocks while ``depth`` items wait); raises the worker's
+        exception, if it had one."""
+        self._raise()
+        while True:
+            try:
+                self._queue.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                self._raise()
+                if not self._thread.is_alive():   # cannot happen without an error
+                    raise PointFileError("Expected the writer thread to run, got it "
+                                         "stopped.") from None
+
+    def finish(self) -> None:
+        """Wait until every queued item is done; raises the worker's exception."""
+        self._queue.put(_DONE)
+        self._thread.join()
+        self._raise()
+
+    def cancel(self) -> None:
+        """Drop the waiting items and wait for the one under way (no exception)."""
+        self._stop.set()
+        with contextlib.suppress(queue.Full):
+            self._queue.put_nowait(_DONE)
+        while self._thread.is_alive():
+            # The queue may have been full: drain it so the sentinel gets in.
+            with contextlib.suppress(queue.Empty):
+                self._queue.get_nowait()
+            with contextlib.suppress(queue.Full):
+                self._queue.put_nowait(_DONE)
+            self._thread.join(timeout=0.05)
+
+
+#: End of a ``Background`` queue.
+_DONE = object()

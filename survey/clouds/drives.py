@@ -1,7 +1,14 @@
 """Simulated drives read back: the scan frames LiDAR odometry consumes, and the drive
 re-placed along another trajectory (the cloud a SLAM estimate implies). A drive is a
-LAS/LAZ file with full fields, or a ROS 2 bag (``drive -o drive.mcap``: one
-PointCloud2 per sweep in the sensor frame, the mount in /tf_static).
+LAS/LAZ file with full fields, a PLY or NPZ file (every field), or a ROS 2 bag
+(``drive -o drive.mcap``: one PointCloud2 per sweep in the sensor frame, the mount in
+/tf_static).
+
+Field names follow ``sensors.fields.FILE_FIELDS`` in every format (``sensor_x``,
+``gps_time``, ...); PLY and NPZ drives of earlier versions (``sx``, ``time``) read as
+well. A PLY drive records its sensor and mount in its ``tunnelsim {...}`` comment; an
+NPZ drive records none (the mount is then the identity). NPZ columns are loaded whole
+(``numpy.load`` reads a member at once); LAS/LAZ and PLY stream.
 
 A drive file is what ``tunnelsim drive --fields full`` writes (LAS/LAZ): per point the
 GPS time (the pulse time), the point in the sensor frame (extra bytes ``sensor_x``,
@@ -29,8 +36,10 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from sensors import Mount, Trajectory
+from sensors.fields import point_field
 from sensors.las import LasSource
-from survey.clouds.cloudio import CHUNK, map_cloud
+from survey.clouds.cloudmap import map_cloud
+from survey.clouds.cloudread import CHUNK, INFO_USER, cloud_errors, ply_points
 from survey.errors import CloudFileError
 
 __all__ = ["DRIVE_FIELDS", "TIME_FIELDS", "DriveFile", "ScanFrame", "frames_from_points",
@@ -66,7 +75,8 @@ class DriveFile:
     time_span_s : (float, float)
         First and last point time (from the points, read once).
     kind : str
-        "las" (LAS/LAZ) or "bag" (ROS 2 bag: an ``.mcap`` file or a rosbag2 folder).
+        "las" (LAS/LAZ), "ply", "npz" or "bag" (ROS 2 bag: an ``.mcap`` file or a
+        rosbag2 folder).
     topic : str
         The PointCloud2 topic read from a bag ("" for LAS).
     """
@@ -104,12 +114,14 @@ def open_drive(path: str | os.PathLike[str]) -> DriveFile:
     p = Path(path)
     if p.suffix.lower() == ".mcap" or (p.is_dir() and (p / "metadata.yaml").is_file()):
         return _open_bag(p)
-    if p.suffix.lower() not in (".las", ".laz"):
+    if p.suffix.lower() not in (".las", ".laz", ".ply", ".npz"):
         raise CloudFileError(f"Expected a drive as .las/.laz (tunnelsim drive --fields full "
-                             f"-o drive.laz) or a ROS 2 bag (.mcap or a rosbag2 folder), "
-                             f"got '{p}'.")
+                             f"-o drive.laz), .ply, .npz or a ROS 2 bag (.mcap or a "
+                             f"rosbag2 folder), got '{p}'.")
     if not p.is_file():
         raise CloudFileError(f"Expected a drive file, got '{p}' which does not exist.")
+    if p.suffix.lower() in (".ply", ".npz"):
+        return _open_columns(p)
     with LasSource(p) as src:
         names = set(src.header.point_format.dimension_names)
         missing = [f for f in DRIVE_FIELDS if f not in names]
@@ -174,6 +186,9 @@ def iter_frames(drive: DriveFile, *, chunk: int = CHUNK) -> Iterator[ScanFrame]:
     if drive.kind == "bag":
         yield from _bag_frames(drive)
         return
+    if drive.kind in ("ply", "npz"):
+        yield from _group(_column_chunks(drive.path, chunk))
+        return
     with LasSource(drive.path) as src:
         yield from _group(
             (np.asarray(rec["frame"], dtype=np.int64),
@@ -216,9 +231,10 @@ def replace_drive(drive: DriveFile, dst: str | os.PathLike[str], trajectory: Tra
         When the trajectory does not span the drive's times.
     """
     if drive.kind != "las":
-        raise CloudFileError(f"Expected a LAS/LAZ drive to re-place, got the ROS 2 bag "
-                             f"'{drive.path}' (its clouds are in the sensor frame only); "
-                             "re-place the same drive written as LAZ (--fields full).")
+        what = "the ROS 2 bag" if drive.kind == "bag" else f"the {drive.kind.upper()} drive"
+        raise CloudFileError(f"Expected a LAS/LAZ drive to re-place, got {what} "
+                             f"'{drive.path}'; re-place the same drive written as LAZ "
+                             "(--fields full).")
     a, b = drive.time_span_s
     if len(trajectory) < 2 or trajectory.start_s > a or trajectory.end_s < b:
         raise CloudFileError(f"Expected a trajectory spanning the drive's times [{a:.6f}, "
@@ -233,6 +249,91 @@ def replace_drive(drive: DriveFile, dst: str | os.PathLike[str], trajectory: Tra
         return pos + np.einsum("nij,nj->ni", mat, s)
 
     return map_cloud(drive.path, dst, place, chunk=chunk, fields=_SENSOR_XYZ)
+
+
+# ------------------------------------------------------------------ PLY and NPZ
+#: The POINT_DTYPE fields a PLY/NPZ drive needs (under their file names, or the
+#: names of earlier versions: ``sensors.fields.point_field``).
+_COLUMNS = ("sx", "sy", "sz", "time", "frame")
+
+
+def _names(have: Iterable[str], p: Path) -> dict[str, str]:
+    """{POINT_DTYPE field: the file's name for it} for ``_COLUMNS``."""
+    found: dict[str, str] = {}
+    for name in have:
+        f = point_field(name)
+        if f in _COLUMNS and f not in found:
+            found[f] = name
+    missing = [c for c in _COLUMNS if c not in found]
+    if missing:
+        raise CloudFileError(f"Expected per-point times and sensor-frame fields "
+                             f"{list(DRIVE_FIELDS)} in '{p}', got a file without them "
+                             f"({sorted(have)}); simulate the drive with 'tunnelsim "
+                             "drive'.")
+    return found
+
+
+def _column_chunks(p: Path, chunk: int = CHUNK
+                   ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(frame (n,), sensor-frame points (n, 3), times (n,)) of a PLY/NPZ drive."""
+    with cloud_errors():
+        if p.suffix.lower() == ".ply":
+            rec: Any = ply_points(p)
+            names = _names(rec.dtype.names or (), p)
+        else:
+            try:
+                rec = np.load(p, allow_pickle=False)
+                files = list(rec.files)
+            except Exception as exc:   # zipfile and format errors of numpy.load
+                raise CloudFileError(f"Expected an NPZ file numpy can read, got '{p}' "
+                                     f"which fails with: {exc}.") from exc
+            names = _names(files, p)
+            rec = {f: np.asarray(rec[n]).reshape(-1) for f, n in names.items()}
+            names = {f: f for f in names}
+            if len({len(v) for v in rec.values()}) != 1:
+                raise CloudFileError(f"Expected arrays of one length in '{p}', got "
+                                     f"{ {n: len(v) for n, v in rec.items()} }.")
+        n = len(rec[names["time"]])
+        for i in range(0, n, chunk):
+            yield (np.asarray(rec[names["frame"]][i:i + chunk], dtype=np.int64),
+                   np.stack([np.asarray(rec[names[a]][i:i + chunk], dtype=np.float64)
+                             for a in ("sx", "sy", "sz")], 1),
+                   np.asarray(rec[names["time"]][i:i + chunk], dtype=np.float64))
+
+
+def _ply_info(p: Path) -> dict[str, Any]:
+    from sensors.ply import read_ply_header
+
+    tag = f"comment {INFO_USER} "
+    for line in read_ply_header(p).comments:
+        if line.startswith(tag + "{"):
+            try:
+                info = json.loads(line[len(tag):])
+            except json.JSONDecodeError:
+                return {}
+            return info if isinstance(info, dict) else {}
+    return {}
+
+
+def _open_columns(p: Path) -> DriveFile:
+    lo, hi, last, n = np.inf, -np.inf, -np.inf, 0
+    for _, _, t in _column_chunks(p):
+        if len(t) and (t[0] < last or (np.diff(t) < 0).any()):
+            raise CloudFileError(f"Expected points in time order in '{p}' (as a drive "
+                                 "is written), got times that go back.")
+        if len(t):
+            lo, hi, last = min(lo, t[0]), max(hi, t[-1]), t[-1]
+        n += len(t)
+    if n == 0:
+        raise CloudFileError(f"Expected points in '{p}', got a valid file with 0 points.")
+    kind = p.suffix.lower().lstrip(".")
+    with cloud_errors():
+        info = _ply_info(p) if kind == "ply" else {}
+    lever, quat = info.get("mount_lever_arm_m"), info.get("mount_boresight_xyzw")
+    recorded = lever is not None and quat is not None
+    mount = Mount(tuple(lever or ()), Rotation.from_quat(quat)) if recorded else Mount()
+    return DriveFile(p, str(info.get("sensor", "unknown")), mount, recorded, n,
+                     (float(lo), float(hi)), kind)
 
 
 # ------------------------------------------------------------------ ROS 2 bags

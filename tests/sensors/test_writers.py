@@ -19,6 +19,8 @@ from sensors import (
     simulate_station,
 )
 
+from sensors.fields import FILE_NAMES
+
 UTM = np.array([451_234.0, 5_352_876.0, 612.0])
 
 
@@ -96,8 +98,8 @@ def test_ply_and_npz_round_trip(utm_scene, points, tmp_path):
                                                             points["z"]], 1))
     _station(utm_scene, chunk_pulses=100_000).write(tmp_path / "s.npz")  # other chunking
     back = np.load(tmp_path / "s.npz")
-    for name in points.dtype.names:
-        np.testing.assert_array_equal(back[name], points[name])
+    for name in points.dtype.names:            # under the file names (sensors.fields)
+        np.testing.assert_array_equal(back[FILE_NAMES[name]], points[name])
 
 
 def test_interrupted_write_leaves_no_file(utm_scene, tmp_path):
