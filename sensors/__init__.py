@@ -27,6 +27,7 @@ _EXPORTS = {
     "sensors.fields": ("POINT_DTYPE",),
     "sensors.simulate": ("Run", "simulate_drive", "simulate_station"),
     "sensors.writers": ("PointWriter", "open_writer"),
+    "sensors.copc": ("CopcWriter",),
     "sensors.spec": ("SensorSpec", "list_sensors", "load_sensor"),
     "sensors.trajectory": ("Mount", "Trajectory"),
     "sensors.meshes": ("load_mesh",),
@@ -45,6 +46,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from sensors.fields import POINT_DTYPE
     from sensors.simulate import Run, simulate_drive, simulate_station
     from sensors.writers import PointWriter, open_writer
+    from sensors.copc import CopcWriter
     from sensors.spec import SensorSpec, list_sensors, load_sensor
     from sensors.trajectory import Mount, Trajectory
     from sensors.meshes import load_mesh

@@ -68,6 +68,7 @@ import numpy as np
 from raytrace.fileio import atomic_writer
 
 from .bag import RosbagStream
+from .copc import CopcWriter
 from .crs import file_wkt, parse_crs, write_sidecar
 from .e57 import E57_MAX_POINTS, write_e57_scan
 from .errors import PointFileError
@@ -89,13 +90,15 @@ from .trajectory import Trajectory
 __all__ = ["E57_MAX_POINTS", "FORMATS", "LAS_SCALE", "PointWriter", "format_of",
            "open_writer"]
 
-FORMATS = ("las", "laz", "ply", "npz", "e57", "mcap", "rosbag2")
+FORMATS = ("las", "laz", "copc", "ply", "npz", "e57", "mcap", "rosbag2")
 
 def format_of(path: str | os.PathLike[str], fmt: str | None = None) -> str:
     """The output format: ``fmt``, else the path's suffix; one of ``FORMATS``. A path
     without a suffix is a rosbag2 folder ("rosbag2")."""
     # DECISION: no suffix means a bag folder, as `ros2 bag record -o NAME` names one.
     f = (fmt or Path(path).suffix.lstrip(".") or "rosbag2").lower()
+    if fmt is None and Path(path).name.lower().endswith(".copc.laz"):
+        f = "copc"     # COPC is LAZ: the double suffix names it, as PDAL and QGIS read it
     if f not in FORMATS:
         raise PointFileError(f"Expected an output format in {FORMATS} (from the suffix or "
                              f"`fmt`), got {f!r} for '{path}'.")
@@ -211,12 +214,14 @@ class PointWriter(Stream):
 
 
 class _LasPoints(PointWriter):
-    def __init__(self, path, *, compress: bool, fields: str, **kw) -> None:
+    def __init__(self, path, *, compress: bool, fields: str, copc: bool = False,
+                 **kw) -> None:
         super().__init__(path, **kw)
         self._compress = compress
+        self._copc = copc
         self._extra = LAS_EXTRA if fields == "full" else \
             tuple(e for e in LAS_EXTRA if e[0] in LAS_COMPACT)
-        self._w: LasWriter | None = None
+        self._w: LasWriter | CopcWriter | None = None
         self._records: LasRecords | None = None
 
     def _header(self, first_xyz):
@@ -241,7 +246,7 @@ class _LasPoints(PointWriter):
             if not len(c):
                 return
             first = np.array([c["x"][0], c["y"][0], c["z"][0]], dtype=np.float64)
-            self._w = LasWriter(self.path, self._header(first), compress=self._compress)
+            self._w = self._open_file(self._header(first))
             self._records = LasRecords(self._w.header)
         assert self._records is not None
         # Record fields as LAS point format 6 holds them (LAS 1.4 R15, table 21);
@@ -258,9 +263,13 @@ class _LasPoints(PointWriter):
 
     def _finish(self):
         if self._w is None:   # an empty run still gives a valid, empty file
-            self._w = LasWriter(self.path, self._header(np.zeros((0, 3))),
-                                compress=self._compress)
+            self._w = self._open_file(self._header(np.zeros((0, 3))))
         self._w.close()
+
+    def _open_file(self, header):
+        if self._copc:   # the octree is built on close (sensors.copc: bounded memory)
+            return CopcWriter(self.path, header)
+        return LasWriter(self.path, header, compress=self._compress)
 
     def _discard(self, exc):
         if self._w is not None:
@@ -458,8 +467,9 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
                           "crs": crs}
     # DECISION: no thread for E57 (it gathers the scan; pye57 writes it at the end).
     streamed = dict(kw, threaded=bool(thread))
-    if f in ("las", "laz"):
-        return _LasPoints(path, compress=f == "laz", fields=fields, **streamed)
+    if f in ("las", "laz", "copc"):
+        return _LasPoints(path, compress=f != "las", fields=fields, copc=f == "copc",
+                          **streamed)
     if f == "ply":
         return _PlyPoints(path, **streamed)
     if f == "npz":
