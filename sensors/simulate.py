@@ -187,6 +187,35 @@ class Run:
                       "hit_ratio": n_hits / max(n_pulses, 1), "seconds": s,
                       "rays_per_s": n_pulses * self.settings.beam_subrays / s if s else 0.0}
 
+    def chunks(self, start: int = 0, stop: int | None = None
+               ) -> Iterator[NDArray[np.void]]:
+        """Point chunks of pulses ``start`` to ``stop`` - 1 (indices in pattern order;
+        ``stop`` None: to the end): exactly the points a whole pass gives for them, in
+        the same order, since each pulse's random numbers are keyed by its index
+        (``_Streams``), not by the chunk it falls in. Chunks are cut where a whole pass
+        cuts them (and at ``start`` and ``stop``); the pattern before ``start`` is
+        generated but not simulated. ``stats`` and ``pass_stats`` are left alone.
+
+        A drive split into pulse ranges [0, i1), [i1, i2), ... and run anywhere gives,
+        concatenated, the points of the whole run (``survey.cluster.windows``)."""
+        a = as_whole(start, "start", SimulationError, lo=0)
+        b = self.n_pulses if stop is None else as_whole(stop, "stop", SimulationError,
+                                                        lo=0)
+        first = 0
+        for pulses in self.scan.chunks(self.chunk_pulses):
+            if first >= b:
+                break
+            n = len(pulses)
+            lo, hi = max(a, first), min(b, first + n)
+            if lo < hi:
+                if hi - lo < n:
+                    cut = slice(lo - first, hi - first)
+                    pulses = Pulses(pulses.time[cut], pulses.direction[cut],
+                                    pulses.channel[cut], pulses.column[cut],
+                                    pulses.frame[cut])
+                yield self._chunk(lo, pulses)[0]
+            first += n
+
     def write(self, path, *, fmt: str | None = None, progress=None, fields=None,
               points: Iterable[NDArray[np.void]] | None = None, crs=None):
         """Stream every chunk into ``path`` (format from the suffix or ``fmt``:

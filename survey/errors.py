@@ -82,12 +82,16 @@ class ProfileError(TunnelsimError, ValueError):
     """A cross-section profile is unusable (self-intersecting, degenerate, bad size)."""
 
 
-__all__ = ["TunnelsimError", "AlignmentError", "CloudFileError", "CompareError",
+__all__ = ["TunnelsimError", "AlignmentError", "CloudFileError", "ClusterError", "CompareError",
            "ControlPointError", "DeformationError", "DriftError", "FeatureError",
            "GazeboExportError", "HelmertError", "OdometryError", "PipelineError",
            "PlanningError",
            "PreprocessError", "ProfileError", "ReconstructionError", "StudyError",
            "TunnelError", "TunnelFileError", "TunnelsimCLIError"]
+
+
+class ClusterError(TunnelsimError, ValueError):
+    """A cluster cannot be started or reached, or it lost a task for good."""
 
 
 class OdometryError(TunnelsimError, ValueError):

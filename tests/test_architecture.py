@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("raytrace", "sensors", "survey")
 PACKAGE_RANK = {"raytrace": 0, "sensors": 1, "survey": 2}
 SURVEY_RANK = {"errors": 0, "_kernels": 0, "world": 1, "adjust": 2, "clouds": 2,
-               "analysis": 3, "report": 4, "export": 4, "cli": 5}
+               "analysis": 3, "report": 4, "export": 4, "cluster": 4, "cli": 5}
 
 
 def _modules() -> dict[str, Path]:

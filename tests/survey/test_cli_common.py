@@ -129,7 +129,7 @@ def test_usage_errors_are_one_line_and_name_the_command(capsys):
     line = _one_line_error(capsys)
     assert "unrecognized arguments: --nope" in line and "'tunnelsim scan --help'" in line
     assert main(["scan", "--mesh", "m.ply", "-o", "s.laz"]) == 2
-    assert "one of the arguments --at --chainage is required" in _one_line_error(capsys)
+    assert "one of the arguments --at --chainage --chainages --plan is required" in _one_line_error(capsys)
     assert main(["frobnicate"]) == 2
     assert "invalid choice: 'frobnicate'" in _one_line_error(capsys)
 

@@ -1,0 +1,19 @@
+"""Scale out: the execution layer (this process, a dask LocalCluster or an existing
+dask cluster, the same results on each) and what runs on it: TLS campaigns (one file
+per station and a manifest) and drives split into time windows.
+
+dask.distributed is optional (the extra ``cluster``) and imported only when a cluster
+is asked for.
+"""
+
+from .execution import (CLUSTER_HINT, ClusterError, DaskExecutor, Executor, InProcess,
+                        SceneRef, TaskProgress, numba_threads_per_worker, open_executor)
+from .campaign import (MANIFEST_FORMAT, MANIFEST_NAME, Campaign, Station, read_plan,
+                       scan_stations, sha256_of, station_file, station_seed)
+from .windows import DRIVE_MANIFEST_FORMAT, Window, drive_windows, simulate_windows
+
+__all__ = ["CLUSTER_HINT", "ClusterError", "DaskExecutor", "Executor", "InProcess",
+           "SceneRef", "TaskProgress", "numba_threads_per_worker", "open_executor",
+           "MANIFEST_FORMAT", "MANIFEST_NAME", "Campaign", "Station", "read_plan",
+           "scan_stations", "sha256_of", "station_file", "station_seed",
+           "DRIVE_MANIFEST_FORMAT", "Window", "drive_windows", "simulate_windows"]
