@@ -1,5 +1,5 @@
 """Point clouds: chunked file I/O, filters, segmentation, the tunnel axis and unrolling,
-reconstruction of the lining and of attachments, simulated drives read back for SLAM."""
+reconstruction of the lining and of attachments, of spaces that are not tubes (solid), simulated drives read back for SLAM."""
 
 from .cloudio import annotate_las, cloud_bounds, iter_points, map_cloud, write_points_las, read_points, read_reference
 from .preprocess import VoxelGrid, radius_outliers, statistical_outliers, voxel_down_sample
@@ -7,6 +7,8 @@ from .axis import estimate_axis, tunnel_frame, unroll
 from .segment import CLASS_NAMES, segment_tunnel
 from .reconstruct import ReconstructedTunnel, poisson_tunnel, reconstruct_tunnel, reconstruct_within_budget
 from .detail import attachment_tubes, DetailedMesh, with_detail_layer
+from .solid import ScannerVoxelGrid, SolidMesh, nearest_scanner, reconstruct_solid
+from .scanners import iter_scanned, read_positions, station_position
 from .drives import DriveFile, ScanFrame, frames_from_points, iter_frames, open_drive, replace_drive
 
 __all__ = ["read_points", "read_reference", "DetailedMesh", "with_detail_layer", "reconstruct_within_budget", "annotate_las", "cloud_bounds", "iter_points", "map_cloud", "write_points_las",
@@ -14,4 +16,5 @@ __all__ = ["read_points", "read_reference", "DetailedMesh", "with_detail_layer",
            "estimate_axis", "tunnel_frame", "unroll", "CLASS_NAMES", "segment_tunnel",
            "ReconstructedTunnel", "poisson_tunnel", "reconstruct_tunnel",
            "attachment_tubes", "DriveFile", "ScanFrame", "frames_from_points", "iter_frames", "open_drive",
-           "replace_drive"]
+           "replace_drive", "ScannerVoxelGrid", "SolidMesh", "nearest_scanner",
+           "reconstruct_solid", "iter_scanned", "read_positions", "station_position"]

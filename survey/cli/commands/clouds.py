@@ -39,29 +39,54 @@ def register(commands: CommandSet) -> None:
     c.option("--quiet", action="store_true", help="print nothing on success")
 
     c = commands.add(
-        "mesh", cmd_mesh, help="reconstruct a tunnel mesh from a cleaned cloud",
-        description="Tunnel-aware reconstruction: unroll the lining around the centreline "
-                    "(estimated, or from a tunnel JSON), take a median radius per cell, "
-                    "fill gaps (vertex property support = 0), triangulate; open portals.",
-        epilog="Example: tunnelsim mesh clean.laz -o tunnel.ply --cell 0.1,2")
-    c.option("cloud", path="in", help=f"input cloud ({CLOUD_INPUTS})")
+        "mesh", cmd_mesh, help="reconstruct a mesh from cleaned clouds (tunnels, caves)",
+        description="Tunnel-aware reconstruction (--method tunnel): unroll the lining "
+                    "around the centreline (estimated, or from a tunnel JSON), take a "
+                    "median radius per cell, fill gaps (vertex property support = 0), "
+                    "triangulate; open portals. Solid reconstruction (--method solid) of "
+                    "any space, caves and mines included: screened Poisson with normals "
+                    "oriented towards the scanner of each point (a station's pose from "
+                    "its LAS/PLY/E57 file, the trajectory at each point's time, or the "
+                    "nearest of --scanners), trimmed where no point lies within --trim, "
+                    "support 0 where it filled a hole. --method auto (default): tunnel "
+                    "when --tunnel-json is given or a tunnel axis is found, else solid.",
+        epilog="Examples: tunnelsim mesh clean.laz -o tunnel.ply --cell 0.1,2; "
+               "tunnelsim mesh st01.laz st02.laz st03.laz -o cave.ply --method solid; "
+               "tunnelsim mesh drive.laz -o mine.ply --trajectory drive_true_trajectory.txt")
+    c.option("cloud", nargs="+", metavar="CLOUD", path="in",
+             help=f"input cloud(s) ({CLOUD_INPUTS}); several: e.g. one file per station")
     c.option("-o", "--output", required=True, path="out", help="output mesh (.ply)")
+    c.option("--method", choices=["auto", "tunnel", "poisson", "solid"], default="auto",
+             help="auto (default): tunnel if an axis is given or found, else solid; "
+                  "tunnel: tunnel-aware mesher; poisson: Open3D Poisson oriented by the "
+                  "tunnel axis; solid: Poisson oriented by the scanners (any space)")
     c.option("--cell", default="0.1,2", metavar="M,DEG",
-             help="cell size along the axis (m) and around it (deg), default 0.1,2")
+             help="tunnel: cell size along the axis (m) and around it (deg), default 0.1,2")
     c.option("--detail", action="store_true",
-             help="add a detail layer: attachments (cables, pipes) as closed tubes "
+             help="tunnel: add a detail layer: attachments (cables, pipes) as closed tubes "
                   "(vertex support -1)")
-    c.option("--method", choices=["tunnel", "poisson"], default="tunnel",
-             help="tunnel-aware mesher (default) or Open3D Poisson (optional extra)")
-    c.option("--depth", type=int, default=10, help="Poisson octree depth (default 10)")
+    c.option("--depth", type=int, default=10,
+             help="poisson: octree depth (default 10)")
     c.option("--triangles", type=int, metavar="N",
-             help="triangle budget: coarsen the cells until the mesh fits")
+             help="tunnel: triangle budget: coarsen the cells until the mesh fits")
     c.option("--min-points", type=int, default=3,
-             help="cells with fewer points are interpolated (default 3)")
+             help="tunnel: cells with fewer points are interpolated (default 3)")
     c.option("--tunnel-json", path="in", help="use the alignment of a generated tunnel's JSON")
+    c.option("--voxel", type=float, default=0.02, metavar="M",
+             help="solid: voxel grid the points stream through and finest Poisson cell "
+                  "(m), default 0.02")
+    c.option("--trim", type=float, metavar="M",
+             help="solid: remove the surface farther than M from every point (default 5 "
+                  "voxels, at least 0.3 m): holes up to about 2 M wide stay filled")
+    c.option("--trajectory", path="in",
+             help="solid: the platform trajectory (TUM .txt or .csv, e.g. a drive's "
+                  "_true_trajectory.txt): the scanner at each point's gps_time")
+    c.option("--scanners", path="in", metavar="FILE",
+             help="solid: scanner positions (x y z per row, a route CSV or a TUM file) for "
+                  "clouds that record none; each point takes the nearest")
     c.option("--json", path="out", help="also write the reconstruction quality as JSON")
     c.option("--figure", metavar="PNG", path="out",
-             help="also write the unrolled support map (points per cell) as PNG")
+             help="tunnel: also write the unrolled support map (points per cell) as PNG")
     c.option("--quiet", action="store_true", help="print nothing on success")
 
 
@@ -128,16 +153,61 @@ def cmd_preprocess(args) -> int:
     return 0
 
 
+#: Options of one method that another method does not take (a silent no-op would
+#: let a user believe they acted).
+_METHOD_ONLY = {"tunnel": ("detail", "triangles", "figure"),
+                "solid": ("trim", "trajectory", "scanners")}
+
+
+def _check_method_options(args, method: str) -> None:
+    """Refuse an option of another method than the one that runs (auto resolved)."""
+    from survey.cli.common import UsageError
+
+    for m, names in _METHOD_ONLY.items():
+        given = [n for n in names if getattr(args, n) not in (None, False)]
+        if given and method != m:
+            how = "" if args.method == method else f" (--method {args.method} chose it)"
+            raise UsageError(f"Expected --{given[0]} with --method {m}, got --method "
+                             f"{method}{how}; pass --method {m}.")
+
+
+def _mesh_method(args, pts) -> str:
+    """The method --method auto resolves to: tunnel when --tunnel-json is given or the
+    cloud has a tunnel axis (``estimate_axis`` succeeds), else solid."""
+    if args.method != "auto":
+        return args.method
+    if args.tunnel_json:
+        return "tunnel"
+    from survey.clouds.axis import estimate_axis
+    from survey.errors import ReconstructionError
+
+    try:
+        estimate_axis(pts)
+    except ReconstructionError:
+        return "solid"
+    return "tunnel"
+
+
 def cmd_mesh(args) -> int:
     import numpy as np
 
     from survey.clouds.cloudio import iter_points
-    from survey.clouds.reconstruct import reconstruct_within_budget
 
-    cell_m, cell_deg = pair(args.cell, "--cell as M,DEG")
-    pts = np.concatenate(list(iter_points(args.cloud)))
+    clouds = list(args.cloud)
+    method = args.method
+    if method == "auto" and not args.tunnel_json and (args.trajectory or args.scanners):
+        method = "solid"           # scanner positions are what the solid route asks for
+    if method == "solid":
+        _check_method_options(args, method)
+        return _mesh_solid(args, clouds)
+    pts = np.concatenate([xyz for c in clouds for xyz in iter_points(c)])
+    method = _mesh_method(args, pts)
+    _check_method_options(args, method)
+    if method == "solid":
+        del pts
+        return _mesh_solid(args, clouds)
     al, hc = _tunnel_axis(args.tunnel_json)
-    if args.method == "poisson":
+    if method == "poisson":
         from survey.clouds.reconstruct import poisson_tunnel
         from survey.world.mesh import write_ply
 
@@ -147,6 +217,9 @@ def cmd_mesh(args) -> int:
             print(f"{len(pts):,} points -> {len(f):,} triangles (Poisson, depth "
                   f"{args.depth}, trimmed) -> {args.output}")
         return 0
+    from survey.clouds.reconstruct import reconstruct_within_budget
+
+    cell_m, cell_deg = pair(args.cell, "--cell as M,DEG")
     if args.triangles is None:
         from survey.clouds.reconstruct import reconstruct_tunnel
 
@@ -177,6 +250,46 @@ def cmd_mesh(args) -> int:
               f"point-to-surface mean {q['mean_m'] * 1000:.1f} mm, median "
               f"{q['median_m'] * 1000:.1f} mm, 95 % {q['p95_m'] * 1000:.1f} mm, max "
               f"{q['max_m'] * 1000:.1f} mm; extrapolated {100 * q['extrapolated_share']:.1f} %")
+    return 0
+
+
+def _mesh_solid(args, clouds) -> int:
+    """--method solid: the clouds stream through a scanner-aware voxel grid (bounds
+    first, one pass each), then ``reconstruct_solid``."""
+    import numpy as np
+
+    from survey.clouds.cloudio import cloud_bounds
+    from survey.clouds.scanners import iter_scanned, read_positions
+    from survey.clouds.solid import ScannerVoxelGrid, reconstruct_solid
+    from survey.errors import ReconstructionError
+
+    if not (np.isfinite(args.voxel) and args.voxel > 0):
+        raise ReconstructionError(f"Expected a positive --voxel (m), got {args.voxel:g}.")
+    traj = None
+    if args.trajectory:
+        from sensors import Trajectory
+
+        traj = Trajectory.read(args.trajectory)
+    stations = read_positions(args.scanners) if args.scanners else None
+    lo = np.min([cloud_bounds(c)[0] for c in clouds], axis=0)
+    grid = ScannerVoxelGrid(args.voxel, lo)
+    for c in clouds:
+        for xyz, scanner in iter_scanned(c, trajectory=traj, stations=stations):
+            grid.add(xyz, scanner)
+    pts, scanners, _ = grid.result()
+    rec = reconstruct_solid(pts, scanners=scanners, cell_m=args.voxel, trim_m=args.trim)
+    rec.write(args.output)
+    q = dict(rec.quality, method="solid", input_points=grid.n_points, depth=rec.depth,
+             cell_m=rec.cell_m, trim_m=rec.trim_m, support_radius_m=rec.support_radius_m)
+    if args.json:
+        write_json(args.json, q)
+    if not args.quiet:
+        print(f"{grid.n_points:,} points -> {len(pts):,} voxels -> {q['triangles']:,} "
+              f"triangles -> {args.output} (solid: depth {rec.depth}, cell "
+              f"{rec.cell_m * 1000:.0f} mm, trim {rec.trim_m * 1000:.0f} mm); "
+              f"point-to-surface mean {q['mean_m'] * 1000:.1f} mm, median "
+              f"{q['median_m'] * 1000:.1f} mm, 95 % {q['p95_m'] * 1000:.1f} mm; support 0 "
+              f"on {100 * q['unsupported_share']:.1f} % of the vertices")
     return 0
 
 
