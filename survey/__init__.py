@@ -5,8 +5,10 @@ Sub-packages, lowest layer first (imports only point down)::
     world     alignments, profiles, features, deformation, the tunnel mesh and its files
     adjust    Helmert, control points, drift correction, simulated SLAM drift
     clouds    cloud I/O, filters, segmentation, axis and unrolling, reconstruction
-    analysis  C2C/C2M comparison, station planning, MLS studies
+    analysis  C2C/C2M comparison, station planning, MLS studies, trajectory errors,
+              monitoring: sections, rings, M3C2, convergence, developed views
     report    Markdown/CSV reports and figures;  export: Gazebo
+    cluster   running campaigns in-process or on a Dask cluster (optional extra)
     cli       the ``tunnelsim`` command (a leaf: nothing imports it)
 
 Every public name is also available here (``from survey import fit_helmert``); they are
@@ -21,7 +23,8 @@ from raytrace.lazy import lazy_exports
 
 __version__ = "0.2.0"
 
-SUBPACKAGES = ("world", "adjust", "clouds", "analysis", "report", "export", "errors")
+SUBPACKAGES = ("world", "adjust", "clouds", "analysis", "report", "export", "cluster",
+               "errors")
 
 _EXPORTS = {
     "survey.world.alignment": ("Alignment", "Element", "arc", "clothoid", "curve",
@@ -82,10 +85,24 @@ _EXPORTS = {
                              "subsample", "towards_axis"),
     "survey.report.sections": ("plot_rings", "plot_section", "rings_csv", "rings_markdown",
                                "sections_csv", "sections_markdown", "volumes_csv"),
+    "survey.analysis.developed": ("DevelopedFrame", "DevelopedGrid", "DevelopedRaster",
+                                  "RasterAccumulator", "develop", "develop_file",
+                                  "mesh_samples"),
+    "survey.analysis.clearance": ("ClearanceResult", "ViolationRegion", "Violations",
+                                  "box_envelope", "clearance", "clearance_file",
+                                  "read_envelope"),
+    "survey.report.developed": ("clearance_markdown", "plot_developed", "regions_csv",
+                                "violations_csv", "write_developed"),
+    "survey.cluster": ("Campaign", "Station", "open_executor", "read_plan", "scan_stations",
+                       "simulate_windows"),
+    "survey.clouds.solid": ("ScannerVoxelGrid", "SolidMesh", "nearest_scanner",
+                            "reconstruct_solid"),
+    "survey.clouds.scanners": ("iter_scanned", "read_positions", "station_position"),
     "survey.report.epochs": ("chords_csv", "convergence_markdown", "m3c2_markdown",
                              "plot_m3c2_histogram", "plot_radial", "radial_csv"),
     "survey.export.gazebo": ("export_gazebo", "lidar_sdf"),
-    "survey.errors": ("TunnelsimError", "AlignmentError", "CloudFileError", "CompareError",
+    "survey.errors": ("TunnelsimError", "AlignmentError", "CloudFileError", "ClusterError",
+                      "CompareError",
                       "ControlPointError", "DeformationError", "DriftError", "FeatureError",
                       "GazeboExportError", "HelmertError", "OdometryError", "PipelineError",
                       "PlanningError", "PreprocessError", "ProfileError",
@@ -152,6 +169,17 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
         towards_axis)
     from survey.report.sections import (plot_rings, plot_section, rings_csv, rings_markdown,
         sections_csv, sections_markdown, volumes_csv)
+    from survey.analysis.developed import (DevelopedFrame, DevelopedGrid, DevelopedRaster,
+        RasterAccumulator, develop, develop_file, mesh_samples)
+    from survey.analysis.clearance import (ClearanceResult, ViolationRegion, Violations,
+        box_envelope, clearance, clearance_file, read_envelope)
+    from survey.report.developed import (clearance_markdown, plot_developed, regions_csv,
+        violations_csv, write_developed)
+    from survey.cluster import (Campaign, Station, open_executor, read_plan, scan_stations,
+        simulate_windows)
+    from survey.clouds.solid import (ScannerVoxelGrid, SolidMesh, nearest_scanner,
+        reconstruct_solid)
+    from survey.clouds.scanners import iter_scanned, read_positions, station_position
     from survey.report.epochs import (chords_csv, convergence_markdown, m3c2_markdown,
         plot_m3c2_histogram, plot_radial, radial_csv)
     from survey.export.gazebo import export_gazebo, lidar_sdf

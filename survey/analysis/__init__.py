@@ -11,9 +11,13 @@ from .sections import SectionCut, cut_cloud, cut_file, cut_mesh, section_chainag
 from .overbreak import Section, SectionReport, Volume, compare_sections
 from .rings import CircleFit, EllipseFit, RingFit, fit_circle, fit_ellipse, fit_rings
 from .convergence import Chords, RadialChange, chords, radial_change, sections_every
-# DECISION: the function m3c2 is not imported here: it would hide the module
-# survey.analysis.m3c2 (use survey.m3c2 or survey.analysis.m3c2.m3c2).
+# DECISION: the functions m3c2 and clearance are not imported here: each would hide
+# its module (use survey.m3c2, survey.clearance or survey.analysis.m3c2.m3c2).
 from .m3c2 import M3C2, M3C2Params, M3C2Result, lod95, subsample, towards_axis
+from .developed import (DevelopedFrame, DevelopedGrid, DevelopedRaster, RasterAccumulator,
+                        develop, develop_file, mesh_samples)
+from .clearance import (ClearanceResult, ViolationRegion, Violations, box_envelope,
+                        clearance_file, read_envelope)   # not clearance(): see m3c2
 from .trajectory import RelativeError, TrajectoryErrors, align_origin, path_pairs, trajectory_errors
 
 __all__ = ["Distances", "ReferenceCloud", "ReferenceMesh", "cloud_to_cloud",
@@ -26,4 +30,7 @@ __all__ = ["Distances", "ReferenceCloud", "ReferenceMesh", "cloud_to_cloud",
            "compare_sections", "CircleFit", "EllipseFit", "RingFit", "fit_circle",
            "fit_ellipse", "fit_rings", "Chords", "RadialChange", "chords", "radial_change",
            "sections_every", "M3C2", "M3C2Params", "M3C2Result", "lod95", "subsample",
-           "towards_axis"]
+           "towards_axis",
+           "DevelopedFrame", "DevelopedGrid", "DevelopedRaster", "RasterAccumulator",
+           "develop", "develop_file", "mesh_samples", "ClearanceResult", "ViolationRegion",
+           "Violations", "box_envelope", "clearance_file", "read_envelope"]

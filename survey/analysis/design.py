@@ -12,7 +12,7 @@ then on the right of the direction of travel. A signed deviation is positive out
 the design line (overbreak) and negative inside (underbreak).
 
 Closest points (``DesignProfile.locate``) are exact: a uniform grid of segment lists
-searched ring by ring (``survey.analysis._section_kernels``). On a vertex the side is decided by the vertex's
+searched ring by ring (``survey._kernels.sections``). On a vertex the side is decided by the vertex's
 pseudo-normal (the sum of the two segment normals; the 2-D case of Baerentzen & Aanaes
 2005, "Signed distance computation using the angle weighted pseudonormal", IEEE TVCG
 11(3)), so the sign is right at corners too. A point whose closest design point is an
@@ -251,8 +251,8 @@ class DesignProfile:
 
     def _grid(self) -> tuple[NDArray[np.int64], NDArray[np.int64], float, float, float,
                              int, int]:
-        """The segment grid of ``_section_kernels`` (built once)."""
-        from survey.analysis._section_kernels import build_grid
+        """The segment grid of ``survey._kernels.sections`` (built once)."""
+        from survey._kernels.sections import build_grid
 
         if self._grid_cache is None:
             lo, hi = self.vertices.min(axis=0), self.vertices.max(axis=0)
@@ -271,7 +271,7 @@ class DesignProfile:
         distance to the design line (m; > 0 outside, overbreak) and the arc length of
         the closest design point (m). NaN for points beyond the ends of an open
         profile (their closest design point is an end)."""
-        from survey.analysis._section_kernels import closest_segments
+        from survey._kernels.sections import closest_segments
 
         p = np.ascontiguousarray(yz, dtype=np.float64)
         if p.ndim != 2 or p.shape[1] != 2:

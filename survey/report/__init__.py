@@ -9,6 +9,8 @@ from .demo import cloud_c2m_rms, demo_summary, summary_markdown
 from .slam import plot_slam, slam_report
 from .sections import (plot_rings, plot_section, rings_csv, rings_markdown, sections_csv,
                        sections_markdown, volumes_csv)
+from .developed import (clearance_markdown, plot_developed, regions_csv, violations_csv,
+                        write_developed)
 from .epochs import (chords_csv, convergence_markdown, m3c2_markdown, plot_m3c2_histogram,
                      plot_radial, radial_csv)
 
@@ -18,4 +20,6 @@ __all__ = ["cloud_c2m_rms", "plan_summary", "drift_report", "helmert_report", "p
            "summary_markdown", "plot_slam", "slam_report",
            "plot_rings", "plot_section", "rings_csv", "rings_markdown", "sections_csv",
            "sections_markdown", "volumes_csv", "chords_csv", "convergence_markdown",
-           "m3c2_markdown", "plot_m3c2_histogram", "plot_radial", "radial_csv"]
+           "m3c2_markdown", "plot_m3c2_histogram", "plot_radial", "radial_csv",
+           "clearance_markdown", "plot_developed", "regions_csv", "violations_csv",
+           "write_developed"]

@@ -23,7 +23,8 @@ from survey.cli.pipeline import (
 from survey.report.demo import DRIFT_MODEL, ran_slam
 
 #: Commands that draw random numbers (they take --seed).
-SEEDED = {"tunnel", "scan", "drive", "slam", "study", "demo", "run"}
+SEEDED = {"tunnel", "scan", "drive", "slam", "study", "demo", "run", "sections", "rings",
+          "detect"}
 #: Commands that only print (no --quiet, no --threads).
 PRINTING = {"info", "sensors"}
 
