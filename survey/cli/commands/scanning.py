@@ -139,6 +139,10 @@ def register(commands: CommandSet) -> None:
     c.option("--lever", default="0,0,0", metavar="X,Y,Z",
              help="lever arm platform -> sensor in metres (default 0,0,0)")
     c.option("--duration", type=float, metavar="S", help="simulate only the first S seconds")
+    c.option("--keep-partial-sweep", action="store_true",
+             help="keep the last sweep (revolution or profile) even when it is partial; "
+                  "by default a drive ends at its last whole sweep, as a driver "
+                  "publishes whole revolutions")
     c.option("--chainage", metavar="START,END",
              help="with --along: drive only this chainage range in m")
     c.option("--rate", type=float, metavar="HZ",
@@ -530,6 +534,8 @@ def cmd_drive(args) -> int:
     # DECISION: checked before the mesh is loaded (a large mesh's BVH takes seconds);
     # --along auto needs the mesh to find its route first.
     t_end = _drive_end(args.duration, traj)
+    if not args.keep_partial_sweep:
+        t_end = _whole_sweeps(spec, traj, t_end, quiet=args.quiet)
     mount = Mount.pointing_down(lever) if args.mount == "down" else Mount(lever)
     if scene is None:
         scene, refl = load_mesh(args.mesh)
@@ -630,6 +636,29 @@ def _drive_end(duration_s: float | None, traj) -> float | None:
                                 f"{traj.end_s:g} s), got {duration_s:g} s; leave --duration "
                                 "out to drive all of it.")
     return traj.start_s + duration_s
+
+
+def _whole_sweeps(spec, traj, t_end: float | None, *, quiet: bool) -> float | None:
+    """The end time of a drive cut back to its last whole sweep (a spinning lidar's
+    revolution, a profiler's profile; sweeps start at the trajectory's first instant),
+    with a note of what was left out; ``t_end`` unchanged for other sensors, a static
+    platform, or a drive shorter than one sweep."""
+    import math
+
+    rate = getattr(spec.pattern, "rotation_hz", None) or getattr(spec.pattern,
+                                                                 "profile_rate_hz", None)
+    if not rate or len(traj) < 2:
+        return t_end
+    end = traj.end_s if t_end is None else t_end
+    n = math.floor((end - traj.start_s) * rate + 1e-9)
+    whole = traj.start_s + n / rate
+    if n < 1 or whole >= end - 1e-9:
+        return t_end
+    if not quiet:
+        print(f"drive ends at its last whole sweep: {n} sweeps of {1 / rate:g} s, "
+              f"t = {traj.start_s:g} to {whole:g} s ({end - whole:.3g} s of a partial "
+              "sweep left out; --keep-partial-sweep keeps it)")
+    return whole
 
 
 def trimmed(traj, t_end: float | None):

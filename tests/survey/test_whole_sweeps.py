@@ -1,0 +1,41 @@
+"""A drive ends at its last whole sweep (issue 22: a 2 s OS1 drive used to end with a
+21st sweep of 53 points), unless --keep-partial-sweep; the files the user gets (the
+cloud's frames, the truth's last pose) agree."""
+
+from __future__ import annotations
+
+import laspy
+import numpy as np
+import pytest
+
+from survey.cli.main import main
+
+
+@pytest.fixture(scope="module")
+def tube(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ws")
+    assert main(["tunnel", "--preset", "tbm", "--edge-length", "0.5", "-o",
+                 str(d / "t.ply"), "--quiet"]) == 0
+    return d / "t.ply"
+
+
+@pytest.mark.parametrize("keep", [False, True])
+def test_drive_ends_at_the_last_whole_sweep(tube, tmp_path, keep):
+    out = tmp_path / "d.las"
+    args = ["drive", "--mesh", str(tube), "--sensor", "velodyne_vlp16", "--along",
+            "centreline", "--speed", "1", "--duration", "0.25", "--fields", "full",
+            "-o", str(out), "--quiet"] + (["--keep-partial-sweep"] if keep else [])
+    assert main(args) == 0
+    las = laspy.read(out)
+    frames, counts = np.unique(np.asarray(las["frame"]), return_counts=True)
+    truth = np.loadtxt(tmp_path / "d_true_trajectory.txt")
+    # VLP-16 at 10 Hz: 0.25 s is two whole revolutions and half of a third.
+    if keep:
+        assert frames.tolist() == [0, 1, 2]
+        assert counts[2] < 0.6 * counts[1]
+        assert truth[-1, 0] - truth[0, 0] == pytest.approx(0.25, abs=1e-9)
+    else:
+        assert frames.tolist() == [0, 1]
+        assert abs(counts[1] - counts[0]) < 0.05 * counts[0]     # both whole
+        assert truth[-1, 0] - truth[0, 0] == pytest.approx(0.2, abs=1e-9)
+        assert np.asarray(las.gps_time).max() <= truth[-1, 0] + 1e-9
