@@ -213,6 +213,17 @@ def _named_points(path):
     return {k: np.asarray(v, dtype=np.float64) for k, v in zip(cp.ids, cp.xyz)}
 
 
+def _covered(points, alignment) -> tuple[float, float]:
+    """Chainage range (m) of points (n, 3) along the alignment (a sample of them)."""
+    import numpy as np
+
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) > 200_000:
+        p = p[np.random.default_rng(0).choice(len(p), 200_000, replace=False)]
+    s = alignment.to_local(p)[0]
+    return float(np.percentile(s, 0.1)), float(np.percentile(s, 99.9))
+
+
 def cmd_convergence(args) -> int:
     import numpy as np
 
@@ -244,10 +255,24 @@ def cmd_convergence(args) -> int:
     changes: list = []
     if args.epochs:
         _check_crs(args, args.epochs)
-        at = floats(args.at, "--at") if args.at else sections_every(al, args.every)
-        changes = radial_change(_epoch_points(args.epochs[0]),
-                                _epoch_points(args.epochs[1]), al, at, centre=centre,
-                                band_m=args.band, angle_step_rad=np.deg2rad(args.angle_step))
+        e1, e2 = _epoch_points(args.epochs[0]), _epoch_points(args.epochs[1])
+        if args.at:
+            at = floats(args.at, "--at")
+        else:
+            # DECISION: --every N puts sections every N m of the alignment where both
+            # epochs have points (a station covers tens of metres of a long tunnel).
+            at = sections_every(al, args.every)
+            lo, hi = _covered(e1, al)
+            lo2, hi2 = _covered(e2, al)
+            lo, hi = max(lo, lo2) + args.band, min(hi, hi2) - args.band
+            at = at[(at >= lo) & (at <= hi)]
+            if not len(at):
+                raise TunnelsimCLIError(f"Expected both epochs to cover a section every "
+                                        f"{args.every:g} m, got them overlapping over "
+                                        f"chainages {lo:.1f} to {hi:.1f} m only; use --at "
+                                        "or a smaller --every.")
+        changes = radial_change(e1, e2, al, at, centre=centre, band_m=args.band,
+                                angle_step_rad=np.deg2rad(args.angle_step))
     out = out_dir(args.output, args.force)
     md = convergence_markdown(ch, changes)
     write_text(out / "convergence.md", md)
