@@ -6,27 +6,43 @@ Engines (each in its own subprocess, so memory figures are not mixed up):
 * ``open3d``  open3d.t.geometry.RaycastingScene (Embree inside, all threads)
 * ``embreex`` embreex EmbreeScene.run (Embree 4, as trimesh uses it)
 
-Meshes: straight 300 m horseshoe tunnels (3 m wide, 2 mm correlated roughness, open
-portals) of ~0.1M, 1M and 4M triangles (``raytrace.shapes.tunnel_tube``).
+Meshes and ray sets (identical for every engine; seeded; made once in the parent
+process and handed to the workers as files):
 
-Rays, identical for every engine (seeded):
+* ``tube`` meshes: straight 300 m horseshoe tunnels (3 m wide, 2 mm correlated
+  roughness, open portals) of ~0.1M, 1M and 4M triangles (``raytrace.shapes.tunnel_tube``):
 
-* coherent:   one station at mid-tunnel, 1.5 m above the floor; vertical profiles in
-  scan order (elevation -70 deg .. 250 deg through the zenith, 180 deg of azimuth), like
-  a TLS head turning while its mirror spins;
-* incoherent: random origins inside the tunnel, random directions.
+  - coherent:   one station at mid-tunnel, 1.5 m above the floor; vertical profiles in
+    scan order (elevation -70 deg .. 250 deg through the zenith, 180 deg of azimuth),
+    like a TLS head turning while its mirror spins, with a (3,) origin;
+  - incoherent: random origins inside the tunnel, random directions.
+
+* ``bfo``: the ``bfo`` preset at 0.1 m edge length (``survey.world.preset``, 0.81M
+  triangles; issue 16's reference scene):
+
+  - drive: the rays of a RoboSense Airy driven at 1 m/s along the centreline, 0.5 m above
+    it, from chainage 100 m (``--drive-s`` seconds, 6.9M rays for 8 s): each pulse's
+    direction turned into the world with the sensor pose at its own time and cast from
+    that pose's position, (n, 3) origins (``sensors`` pattern and trajectory code,
+    without the return physics);
+  - station-as-array: a Z+F IMAGER 5016 station (``--station-step-deg``, 4.0M rays for
+    0.12 deg) at chainage 60 m, 1.5 m height, in scan order, its origin repeated as an
+    (n, 3) array (all rows equal);
+  - station: the same rays with a (3,) origin;
+  - random: random directions from origins within 0.5 m of the drive's pulse
+    origins.
 
 Figures: build seconds (best of two builds), scene memory (RSS growth over the first
-build, MB), Mrays/s (best of
-three casts of the same rays; for ``ours`` each coherent cast includes building the
-station's cube map), and
-each engine's ratio to Open3D. Agreement of hit/miss and t with Open3D on the first
-200k rays of each set is printed too (a benchmark that is fast and wrong is useless).
+build, MB), Mrays/s (best of three casts of the same rays; for ``ours`` each cast from
+a shared origin includes building the station's cube map), and each engine's ratio to
+Open3D. Agreement of hit/miss and t with Open3D on the first 200k rays of each set is
+printed too (a benchmark that is fast and wrong is useless).
 
 Usage::
 
-    python benchmarks/bench_raycast.py                      # 0.1M, 1M, 4M; 10M rays
+    python benchmarks/bench_raycast.py                      # tubes 0.1M, 1M, 4M; bfo
     python benchmarks/bench_raycast.py --sizes 1e6 --rays 2e6 --json out.json
+    python benchmarks/bench_raycast.py --sizes "" --engines ours,open3d   # bfo only
 
 Needs the ``bench`` extra (open3d, embreex); Open3D also needs the system library
 libusb-1.0 (Debian: ``apt-get install libusb-1.0-0``).
@@ -161,7 +177,7 @@ class Embreex:
 ENGINES = {"ours": Ours, "open3d": Open3D, "embreex": Embreex}
 
 
-def worker(engine: str, mesh_path: str, n_rays: int, out_dir: str) -> dict:
+def worker(engine: str, mesh_path: str, rays_path: str, out_dir: str) -> dict:
     z = np.load(mesh_path)
     v, f = z["v"], z["f"]
     ENGINES[engine].warm()
@@ -178,8 +194,15 @@ def worker(engine: str, mesh_path: str, n_rays: int, out_dir: str) -> dict:
     if engine == "ours":
         res["ours_nbytes_mb"] = eng.scene.nbytes / 2**20
         res["ours_stats"] = eng.scene.stats
-    for kind, make in (("coherent", coherent_rays), ("incoherent", incoherent_rays)):
-        o, d = make(n_rays)
+    rays = np.load(rays_path)
+    kinds = [k[:-2] for k in rays.files if k.endswith("_d")]
+    res["sets"] = kinds
+    for kind in kinds:
+        o, d = rays[f"{kind}_o"], rays[f"{kind}_d"]
+        if o.shape[0] == 1 and kind.endswith("_array"):
+            o = np.repeat(o, d.shape[0], axis=0)  # stored once, cast as (n, 3)
+        elif o.shape[0] == 1:
+            o = o[0]  # a (3,) origin
         eng.cast(o if o.ndim == 1 else o[:1000], d[:1000])  # warm-up
         dt = np.inf
         for _ in range(REPEATS):  # best of REPEATS: this VM's timings vary by ~30 %
@@ -195,6 +218,77 @@ def worker(engine: str, mesh_path: str, n_rays: int, out_dir: str) -> dict:
     return res
 
 
+def drive_rays(tun, seconds: float, chainage_m: float = 100.0, height_m: float = 0.5):
+    """(origins (n, 3), directions (n, 3)): a RoboSense Airy on a platform at 1 m/s
+    along the centreline, each pulse from the sensor pose at its own time (as
+    ``sensors.simulate_drive`` casts them, without the return physics)."""
+    from sensors import Mount, Trajectory, load_sensor
+    from sensors.patterns import scan_for
+
+    s = np.append(np.arange(chainage_m, chainage_m + seconds + 2.0, 0.5),
+                  chainage_m + seconds + 2.0)
+    traj = Trajectory.along_polyline(tun.alignment.to_world(s, 0.0, height_m), 1.0)
+    o, d = [], []
+    for p in scan_for(load_sensor("robosense_airy"), duration_s=seconds).chunks():
+        pos, mat = traj.sensor_matrices(p.time, Mount())
+        o.append(pos)
+        d.append(np.einsum("nij,nj->ni", mat, p.direction))
+    return np.concatenate(o), np.concatenate(d)
+
+
+def station_rays(tun, step_deg: float, chainage_m: float = 60.0, height_m: float = 1.5):
+    """(origin (3,), directions (n, 3)): a level Z+F IMAGER 5016 station, scan order."""
+    from sensors import load_sensor
+    from sensors.patterns import scan_for
+
+    at = np.asarray(tun.alignment.to_world(chainage_m, 0.0, height_m), dtype=np.float64)
+    scan = scan_for(load_sensor("zf_imager_5016"), step_rad=np.deg2rad(step_deg))
+    return at.reshape(3), np.concatenate([p.direction for p in scan.chunks()])
+
+
+def near_path_rays(path_origins, n: int, seed: int = 7, spread_m: float = 0.5):
+    """n random directions from origins within ``spread_m`` of random path origins."""
+    rng = np.random.default_rng(seed)
+    o = path_origins[rng.integers(0, len(path_origins), n)] + rng.uniform(
+        -spread_m, spread_m, (n, 3))
+    d = rng.standard_normal((n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    return o, d
+
+
+def _run_engines(engines, mesh, rays, tmp):
+    results = {}
+    for eng in engines:
+        cmd = [sys.executable, __file__, "--worker", eng, "--mesh", str(mesh),
+               "--ray-file", str(rays), "--out", tmp]
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        if p.returncode != 0:
+            print(f"[{eng}] failed:\n{p.stderr[-2000:]}", file=sys.stderr)
+            continue
+        results[eng] = json.loads(p.stdout.strip().splitlines()[-1])
+    return results
+
+
+def _compare(results, label, tmp):
+    """Ratios to Open3D and agreement with it, added to each engine's row."""
+    ref = results.get("open3d")
+    rows = []
+    for eng, r in results.items():
+        r["mesh"] = label
+        for kind in r["sets"]:
+            if ref and eng != "open3d":
+                a = np.load(Path(tmp) / f"{eng}_{kind}.npy")
+                b = np.load(Path(tmp) / f"open3d_{kind}.npy")
+                r[f"{kind}_agree"], r[f"{kind}_max_dt"] = _agreement(a, b)
+            if ref:
+                r[f"{kind}_ratio"] = r[f"{kind}_mrays"] / ref[f"{kind}_mrays"]
+        if ref:
+            r["build_ratio"] = r["build_s"] / ref["build_s"]
+            r["mem_ratio"] = r["scene_mb"] / max(ref["scene_mb"], 1e-9)
+        rows.append(r)
+    return rows
+
+
 def _agreement(a, b):
     ha, hb = np.isfinite(a), np.isfinite(b)
     both = ha & hb
@@ -204,16 +298,26 @@ def _agreement(a, b):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--sizes", default="1e5,1e6,4e6", help="triangle counts, comma-separated")
-    ap.add_argument("--rays", type=float, default=1e7, help="rays per set (default 10M)")
+    ap.add_argument("--sizes", default="1e5,1e6,4e6",
+                    help="tube triangle counts, comma-separated ('' for none)")
+    ap.add_argument("--rays", type=float, default=1e7, help="rays per tube set (default 10M)")
+    ap.add_argument("--bfo-edge", type=float, default=0.1,
+                    help="edge length of the bfo preset, m (0: skip the bfo sets)")
+    ap.add_argument("--drive-s", type=float, default=8.0,
+                    help="seconds of Airy drive (default 8: 6.9M rays)")
+    ap.add_argument("--station-step-deg", type=float, default=0.12,
+                    help="angular step of the station (default 0.12 deg: 4.0M rays)")
+    ap.add_argument("--random-rays", type=float, default=4e6,
+                    help="random rays near the drive's path (default 4M)")
     ap.add_argument("--engines", default="ours,open3d,embreex")
     ap.add_argument("--json", help="write all figures to this JSON file")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--mesh", help=argparse.SUPPRESS)
+    ap.add_argument("--ray-file", help=argparse.SUPPRESS)
     ap.add_argument("--out", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.worker:
-        print(json.dumps(worker(args.worker, args.mesh, int(args.rays), args.out)))
+        print(json.dumps(worker(args.worker, args.mesh, args.ray_file, args.out)))
         return 0
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -222,55 +326,59 @@ def main(argv=None):
     engines = args.engines.split(",")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for size in (int(float(s)) for s in args.sizes.split(",")):
+        mesh, rays = Path(tmp) / "mesh.npz", Path(tmp) / "rays.npz"
+        for size in (int(float(s)) for s in args.sizes.split(",") if s.strip()):
             v, f = tunnel_tube(size, length_m=300.0, roughness_m=0.002, seed=0)
-            mesh = Path(tmp) / "mesh.npz"
             np.savez(mesh, v=v, f=f)
-            results = {}
-            for eng in engines:
-                cmd = [sys.executable, __file__, "--worker", eng, "--mesh", str(mesh),
-                       "--rays", str(args.rays), "--out", tmp]
-                p = subprocess.run(cmd, capture_output=True, text=True)
-                if p.returncode != 0:
-                    print(f"[{eng}] failed:\n{p.stderr[-2000:]}", file=sys.stderr)
-                    continue
-                results[eng] = json.loads(p.stdout.strip().splitlines()[-1])
-            ref = results.get("open3d")
-            for eng, r in results.items():
-                for kind in ("coherent", "incoherent"):
-                    if ref and eng != "open3d":
-                        a = np.load(Path(tmp) / f"{eng}_{kind}.npy")
-                        b = np.load(Path(tmp) / f"open3d_{kind}.npy")
-                        r[f"{kind}_agree"], r[f"{kind}_max_dt"] = _agreement(a, b)
-                if ref:
-                    r["build_ratio"] = r["build_s"] / ref["build_s"]
-                    r["mem_ratio"] = r["scene_mb"] / max(ref["scene_mb"], 1e-9)
-                    r["coherent_ratio"] = r["coherent_mrays"] / ref["coherent_mrays"]
-                    r["incoherent_ratio"] = r["incoherent_mrays"] / ref["incoherent_mrays"]
-                rows.append(r)
-            _print_table([r for r in rows if r["triangles"] == len(f)])
+            so, sd = coherent_rays(int(args.rays))
+            io, idir = incoherent_rays(int(args.rays))
+            np.savez(rays, coherent_o=so[None], coherent_d=sd, incoherent_o=io,
+                     incoherent_d=idir)
+            del so, sd, io, idir
+            new = _compare(_run_engines(engines, mesh, rays, tmp), "tube", tmp)
+            _print_table(new)
+            rows += new
+        if args.bfo_edge > 0:
+            from survey.world.presets import preset
+
+            tun, _ = preset("bfo", edge_length_m=args.bfo_edge)
+            np.savez(mesh, v=tun.vertices, f=tun.faces)
+            do, dd = drive_rays(tun, args.drive_s)
+            so, sd = station_rays(tun, args.station_step_deg)
+            ro, rd = near_path_rays(do, int(args.random_rays))
+            # Station origin stored once; the worker repeats it for the (n, 3) set.
+            np.savez(rays, drive_o=do, drive_d=dd, station_array_o=so[None],
+                     station_array_d=sd, station_o=so[None], station_d=sd, random_o=ro,
+                     random_d=rd)
+            del do, dd, so, sd, ro, rd
+            new = _compare(_run_engines(engines, mesh, rays, tmp), "bfo", tmp)
+            _print_table(new)
+            rows += new
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0
 
 
 def _print_table(rows):
-    print(f"\n### {rows[0]['triangles']:,} triangles, "
-          f"{rows[0]['coherent_rays']:,} coherent / {rows[0]['incoherent_rays']:,} "
-          "incoherent rays\n")
-    print("| engine | build s | scene MB | coherent Mrays/s | incoherent Mrays/s | "
-          "peak RSS MB | ratio to Open3D (build / mem / coh / incoh) | agreement with "
-          "Open3D (hit/miss, max abs dt m) |")
-    print("|---|---:|---:|---:|---:|---:|---|---|")
+    if not rows:
+        return
+    kinds = rows[0]["sets"]
+    r0 = rows[0]
+    print(f"\n### {r0['mesh']}: {r0['triangles']:,} triangles; rays: " +
+          ", ".join(f"{k} {r0[k + '_rays']:,}" for k in kinds) + "\n")
+    print("| engine | build s | scene MB | " + " | ".join(f"{k} Mrays/s" for k in kinds) +
+          " | peak RSS MB | ratio to Open3D (build / mem / " + " / ".join(kinds) +
+          ") | agreement with Open3D (hit/miss, max abs dt m) |")
+    print("|---|---:|---:|" + "---:|" * len(kinds) + "---:|---|---|")
     for r in rows:
-        ratio = (f"{r['build_ratio']:.2f} / {r['mem_ratio']:.2f} / {r['coherent_ratio']:.2f}"
-                 f" / {r['incoherent_ratio']:.2f}") if "build_ratio" in r else "-"
-        agree = (f"coh {100 * r['coherent_agree']:.4f} %, {r['coherent_max_dt']:.1e}; incoh "
-                 f"{100 * r['incoherent_agree']:.4f} %, {r['incoherent_max_dt']:.1e}"
-                 if "coherent_agree" in r else "(reference)")
-        print(f"| {r['engine']} | {r['build_s']:.2f} | {r['scene_mb']:.0f} | "
-              f"{r['coherent_mrays']:.2f} | {r['incoherent_mrays']:.2f} | "
-              f"{r['peak_rss_mb']:.0f} | {ratio} | {agree} |")
+        ratio = (" / ".join([f"{r['build_ratio']:.2f}", f"{r['mem_ratio']:.2f}"] +
+                            [f"{r[k + '_ratio']:.2f}" for k in kinds])
+                 if "build_ratio" in r else "-")
+        agree = ("; ".join(f"{k} {100 * r[k + '_agree']:.4f} %, {r[k + '_max_dt']:.1e}"
+                           for k in kinds) if f"{kinds[0]}_agree" in r else "(reference)")
+        print(f"| {r['engine']} | {r['build_s']:.2f} | {r['scene_mb']:.0f} | " +
+              " | ".join(f"{r[k + '_mrays']:.2f}" for k in kinds) +
+              f" | {r['peak_rss_mb']:.0f} | {ratio} | {agree} |")
     sys.stdout.flush()
 
 

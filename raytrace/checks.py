@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._kernels.rays import count_nonfinite, unit_directions
 from .errors import MeshError, RayError
 
 __all__ = ["as_points", "as_xyz", "first_rows", "prepare_rays", "shape_text",
@@ -157,6 +158,22 @@ def _limit(value: ArrayLike, name: str, n: int) -> NDArray[np.float64]:
     return np.ascontiguousarray(a)
 
 
+def _raise_bad_rays(o: NDArray[np.float64], d: NDArray[np.float64]) -> None:
+    """Raise the ``RayError`` that names the first bad origins or directions."""
+    bad = np.flatnonzero(~np.isfinite(o).all(axis=1))
+    if bad.size:
+        raise RayError(f"Expected finite `origins`, got NaN/inf at row(s) {first_rows(bad)}"
+                       "; drop those rays.")
+    bad = np.flatnonzero(~np.isfinite(d).all(axis=1))
+    if bad.size:
+        raise RayError(f"Expected finite `directions`, got NaN/inf at row(s) "
+                       f"{first_rows(bad)}; drop those rays.")
+    length = np.sqrt(np.einsum("ij,ij->i", d, d))
+    bad = np.flatnonzero(length == 0.0)
+    raise RayError(f"Expected non-zero `directions`, got zero length at row(s) "
+                   f"{first_rows(bad)}; drop those rays.")
+
+
 def prepare_rays(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
                  t_max: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64],
                                             NDArray[np.float64], NDArray[np.float64]]:
@@ -188,20 +205,14 @@ def prepare_rays(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
     else:
         raise RayError(f"Expected `origins` to have shape ({d.shape[0]}, 3) or (3,), got "
                        f"{shape_text(o)}; pass one origin per ray or a single one.")
-    bad = np.flatnonzero(~np.isfinite(o).all(axis=1))
-    if bad.size:
-        raise RayError(f"Expected finite `origins`, got NaN/inf at row(s) {first_rows(bad)}"
-                       "; drop those rays.")
-    bad = np.flatnonzero(~np.isfinite(d).all(axis=1))
-    if bad.size:
-        raise RayError(f"Expected finite `directions`, got NaN/inf at row(s) "
-                       f"{first_rows(bad)}; drop those rays.")
-    length = np.sqrt(np.einsum("ij,ij->i", d, d))
-    bad = np.flatnonzero(length == 0.0)
-    if bad.size:
-        raise RayError(f"Expected non-zero `directions`, got zero length at row(s) "
-                       f"{first_rows(bad)}; drop those rays.")
-    d = d / length[:, None]
+    o = np.ascontiguousarray(o)
+    d = np.ascontiguousarray(d)
+    # One fused parallel pass each (_kernels/rays.py); the NumPy passes below only run
+    # to name the offending rows when something is wrong.
+    unit = np.empty_like(d)
+    if count_nonfinite(o) or unit_directions(d, unit):
+        _raise_bad_rays(o, d)
+    d = unit
     if d.shape[0] != n:  # one direction shared by several origins
         d = np.broadcast_to(d, (n, 3))
     tmin = _limit(t_min, "t_min", n)
@@ -218,4 +229,4 @@ def prepare_rays(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
         raise RayError(f"Expected `t_min` <= `t_max` for every ray, got t_min "
                        f"{tmin[bad[0]]} > t_max {tmax[bad[0]]}{_at(bad, tmin.size)}; pass "
                        "the limits by keyword: cast(o, d, t_min=..., t_max=...).")
-    return np.ascontiguousarray(o), np.ascontiguousarray(d), tmin, tmax
+    return o, d, tmin, tmax

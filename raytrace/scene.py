@@ -34,7 +34,8 @@ from . import config
 from .checks import first_rows, prepare_rays, validate_mesh
 from ._kernels.build import build_bvh, slot_triangles, to_quad_layout, triangle_setup
 from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
-from ._kernels.order import counting_sort, morton_keys
+from ._kernels.order import counting_sort, is_coherent, morton_keys, origin_runs
+from ._kernels.rays import input_triangles
 from ._kernels.traverse import any_hit, closest_hit
 from .errors import ConfigError, MeshError, RayError, SceneFileError
 from .fileio import atomic_writer
@@ -249,10 +250,13 @@ class Scene:
             ``inf``.
         method : {"auto", "bvh", "cubemap"}, keyword-only
             "cubemap" builds (and keeps, for the next call from the same origin) a cube
-            map of candidate triangles around a single shared origin — a TLS station —
-            and tests each ray against its cell's list only. "auto" does so for a single
-            origin with at least ``config.CUBEMAP_MIN_RAYS_PER_TRI`` rays per triangle.
-            The answer is identical either way; only the speed differs.
+            map of candidate triangles around a single shared origin — a TLS station,
+            given as a (3,) row or as (n, 3) rows that are all equal — and tests each ray
+            against its cell's list only. "auto" does so for every run of equal
+            consecutive origin rows (a single origin included) with at least
+            ``config.CUBEMAP_MIN_RAYS_PER_TRI`` rays per triangle, and so does
+            "cubemap" when the origins are not all equal. The answer is identical
+            either way; only the speed differs.
 
         Returns
         -------
@@ -271,30 +275,69 @@ class Scene:
                            f"{method!r}; leave it at 'auto' unless timing the paths.")
         org, dirs, tmin, tmax = prepare_rays(origins, directions, t_min, t_max)
         n = dirs.shape[0]
-        out_t = np.empty(n)
-        out_slot = np.empty(n, dtype=np.int64)
-        out_u = np.empty(n)
-        out_v = np.empty(n)
+        out = (np.empty(n), np.empty(n, dtype=np.int64), np.empty(n), np.empty(n))
         local = org - self.origin_offset
-        view = None
-        if n and org.shape[0] == 1 and (method == "cubemap" or (
-                method == "auto" and n >= config.CUBEMAP_MIN_RAYS_PER_TRI * self.n_triangles)):
-            view = self._view(local)
-        if n and view is not None:
-            start, slots, counts, g = view
-            with numba.parallel_chunksize(config.PRANGE_CHUNK):
-                closest_hit_view(start, slots, counts, g, config.CUBEMAP_HOT, self._nodes,
-                                 self._nodes.view(np.int32), self._tris, self._ids, local,
-                                 dirs, tmin, tmax, self._stack_size, config.RAY_BLOCK,
-                                 out_t, out_slot, out_u, out_v)
-        elif n:
-            with numba.parallel_chunksize(config.PRANGE_CHUNK):
-                closest_hit(self._nodes, self._nodes.view(np.int32), self._tris, self._ids,
-                            local, dirs, tmin, tmax, self._stack_size,
-                            self._ray_order(local), out_t, out_slot, out_u, out_v)
-        tri = np.where(out_slot >= 0, self._ids[np.maximum(out_slot, 0)], -1)
-        return Hits(out_t, tri.astype(np.int64), out_u, out_v, origins=org, directions=dirs,
+        # Rays sharing one origin go to that origin's cube map. DECISION: shared origins
+        # are also found in an (n, 3) array (runs of bit-identical consecutive rows, one
+        # O(n) pass): a station's rays passed with one row per ray were 3x slower than
+        # the same rays with a (3,) origin (issue 16).
+        min_run = max(1, int(np.ceil(config.CUBEMAP_MIN_RAYS_PER_TRI * self.n_triangles)))
+        runs = np.empty((0, 2), dtype=np.int64)
+        if n and method != "bvh":
+            if org.shape[0] == 1:
+                runs = np.array([[0, n]], dtype=np.int64)
+            else:
+                # "cubemap": at least a run that is the whole batch (one origin); "auto"
+                # (and "cubemap") also every run long enough to repay its map.
+                runs = origin_runs(local.view(np.int64), min(min_run, n))
+            if method == "auto" or (runs.shape[0] and runs[0, 1] - runs[0, 0] < n):
+                runs = runs[runs[:, 1] - runs[:, 0] >= min_run]
+        rest = None
+        for a, b in runs:
+            view = self._view(local[a:a + 1])
+            if view is None:  # too many cube-map entries: the BVH does these rays
+                continue
+            part = slice(a, b)
+            self._cast_view(view, local[a:a + 1], dirs[part], _part(tmin, part),
+                            _part(tmax, part), [o[part] for o in out])
+            if rest is None:
+                rest = np.ones(n, dtype=np.bool_)
+            rest[part] = False
+        if rest is None:
+            if n:
+                self._cast_bvh(local, dirs, tmin, tmax, out)
+        elif rest.any():
+            idx = np.flatnonzero(rest)
+            sub = (np.empty(idx.size), np.empty(idx.size, dtype=np.int64),
+                   np.empty(idx.size), np.empty(idx.size))
+            self._cast_bvh(local[idx] if local.shape[0] > 1 else local, dirs[idx],
+                           _part(tmin, idx), _part(tmax, idx), sub)
+            for o, so in zip(out, sub):
+                o[idx] = so
+        out_t, out_slot, out_u, out_v = out
+        tri = np.empty(n, dtype=np.int64)
+        input_triangles(out_slot, self._ids, tri)
+        return Hits(out_t, tri, out_u, out_v, origins=org, directions=dirs,
                     slots=out_slot, records=self._tris)
+
+    def _cast_view(self, view: Any, local1: NDArray[np.float64], dirs: NDArray[np.float64],
+                   tmin: NDArray[np.float64], tmax: NDArray[np.float64],
+                   out: Any) -> None:
+        """Closest hits of rays from the one origin ``local1`` (1, 3) through its cube
+        map ``view``, written into ``out`` (t, slot, u, v)."""
+        start, slots, counts, g = view
+        with numba.parallel_chunksize(config.PRANGE_CHUNK):
+            closest_hit_view(start, slots, counts, g, config.CUBEMAP_HOT, self._nodes,
+                             self._nodes.view(np.int32), self._tris, self._ids, local1,
+                             dirs, tmin, tmax, self._stack_size, config.RAY_BLOCK, *out)
+
+    def _cast_bvh(self, local: NDArray[np.float64], dirs: NDArray[np.float64],
+                  tmin: NDArray[np.float64], tmax: NDArray[np.float64], out: Any) -> None:
+        """Closest hits through the BVH, written into ``out`` (t, slot, u, v)."""
+        with numba.parallel_chunksize(config.PRANGE_CHUNK):
+            closest_hit(self._nodes, self._nodes.view(np.int32), self._tris, self._ids,
+                        local, dirs, tmin, tmax, self._stack_size, self._ray_order(local),
+                        *out)
 
     def occluded(self, origins: ArrayLike, directions: ArrayLike, *,
                  t_min: ArrayLike = 0.0, t_max: ArrayLike = np.inf) -> NDArray[np.bool_]:
@@ -331,11 +374,15 @@ class Scene:
 
     def _ray_order(self, local_origins: NDArray[np.float64]) -> NDArray[np.int64]:
         """Processing order for a batch: Morton order of the origins for large batches
-        of scattered origins, else empty (input order). Speed only; see order.py."""
+        of scattered origins, else empty (input order: small batches, and batches whose
+        consecutive origins are already close). Speed only; see order.py."""
         n = local_origins.shape[0]
         if n < config.ORDER_MIN_RAYS:
             return _NO_ORDER
         box = self.bounds - self.origin_offset
+        step = float(np.max(box[1] - box[0])) / (1 << config.ORDER_BITS)
+        if is_coherent(local_origins, step, n // config.ORDER_RUN):
+            return _NO_ORDER
         keys = np.empty(n, dtype=np.int64)
         morton_keys(local_origins, box[0], box[1], config.ORDER_BITS, keys)
         return counting_sort(keys, 1 << (3 * config.ORDER_BITS))
@@ -469,6 +516,11 @@ class Scene:
         lo, hi = (", ".join(f"{x:.6g}" for x in row) for row in box)
         return (f"Scene({self.n_triangles:,} triangles, BVH {self.nbytes / 1e6:.1f} MB, "
                 f"bounds ({lo}) .. ({hi}) m)")
+
+
+def _part(limit: NDArray[np.float64], part: Any) -> NDArray[np.float64]:
+    """The rays ``part`` (slice or indices) of a ray limit stored as (1,) or (n,)."""
+    return limit if limit.shape[0] == 1 else limit[part]
 
 
 def _release_freed_memory():

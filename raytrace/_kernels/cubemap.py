@@ -11,6 +11,11 @@ it. A ray then tests only the triangles of its own cell — the exact closest hi
 any triangle the ray hits contains a point t d in the ray's frustum cell, whose
 projection is the ray's own (u, v).
 
+Building a view is one parallel pass over the triangles (``footprints``; a triangle
+whose three vertices lie well inside one face's frustum, most of them, is projected
+without clipping) and two serial passes over the footprints (``count_entries``,
+``fill_entries``).
+
 Cells listing more than ``HOT`` triangles (looking down a long tunnel, many far
 triangles crowd into a small solid angle) are marked, and their rays walk the BVH
 instead. Both paths use the same float64 Möller–Trumbore on the same local-frame data
@@ -42,6 +47,20 @@ from .traverse import trace_closest
 
 #: Chunk of triangles per parallel task in the footprint pass.
 _CHUNK = 4096
+#: A vertex counts as well inside a face's frustum (footprint fast path) when its two
+#: lateral tan-angles are at most 1 - _FAST_MARGIN. DECISION: 1e-4, 100 times
+#: CUBEMAP_PAD: a vertex that close to a face border takes the clipping path, whose
+#: enlarged frustums list the triangle on the neighbouring face too.
+_FAST_MARGIN = 1e-4
+#: A triangle whose plane passes within _TOUCH_REL times its longest edge L of the
+#: origin, with the origin inside its box grown by as much, is listed in every cell of
+#: every face. DECISION: the intersection test accepts hits up to ~BARY * L outside a
+#: triangle, which a footprint at distance r widens by BARY * L / r in tan units; that
+#: stays below CUBEMAP_PAD only for r > BARY * L / CUBEMAP_PAD = 1e-3 L. Nearer
+#: triangles (an origin on an edge, in the plane, hit at t = 0 for every direction;
+#: found by the brute-force property test) go everywhere. 1e-2 keeps a factor 10; only a
+#: station within 1 mm of a 0.1 m triangle pays for it.
+_TOUCH_REL = 1e-2
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
@@ -72,6 +91,69 @@ def _clip(px, py, pz, n, qx, qy, qz, a, b, lateral):
     return m
 
 
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def _inside_face(p, i):
+    """The cube face whose frustum holds vertex p[i] (relative to the origin) with the
+    margin ``_FAST_MARGIN`` on all four sides, or -1 (near a face border, or at the
+    origin)."""
+    x = p[i, 0]
+    y = p[i, 1]
+    z = p[i, 2]
+    ax = abs(x)
+    ay = abs(y)
+    az = abs(z)
+    lim = 1.0 - _FAST_MARGIN
+    if ay <= lim * ax and az <= lim * ax and ax > 0.0:
+        return 0 if x > 0.0 else 1
+    if ax <= lim * ay and az <= lim * ay and ay > 0.0:
+        return 2 if y > 0.0 else 3
+    if ax <= lim * az and ay <= lim * az and az > 0.0:
+        return 4 if z > 0.0 else 5
+    return -1
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def _touches_origin(p):
+    """Whether the triangle p (3, 3) (vertices relative to the origin) lies within
+    _TOUCH_REL times its longest edge of the origin, judged by its plane and its box
+    (conservative: a few more triangles than the distance itself would select)."""
+    e1x = p[1, 0] - p[0, 0]
+    e1y = p[1, 1] - p[0, 1]
+    e1z = p[1, 2] - p[0, 2]
+    e2x = p[2, 0] - p[0, 0]
+    e2y = p[2, 1] - p[0, 1]
+    e2z = p[2, 2] - p[0, 2]
+    e3 = (e2x - e1x) ** 2 + (e2y - e1y) ** 2 + (e2z - e1z) ** 2
+    edge = np.sqrt(max(e1x * e1x + e1y * e1y + e1z * e1z,
+                       max(e2x * e2x + e2y * e2y + e2z * e2z, e3)))
+    tol = _TOUCH_REL * edge
+    for c in range(3):
+        if min(p[0, c], min(p[1, c], p[2, c])) > tol:
+            return False
+        if max(p[0, c], max(p[1, c], p[2, c])) < -tol:
+            return False
+    nx = e1y * e2z - e1z * e2y
+    ny = e1z * e2x - e1x * e2z
+    nz = e1x * e2y - e1y * e2x
+    nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+    return abs(nx * p[0, 0] + ny * p[0, 1] + nz * p[0, 2]) <= tol * nn
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def _write_cells(out, k, face, umin, umax, wmin, wmax, g):
+    """Cell range of the tan-angle box [umin, umax] x [wmin, wmax] on ``face``, padded
+    by CUBEMAP_PAD and clamped to the face."""
+    half = 0.5 * g
+    r0 = int(np.floor((umin - CUBEMAP_PAD + 1.0) * half))
+    r1 = int(np.floor((umax + CUBEMAP_PAD + 1.0) * half))
+    c0 = int(np.floor((wmin - CUBEMAP_PAD + 1.0) * half))
+    c1 = int(np.floor((wmax + CUBEMAP_PAD + 1.0) * half))
+    out[k, face, 0] = max(0, min(g - 1, r0))
+    out[k, face, 1] = max(0, min(g - 1, r1))
+    out[k, face, 2] = max(0, min(g - 1, c0))
+    out[k, face, 3] = max(0, min(g - 1, c1))
+
+
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
 def footprints(tris, ox, oy, oz, g, out):
     """Cell ranges of every triangle on every cube face.
@@ -97,6 +179,41 @@ def footprints(tris, ox, oy, oz, g, out):
                 p[0, c] = v0
                 p[1, c] = v0 + tris[k, 3 + c]
                 p[2, c] = v0 + tris[k, 6 + c]
+            # A triangle on or next to the origin (a hit at t ~ 0 for any direction,
+            # within the intersection test's BARY slack) goes into every cell.
+            if _touches_origin(p):
+                for face in range(6):
+                    out[k, face, 0] = 0
+                    out[k, face, 1] = g - 1
+                    out[k, face, 2] = 0
+                    out[k, face, 3] = g - 1
+                continue
+            # Fast path (most triangles of a mesh around a station): all three vertices
+            # well inside one face's frustum. The clipping below would then keep the
+            # triangle's vertices unchanged on that face and clip it away on the other
+            # five, so the footprint written here is the same, bit for bit.
+            f0 = _inside_face(p, 0)
+            if f0 >= 0 and _inside_face(p, 1) == f0 and _inside_face(p, 2) == f0:
+                axis = f0 // 2
+                sgn = 1.0 if f0 % 2 == 0 else -1.0
+                a1 = (axis + 1) % 3
+                a2 = (axis + 2) % 3
+                umin = np.inf
+                umax = -np.inf
+                wmin = np.inf
+                wmax = -np.inf
+                for i in range(3):
+                    x = sgn * p[i, axis]
+                    u = p[i, a1] / x
+                    w = p[i, a2] / x
+                    umin = min(umin, u)
+                    umax = max(umax, u)
+                    wmin = min(wmin, w)
+                    wmax = max(wmax, w)
+                for face in range(6):
+                    out[k, face, 0] = -1
+                _write_cells(out, k, f0, umin, umax, wmin, wmax, g)
+                continue
             for face in range(6):
                 axis = face // 2
                 sgn = 1.0 if face % 2 == 0 else -1.0
@@ -139,15 +256,7 @@ def footprints(tris, ox, oy, oz, g, out):
                     out[k, face, 2] = 0
                     out[k, face, 3] = g - 1
                     continue
-                half = 0.5 * g
-                r0 = int(np.floor((umin - CUBEMAP_PAD + 1.0) * half))
-                r1 = int(np.floor((umax + CUBEMAP_PAD + 1.0) * half))
-                c0 = int(np.floor((wmin - CUBEMAP_PAD + 1.0) * half))
-                c1 = int(np.floor((wmax + CUBEMAP_PAD + 1.0) * half))
-                out[k, face, 0] = max(0, min(g - 1, r0))
-                out[k, face, 1] = max(0, min(g - 1, r1))
-                out[k, face, 2] = max(0, min(g - 1, c0))
-                out[k, face, 3] = max(0, min(g - 1, c1))
+                _write_cells(out, k, face, umin, umax, wmin, wmax, g)
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
@@ -170,7 +279,15 @@ def count_entries(fp, g):
 @njit(cache=CACHE, error_model=ERROR_MODEL)
 def fill_entries(fp, g, counts, hot):
     """CSR arrays from footprints; hot cells (count > hot) keep no list (their rays use
-    the BVH), so memory is spent on the cells that are used."""
+    the BVH), so memory is spent on the cells that are used.
+
+    DECISION: serial. A parallel version (cells split into row bands, each band task
+    over the triangles reaching it; identical output) was measured 2x slower on one
+    thread and no faster on this VM's two (it reads the footprints three times more).
+    Lists are not sorted by distance: with a stop at the first entry beyond the closest
+    hit, a station ray on the bfo preset still tested 2.8 of its cell's 3.1 triangles
+    (3 % faster casting, more than paid for by the sort).
+    """
     n_cells = 6 * g * g
     # int32 offsets: the caller keeps at most config.CUBEMAP_MAX_ENTRIES (< 2^31) entries.
     start = np.zeros(n_cells + 1, dtype=np.int32)
@@ -194,6 +311,78 @@ def fill_entries(fp, g, counts, hot):
     return start, slots
 
 
+@njit(cache=CACHE, error_model=ERROR_MODEL)
+def _view_block(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs, tmin,
+                tmax, stack_size, r0, r1, out_t, out_slot, out_u, out_v):
+    """Rays r0..r1 of ``closest_hit_view``, sequentially: a serial function called from
+    the prange loop, as ``traverse._closest_block`` is (measured here: as fast as the
+    loop inlined into the prange body, within this VM's noise)."""
+    st_node = np.empty(stack_size, dtype=np.int64)
+    st_dist = np.empty(stack_size)
+    sd = np.empty(4)
+    si = np.empty(4, dtype=np.int64)
+    one_t = tmin.shape[0] == 1
+    ox = org[0, 0]
+    oy = org[0, 1]
+    oz = org[0, 2]
+    half = 0.5 * g
+    for r in range(r0, r1):
+        rt = 0 if one_t else r
+        dx = dirs[r, 0]
+        dy = dirs[r, 1]
+        dz = dirs[r, 2]
+        ax = abs(dx)
+        ay = abs(dy)
+        az = abs(dz)
+        # Dominant axis (ties: lowest axis) and the face's lateral coordinates.
+        if ax >= ay and ax >= az:
+            face = 0 if dx > 0 else 1
+            u = dy / ax
+            w = dz / ax
+        elif ay >= az:
+            face = 2 if dy > 0 else 3
+            u = dz / ay
+            w = dx / ay
+        else:
+            face = 4 if dz > 0 else 5
+            u = dx / az
+            w = dy / az
+        row = min(g - 1, max(0, int(np.floor((u + 1.0) * half))))
+        col = min(g - 1, max(0, int(np.floor((w + 1.0) * half))))
+        cell = face * g * g + row * g + col
+        t0 = tmin[rt]
+        t1 = tmax[rt]
+        if counts[cell] > hot:
+            bt, bid, bslot, bu, bv = trace_closest(nodes, links, tris, ids, ox, oy, oz,
+                                                   dx, dy, dz, t0, t1, -1,
+                                                   st_node, st_dist, sd, si)
+        else:
+            bt = t1
+            bid = -1
+            bslot = -1
+            bu = 0.0
+            bv = 0.0
+            for e in range(start[cell], start[cell + 1]):
+                k = slots[e]
+                t, uu, vv = moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz)
+                if closer(t, ids, k, t0, bt, bid):
+                    bt = t
+                    bid = ids[k]
+                    bslot = k
+                    bu = uu
+                    bv = vv
+        if bslot >= 0:
+            out_t[r] = bt
+            out_slot[r] = bslot
+            out_u[r] = bu
+            out_v[r] = bv
+        else:
+            out_t[r] = np.inf
+            out_slot[r] = -1
+            out_u[r] = 0.0
+            out_v[r] = 0.0
+
+
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
 def closest_hit_view(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs,
                      tmin, tmax, stack_size, block, out_t, out_slot, out_u, out_v):
@@ -202,68 +391,7 @@ def closest_hit_view(start, slots, counts, g, hot, nodes, links, tris, ids, org,
     ``traverse.closest_hit``."""
     n = dirs.shape[0]
     n_blocks = (n + block - 1) // block
-    one_t = tmin.shape[0] == 1
-    ox = org[0, 0]
-    oy = org[0, 1]
-    oz = org[0, 2]
-    half = 0.5 * g
     for b in prange(n_blocks):
-        st_node = np.empty(stack_size, dtype=np.int64)
-        st_dist = np.empty(stack_size)
-        sd = np.empty(4)
-        si = np.empty(4, dtype=np.int64)
-        for r in range(b * block, min(n, (b + 1) * block)):
-            rt = 0 if one_t else r
-            dx = dirs[r, 0]
-            dy = dirs[r, 1]
-            dz = dirs[r, 2]
-            ax = abs(dx)
-            ay = abs(dy)
-            az = abs(dz)
-            # Dominant axis (ties: lowest axis) and the face's lateral coordinates.
-            if ax >= ay and ax >= az:
-                face = 0 if dx > 0 else 1
-                u = dy / ax
-                w = dz / ax
-            elif ay >= az:
-                face = 2 if dy > 0 else 3
-                u = dz / ay
-                w = dx / ay
-            else:
-                face = 4 if dz > 0 else 5
-                u = dx / az
-                w = dy / az
-            row = min(g - 1, max(0, int(np.floor((u + 1.0) * half))))
-            col = min(g - 1, max(0, int(np.floor((w + 1.0) * half))))
-            cell = face * g * g + row * g + col
-            t0 = tmin[rt]
-            t1 = tmax[rt]
-            if counts[cell] > hot:
-                bt, bid, bslot, bu, bv = trace_closest(nodes, links, tris, ids, ox, oy, oz,
-                                                       dx, dy, dz, t0, t1, -1,
-                                                       st_node, st_dist, sd, si)
-            else:
-                bt = t1
-                bid = -1
-                bslot = -1
-                bu = 0.0
-                bv = 0.0
-                for e in range(start[cell], start[cell + 1]):
-                    k = slots[e]
-                    t, uu, vv = moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz)
-                    if closer(t, ids, k, t0, bt, bid):
-                        bt = t
-                        bid = ids[k]
-                        bslot = k
-                        bu = uu
-                        bv = vv
-            if bslot >= 0:
-                out_t[r] = bt
-                out_slot[r] = bslot
-                out_u[r] = bu
-                out_v[r] = bv
-            else:
-                out_t[r] = np.inf
-                out_slot[r] = -1
-                out_u[r] = 0.0
-                out_v[r] = 0.0
+        _view_block(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs, tmin,
+                    tmax, stack_size, b * block, min(n, (b + 1) * block), out_t, out_slot,
+                    out_u, out_v)

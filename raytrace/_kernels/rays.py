@@ -1,0 +1,52 @@
+"""Per-ray passes at the public boundary, fused and parallel: checking and normalising
+directions, checking origins, and mapping hit slots to input triangle indices.
+
+Each replaces a chain of NumPy passes (``isfinite``/``all``, ``einsum``, a division, a
+``where``) that together cost about as much as casting the rays through a cube map
+(measured: ~0.15 s for a 4M-ray station on the 2-core VM, against ~0.16 s of casting).
+The arithmetic is that of the NumPy formulas they replace (length sqrt(x x + y y + z z),
+then one division per component), so results do not change.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from ..config import CACHE, ERROR_MODEL
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
+def unit_directions(d, out):
+    """out[i] = d[i] / |d[i]| for d (n, 3) float64; returns how many rows are not
+    finite or have zero length (their ``out`` rows are then meaningless)."""
+    bad = 0
+    for i in prange(d.shape[0]):
+        x = d[i, 0]
+        y = d[i, 1]
+        z = d[i, 2]
+        length = np.sqrt(x * x + y * y + z * z)
+        out[i, 0] = x / length
+        out[i, 1] = y / length
+        out[i, 2] = z / length
+        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z) and length != 0.0):
+            bad += 1
+    return bad
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
+def count_nonfinite(a):
+    """Number of rows of a (n, 3) float64 with a NaN or inf."""
+    bad = 0
+    for i in prange(a.shape[0]):
+        if not (np.isfinite(a[i, 0]) and np.isfinite(a[i, 1]) and np.isfinite(a[i, 2])):
+            bad += 1
+    return bad
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
+def input_triangles(slots, ids, out):
+    """out[i] = ids[slots[i]], or -1 where slots[i] < 0 (a miss); (n,) int64."""
+    for i in prange(slots.shape[0]):
+        s = slots[i]
+        out[i] = ids[s] if s >= 0 else -1
