@@ -98,6 +98,11 @@ _EXPORTS = {
     "survey.clouds.solid": ("ScannerVoxelGrid", "SolidMesh", "nearest_scanner",
                             "reconstruct_solid"),
     "survey.clouds.scanners": ("iter_scanned", "read_positions", "station_position"),
+    "survey.analysis.detectability": ("DetectLayout", "DetectRow", "DetectTarget",
+                                      "Detectability", "TargetScore", "ahat_a95",
+                                      "detection_limit", "with_noise"),
+    "survey.report.detectability": ("detect_csv", "detect_markdown", "detect_summary",
+                                    "plot_detectability", "targets_csv"),
     "survey.report.epochs": ("chords_csv", "convergence_markdown", "m3c2_markdown",
                              "plot_m3c2_histogram", "plot_radial", "radial_csv"),
     "survey.export.gazebo": ("export_gazebo", "lidar_sdf"),
@@ -180,6 +185,10 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.clouds.solid import (ScannerVoxelGrid, SolidMesh, nearest_scanner,
         reconstruct_solid)
     from survey.clouds.scanners import iter_scanned, read_positions, station_position
+    from survey.analysis.detectability import (DetectLayout, DetectRow, DetectTarget,
+        Detectability, TargetScore, ahat_a95, detection_limit, with_noise)
+    from survey.report.detectability import (detect_csv, detect_markdown, detect_summary,
+        plot_detectability, targets_csv)
     from survey.report.epochs import (chords_csv, convergence_markdown, m3c2_markdown,
         plot_m3c2_histogram, plot_radial, radial_csv)
     from survey.export.gazebo import export_gazebo, lidar_sdf

@@ -18,6 +18,8 @@ from .developed import (DevelopedFrame, DevelopedGrid, DevelopedRaster, RasterAc
                         develop, develop_file, mesh_samples)
 from .clearance import (ClearanceResult, ViolationRegion, Violations, box_envelope,
                         clearance_file, read_envelope)   # not clearance(): see m3c2
+from .detectability import (DetectLayout, DetectRow, DetectTarget, Detectability, TargetScore,
+                            ahat_a95, detection_limit, with_noise)
 from .trajectory import RelativeError, TrajectoryErrors, align_origin, path_pairs, trajectory_errors
 
 __all__ = ["Distances", "ReferenceCloud", "ReferenceMesh", "cloud_to_cloud",
@@ -33,4 +35,6 @@ __all__ = ["Distances", "ReferenceCloud", "ReferenceMesh", "cloud_to_cloud",
            "towards_axis",
            "DevelopedFrame", "DevelopedGrid", "DevelopedRaster", "RasterAccumulator",
            "develop", "develop_file", "mesh_samples", "ClearanceResult", "ViolationRegion",
-           "Violations", "box_envelope", "clearance_file", "read_envelope"]
+           "Violations", "box_envelope", "clearance_file", "read_envelope",
+           "DetectLayout", "DetectRow", "DetectTarget", "Detectability", "TargetScore",
+           "ahat_a95", "detection_limit", "with_noise"]

@@ -11,6 +11,8 @@ from .sections import (plot_rings, plot_section, rings_csv, rings_markdown, sect
                        sections_markdown, volumes_csv)
 from .developed import (clearance_markdown, plot_developed, regions_csv, violations_csv,
                         write_developed)
+from .detectability import (detect_csv, detect_markdown, detect_summary, plot_detectability,
+                            targets_csv)
 from .epochs import (chords_csv, convergence_markdown, m3c2_markdown, plot_m3c2_histogram,
                      plot_radial, radial_csv)
 
@@ -22,4 +24,6 @@ __all__ = ["cloud_c2m_rms", "plan_summary", "drift_report", "helmert_report", "p
            "sections_markdown", "volumes_csv", "chords_csv", "convergence_markdown",
            "m3c2_markdown", "plot_m3c2_histogram", "plot_radial", "radial_csv",
            "clearance_markdown", "plot_developed", "regions_csv", "violations_csv",
-           "write_developed"]
+           "write_developed",
+           "detect_csv", "detect_markdown", "detect_summary", "plot_detectability",
+           "targets_csv"]

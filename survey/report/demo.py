@@ -166,6 +166,11 @@ def demo_summary(folder: str | os.PathLike[str], *, slam: bool | None = None
     if (d / "study" / "study.csv").is_file():
         out["study"] = [{k: (v if k == "mount" else float(v)) for k, v in r.items()}
                         for r in _csv(d / "study" / "study.csv")]
+    if (d / "detect" / "detect.json").is_file():
+        rows = json.loads((d / "detect" / "detect.json").read_text())["rows"]
+        out["detect"] = [{k: r[k] for k in ("sensor", "sensor_kind", "spacing_m",
+                                            "speed_mps", "noise", "false_alarm_rate",
+                                            "detectable_m", "a95_m")} for r in rows]
     out["gazebo_world"] = (d / "gazebo" / "world.sdf").is_file()
     return out
 
@@ -221,6 +226,14 @@ def summary_markdown(s: dict) -> str:
                          "floor density, line spacing, rolling-shutter max",
                          f"{r['density_floor']:,.0f} pts/m^2, {r['line_spacing_m']:.3f} m, "
                          f"{1000 * r['distortion_max_m']:.0f} mm"))
+    for r in s.get("detect", []):
+        how = f"stations every {r['spacing_m']:g} m" if r["sensor_kind"] == "tls" \
+            else f"{r['speed_mps']:g} m/s"
+        lim = [("none" if v is None else f"{1000 * v:g} mm")
+               for v in (r["detectable_m"]["convergence"], r["detectable_m"]["bulge"])]
+        rows.append((f"detectability: {r['sensor']}, {how}, noise x{r['noise']:g}: "
+                     "smallest convergence / bulge detected at 95 %, false alarms",
+                     f"{lim[0]} / {lim[1]}, {100 * r['false_alarm_rate']:.1f} %"))
     if "gazebo_world" in s:
         rows.append(("Gazebo world", "gazebo/world.sdf" if s["gazebo_world"] else "missing"))
     return "\n".join(["| key number | value |", "|---|---|"] +
