@@ -93,16 +93,23 @@ def test_plan_summary_is_plain_strict_data():
     from raytrace.fileio import json_text
 
     plans = [SimpleNamespace(name="every 5 m", chainages=np.array([0.0, 5.0, 10.0]),
-                             coverage=np.float64(0.75), gaps=[{"area_m2": 1.0}] * 2),
+                             coverage=np.float64(0.75), gaps=[{"area_m2": 1.0}] * 2,
+                             offsets_m=np.zeros(3, dtype=np.float32),
+                             stations=np.array([[0.0, 0, 1.5], [5, 0, 1.5], [10, 0, 1.5]])),
              SimpleNamespace(name="optimised", chainages=np.array([2.5]),
-                             coverage=np.float32(0.5), gaps=[])]
+                             coverage=np.float32(0.5), gaps=[], offsets_m=np.array([1.0]),
+                             stations=np.array([[2.5, 1.0, 1.5]]))]
     planner = SimpleNamespace(sensor=SimpleNamespace(name="zf_imager_5016"),
                               resolution="high")
     info = {"candidates": np.int64(9), "gap": float("nan"), "milp": None}
     s = plan_summary(plans, planner, info)
     assert s["sensor"] == "zf_imager_5016" and s["resolution"] == "high"
     assert s["plans"][0] == {"name": "every 5 m", "stations": 3, "coverage": 0.75,
-                             "gaps": 2, "chainages_m": [0.0, 5.0, 10.0]}
+                             "gaps": 2, "chainages_m": [0.0, 5.0, 10.0],
+                             "offsets_m": [0.0, 0.0, 0.0],
+                             "stations_xyz": [[0.0, 0.0, 1.5], [5.0, 0.0, 1.5],
+                                              [10.0, 0.0, 1.5]]}
+    assert type(s["plans"][0]["offsets_m"][0]) is float
     assert type(s["plans"][1]["coverage"]) is float
     assert type(s["optimisation"]["candidates"]) is int
     back = json.loads(json_text(s), parse_constant=lambda c: pytest.fail(c))

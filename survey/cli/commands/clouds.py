@@ -50,9 +50,9 @@ def register(commands: CommandSet) -> None:
                     "nearest of --scanners), trimmed where no point lies within --trim, "
                     "support 0 where it filled a hole. --method auto (default): tunnel "
                     "when --tunnel-json is given or a tunnel axis is found, else solid.",
-        epilog="Examples: tunnelsim mesh clean.laz -o tunnel.ply --cell 0.1,2; "
+        epilog="Example: tunnelsim mesh clean.laz -o tunnel.ply --cell 0.1,2 (or "
                "tunnelsim mesh st01.laz st02.laz st03.laz -o cave.ply --method solid; "
-               "tunnelsim mesh drive.laz -o mine.ply --trajectory drive_true_trajectory.txt")
+               "tunnelsim mesh drive.laz -o mine.ply --trajectory drive_true_trajectory.txt)")
     c.option("cloud", nargs="+", metavar="CLOUD", path="in",
              help=f"input cloud(s) ({CLOUD_INPUTS}); several: e.g. one file per station")
     c.option("-o", "--output", required=True, path="out", help="output mesh (.ply)")

@@ -257,7 +257,7 @@ def cmd_convergence(args) -> int:
         _check_crs(args, args.epochs)
         e1, e2 = _epoch_points(args.epochs[0]), _epoch_points(args.epochs[1])
         if args.at:
-            at = floats(args.at, "--at")
+            at = np.asarray(floats(args.at, "--at"), dtype=np.float64)
         else:
             # DECISION: --every N puts sections every N m of the alignment where both
             # epochs have points (a station covers tens of metres of a long tunnel).

@@ -49,10 +49,10 @@ def register(commands: CommandSet) -> None:
         "scan", cmd_scan, seeded=True, help="simulate a TLS station on a mesh",
         description="Simulate a terrestrial laser scanner station on a mesh and stream the "
                     "points to a file (LAS/LAZ, PLY, NPZ, E57).",
-        epilog="Examples: tunnelsim scan --mesh bfo.ply --sensor zf_imager_5016 "
-               "--resolution superhigh --at 150,2,1.5 -o station.laz; a campaign on 4 "
+        epilog="Example: tunnelsim scan --mesh bfo.ply --sensor zf_imager_5016 "
+               "--resolution superhigh --at 150,2,1.5 -o station.laz (a campaign on 4 "
                "local workers: tunnelsim scan --mesh bfo.ply --resolution high "
-               "--chainages 10:300:5 --workers 4 -o campaign/")
+               "--chainages 10:300:5 --workers 4 -o campaign/)")
     c.option("--mesh", required=True, path="in",
              help="mesh file (PLY with reflectivity, OBJ, ...)")
     c.option("--sensor", default="zf_imager_5016", path="toml",
