@@ -39,3 +39,13 @@ def test_drive_ends_at_the_last_whole_sweep(tube, tmp_path, keep):
         assert abs(counts[1] - counts[0]) < 0.05 * counts[0]     # both whole
         assert truth[-1, 0] - truth[0, 0] == pytest.approx(0.2, abs=1e-9)
         assert np.asarray(las.gps_time).max() <= truth[-1, 0] + 1e-9
+
+
+def test_files_beside_a_copc_drive_take_its_stem(tube, tmp_path):
+    """``d.copc.laz``'s truth is ``d_true_trajectory.txt`` (not ``d.copc_...``)."""
+    out = tmp_path / "d.copc.laz"
+    assert main(["drive", "--mesh", str(tube), "--sensor", "velodyne_vlp16", "--along",
+                 "centreline", "--speed", "1", "--duration", "0.2", "-o", str(out),
+                 "--quiet"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.copc.laz",
+                                                          "d_true_trajectory.txt"]

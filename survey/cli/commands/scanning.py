@@ -611,7 +611,7 @@ def _auto_route(args, scene, platform):
                                 f"{ROUTE_CLEARANCE_M:g} m from the mesh, got "
                                 f"{clear:.3g} m; lower --speed or use --waypoints.")
     out = Path(args.output)
-    path = route.write_csv(out.with_name(f"{out.stem}_route.csv"))
+    path = route.write_csv(out.with_name(f"{output_stem(out)}_route.csv"))
     if not args.quiet:
         print(f"route: {route.length_m:.1f} m, smallest clearance "
               f"{route.min_clearance_m:.2f} m (voxel {route.voxel_m:.2f} m, "
@@ -659,6 +659,15 @@ def _whole_sweeps(spec, traj, t_end: float | None, *, quiet: bool) -> float | No
               f"t = {traj.start_s:g} to {whole:g} s ({end - whole:.3g} s of a partial "
               "sweep left out; --keep-partial-sweep keeps it)")
     return whole
+
+
+def output_stem(out) -> str:
+    """The stem the files beside an output are named after: ``d`` for ``d.laz`` and
+    for ``d.copc.laz`` (COPC's double suffix), ``d`` for a bag folder ``d``."""
+    from pathlib import Path
+
+    name = Path(out).name
+    return name[:-len(".copc.laz")] if name.lower().endswith(".copc.laz") else Path(out).stem
 
 
 def trimmed(traj, t_end: float | None):
@@ -715,7 +724,7 @@ def _true_trajectory(args, traj) -> None:
     from pathlib import Path
 
     out = Path(args.output)
-    path = traj.write(out.with_name(f"{out.stem}_true_trajectory.txt"))
+    path = traj.write(out.with_name(f"{output_stem(out)}_true_trajectory.txt"))
     if not args.quiet:
         print(f"true trajectory: {len(traj)} poses -> {path.name}")
 
@@ -744,7 +753,7 @@ def _slam_files(args, run, traj, meta, *, full=None, crs=None):
         ids, g = [i for i, k in zip(ids, keep) if k], g[keep]
     obs = observe_slam(run, traj, ids, g, seed=args.seed)
     out = Path(args.output)
-    stem = out.with_name(out.stem)
+    stem = out.with_name(output_stem(out))
     obs.slam.write(f"{stem}_trajectory.txt")
     obs.true.write(f"{stem}_true_trajectory.txt")
     obs.observed.write(f"{stem}_cp_observed.csv")
