@@ -49,3 +49,50 @@ def test_files_beside_a_copc_drive_take_its_stem(tube, tmp_path):
                  "--quiet"]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.copc.laz",
                                                           "d_true_trajectory.txt"]
+
+
+@pytest.mark.parametrize("suffix", ["npz", "las"])
+def test_drive_in_windows_writes_the_one_piece_points(tube, tmp_path, suffix):
+    """drive --window-s (issue 19), in this process: the file holds the points of the
+    drive run in one piece; NPZ byte for byte (LAS: the points; laspy's extra-bytes
+    statistics in the header depend on the chunking)."""
+    base = ["drive", "--mesh", str(tube), "--sensor", "velodyne_vlp16", "--along",
+            "centreline", "--speed", "1", "--duration", "0.5", "--fields", "full",
+            "--quiet", "--seed", "3"]
+    one, win = tmp_path / f"one.{suffix}", tmp_path / f"win.{suffix}"
+    assert main(base + ["-o", str(one)]) == 0
+    assert main(base + ["-o", str(win), "--window-s", "0.2"]) == 0
+    if suffix == "npz":
+        a, b = np.load(one), np.load(win)
+        assert sorted(a.files) == sorted(b.files)
+        for k in a.files:
+            np.testing.assert_array_equal(a[k], b[k])
+    else:
+        a, b = laspy.read(one), laspy.read(win)
+        assert a.header.point_count == b.header.point_count > 0
+        np.testing.assert_array_equal(np.asarray(a.points.array), np.asarray(b.points.array))
+
+
+def test_cluster_options_need_windows(tube, tmp_path, capsys):
+    code = main(["drive", "--mesh", str(tube), "--sensor", "velodyne_vlp16", "--along",
+                 "centreline", "--speed", "1", "--duration", "0.2", "--workers", "2",
+                 "-o", str(tmp_path / "d.laz")])
+    assert code == 2
+    err = capsys.readouterr().err.strip()
+    assert "--window-s" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "d.laz").exists()
+
+
+def test_drive_in_windows_on_a_local_cluster(tube, tmp_path, capsys):
+    """The same command on a LocalCluster of 2 workers: the same points, the cluster
+    named in the summary line."""
+    pytest.importorskip("distributed")
+    base = ["drive", "--mesh", str(tube), "--sensor", "velodyne_vlp16", "--along",
+            "centreline", "--speed", "1", "--duration", "0.4", "--seed", "5"]
+    assert main(base + ["-o", str(tmp_path / "one.npz"), "--quiet"]) == 0
+    assert main(base + ["-o", str(tmp_path / "win.npz"), "--window-s", "0.1",
+                        "--workers", "2"]) == 0
+    assert "local cluster" in capsys.readouterr().out
+    a, b = np.load(tmp_path / "one.npz"), np.load(tmp_path / "win.npz")
+    for k in a.files:
+        np.testing.assert_array_equal(a[k], b[k])

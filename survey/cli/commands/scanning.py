@@ -139,6 +139,11 @@ def register(commands: CommandSet) -> None:
     c.option("--lever", default="0,0,0", metavar="X,Y,Z",
              help="lever arm platform -> sensor in metres (default 0,0,0)")
     c.option("--duration", type=float, metavar="S", help="simulate only the first S seconds")
+    c.option("--window-s", type=float, metavar="S",
+             help="simulate in time windows of about S seconds (cut at whole sweeps), "
+                  "each a task (on --workers or --scheduler); the output holds the same "
+                  "points as one piece")
+    cluster_options(c)
     c.option("--keep-partial-sweep", action="store_true",
              help="keep the last sweep (revolution or profile) even when it is partial; "
                   "by default a drive ends at its last whole sweep, as a driver "
@@ -490,6 +495,13 @@ def cmd_drive(args) -> int:
     from sensors import Mount, Trajectory, load_sensor, simulate_drive
     from sensors.meshes import load_mesh
 
+    if args.window_s is not None and args.slam_drift:
+        raise TunnelsimCLIError("Expected --window-s without --slam-drift (the drifted "
+                                "cloud is written in one piece), got both.")
+    if (args.workers or args.scheduler) and args.window_s is None:
+        raise TunnelsimCLIError("Expected --window-s with --workers or --scheduler (a "
+                                "drive is split into time windows to run on a cluster), "
+                                "got no --window-s.")
     if args.slam_drift and not args.along:
         raise TunnelsimCLIError("Expected --along centreline with --slam-drift (the control "
                                 "points come from the tunnel's JSON), got a trajectory "
@@ -552,9 +564,40 @@ def cmd_drive(args) -> int:
         crs = None
     else:                              # every drive writes the truth it drove (issue 22)
         _true_trajectory(args, driven)
-    return _finish_run(args, run, f"{spec.name} drive {run.duration_s:.1f} s",
+    label = f"{spec.name} drive {run.duration_s:.1f} s"
+    if args.window_s is not None:
+        return _finish_windows(args, run, label, refl if refl is not None else
+                               args.reflectivity, crs=crs,
+                               min_return=0.0 if args.allow_outside else MIN_DRIVE_RETURN)
+    return _finish_run(args, run, label,
                        min_return=0.0 if args.allow_outside else MIN_DRIVE_RETURN,
                        where=where, crs=crs)
+
+
+def _finish_windows(args, run, label, reflectivity, *, crs, min_return: float) -> int:
+    """Write a drive simulated in windows (``survey.cluster.simulate_windows``) on the
+    executor --workers / --scheduler ask for, merged into --output."""
+    from survey.cluster import simulate_windows
+
+    ex = open_cluster(args)
+    where = ex.describe()
+    prog = Progress(args.quiet)
+    try:
+        man = simulate_windows(run, args.window_s, args.output, reflectivity=reflectivity,
+                               executor=ex, fields=args.fields, crs=crs,
+                               progress=prog)
+    finally:
+        prog.close()
+        ex.close()
+    wins = man.get("windows", [])
+    points = sum(int(w.get("points", 0)) for w in wins)
+    if points == 0 or points < min_return * run.n_pulses:
+        raise TunnelsimCLIError(f"Expected the {label} to see the mesh, got {points:,} "
+                                f"points from {run.n_pulses:,} pulses.")
+    if not args.quiet:
+        print(f"{label}: {len(wins)} windows of ~{args.window_s:g} s on {where}: "
+              f"{run.n_pulses:,} pulses, {points:,} points -> {args.output}")
+    return 0
 
 
 def _check_auto(args) -> None:
