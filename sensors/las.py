@@ -109,6 +109,20 @@ def _raw_header(path: Path, size: int) -> dict[str, int]:
     if fmt > 10 or rec_len == 0:
         raise _bad(path, f"whose header names point format {fmt} with {rec_len}-byte "
                          "records (expected formats 0 to 10): the header is corrupt")
+    # VLR and EVLR counts laspy trusts (a flipped byte made laspy read minutes of
+    # "records" from a 79 KB file): each VLR has a 54-byte header before the points,
+    # each EVLR a 60-byte one before the end (LAS 1.4 R15, 2.5 and 2.6).
+    n_vlrs = struct.unpack_from("<I", raw, 100)[0]
+    if n_vlrs * 54 > offset - head_size:
+        raise _bad(path, f"whose header counts {n_vlrs:,} VLRs, which cannot fit in the "
+                         f"{offset - head_size:,} bytes before its points: the header is "
+                         "corrupt")
+    if minor >= 4 and len(raw) >= 247:
+        evlr_at, n_evlrs = struct.unpack_from("<QI", raw, 235)
+        if n_evlrs and evlr_at + n_evlrs * 60 > size:
+            raise _bad(path, f"whose header counts {n_evlrs:,} EVLRs from byte "
+                             f"{evlr_at:,}, past its end at byte {size:,}: the header is "
+                             "corrupt or the file cut short")
     count = legacy
     if minor >= 4 and len(raw) >= _OFFSET_COUNT_14 + 8:
         count = struct.unpack_from("<Q", raw, _OFFSET_COUNT_14)[0] or legacy

@@ -176,3 +176,29 @@ def test_ctrl_c_during_compression_stays_a_ctrl_c(tmp_path):
         w.write_points(point_records(w.header, xyz))
     assert finished == [2000]             # the write was not torn in the middle
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("field, at, fmt", [("VLR", 100, "<I"), ("EVLR", 243, "<I")])
+def test_vlr_counts_that_cannot_fit_are_refused(tmp_path, field, at, fmt):
+    """A flipped byte in a VLR or EVLR count (found by the fuzz property: laspy then
+    read 'records' for minutes from a 79 KB file, and a rewrite wrote 711 MB) is one
+    clear error before laspy reads anything."""
+    import struct
+
+    import laspy
+
+    from sensors.errors import PointFileError
+    from sensors.las import LasSource
+
+    h = laspy.LasHeader(point_format=6, version="1.4")
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = np.arange(5.0), np.zeros(5), np.ones(5)
+    path = tmp_path / "a.las"
+    las.write(path)
+    with LasSource(path) as src:                 # the valid file opens
+        assert src.point_count == 5
+    data = bytearray(path.read_bytes())
+    struct.pack_into(fmt, data, at, 11_862_017)
+    path.write_bytes(bytes(data))
+    with pytest.raises(PointFileError, match=f"counts 11,862,017 {field}s"):
+        LasSource(path)
