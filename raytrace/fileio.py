@@ -76,3 +76,63 @@ def write_json(path: str | os.PathLike[str], obj: Any, *, indent: int | None = 2
 
 
 __all__ = ["atomic_writer", "json_text", "write_json"]
+
+
+def npz_memmap(path: str | os.PathLike[str], names: tuple[str, ...]
+               ) -> dict[str, Any]:
+    """Memory-map arrays of an uncompressed ``.npz`` (``np.savez``) without reading them.
+
+    A stored (not deflated) zip member is the ``.npy`` file verbatim, so each array is a
+    ``np.memmap`` at the member's data offset: the local file header (30 bytes, then the
+    name and the extra field, whose lengths it gives; PKWARE APPNOTE 4.3.7) and the
+    ``.npy`` header (NEP 1). Pages are read when first touched and shared by every process
+    mapping the same file (copy-on-write: writes stay private).
+
+    Parameters
+    ----------
+    path : str or path-like
+        A file ``np.savez`` wrote.
+    names : tuple of str
+        Arrays to map.
+
+    Returns
+    -------
+    dict
+        name -> np.memmap (mode "c"); a 0-size array is an ordinary empty array.
+
+    Raises
+    ------
+    ValueError
+        A member missing, deflated (``np.savez_compressed``), or holding objects.
+    """
+    import struct
+    import zipfile
+
+    import numpy as np
+
+    out: dict[str, Any] = {}
+    with zipfile.ZipFile(path) as zf, open(path, "rb") as fh:
+        for name in names:
+            info = zf.getinfo(name + ".npy")
+            if info.compress_type != zipfile.ZIP_STORED:
+                raise ValueError(f"Expected '{name}' stored uncompressed (np.savez), got "
+                                 "a compressed member; save with np.savez.")
+            fh.seek(info.header_offset)
+            local = fh.read(30)
+            if local[:4] != b"PK\x03\x04":
+                raise ValueError(f"Expected a zip local header for '{name}', got "
+                                 f"{local[:4]!r}.")
+            n_name, n_extra = struct.unpack("<HH", local[26:30])
+            fh.seek(info.header_offset + 30 + n_name + n_extra)
+            version = np.lib.format.read_magic(fh)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, fortran, dtype = read_header(fh)
+            if dtype.hasobject:
+                raise ValueError(f"Expected a numeric array '{name}', got objects.")
+            if int(np.prod(shape)) == 0:
+                out[name] = np.empty(shape, dtype=dtype, order="F" if fortran else "C")
+                continue
+            out[name] = np.memmap(path, dtype=dtype, mode="c", offset=fh.tell(),
+                                  shape=shape, order="F" if fortran else "C")
+    return out

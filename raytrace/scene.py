@@ -38,7 +38,7 @@ from ._kernels.order import counting_sort, is_coherent, morton_keys, origin_runs
 from ._kernels.rays import input_triangles
 from ._kernels.traverse import any_hit, closest_hit
 from .errors import ConfigError, MeshError, RayError, SceneFileError
-from .fileio import atomic_writer
+from .fileio import atomic_writer, npz_memmap
 from .hits import Hits
 
 __all__ = ["FILE_FORMAT", "Hits", "Scene"]
@@ -410,6 +410,12 @@ class Scene:
         return view
 
     # ------------------------------------------------------------------ persistence
+    def __getstate__(self) -> dict[str, Any]:
+        # The cube-map view is a per-process cache (rebuilt on first use), not state.
+        state = dict(self.__dict__)
+        state["_view_cache"] = None
+        return state
+
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the built scene, with its vertices and faces, to ``path`` (NumPy .npz)
         atomically; returns the path. ``Scene.load`` reads it back without a rebuild."""
@@ -424,8 +430,12 @@ class Scene:
         return path
 
     @classmethod
-    def load(cls, path: str | os.PathLike[str]) -> Scene:
+    def load(cls, path: str | os.PathLike[str], *, mmap: bool = False) -> Scene:
         """Read a scene written by ``save`` (no rebuild).
+
+        ``mmap=True`` maps the arrays from the file instead of reading them
+        (``fileio.npz_memmap``): loading costs no time or memory up front, and processes on
+        one machine that map the same file share its pages (the cluster's workers do).
 
         Raises
         ------
@@ -442,7 +452,8 @@ class Scene:
                 info = json.loads(z["info"].tobytes().decode())
                 version = info.get("format")
                 names = ("nodes", "tris", "ids", "origin_offset", "vertices", "faces")
-                arrays = {k: z[k] for k in names} if version == FILE_FORMAT else {}
+                arrays = {} if version != FILE_FORMAT else \
+                    npz_memmap(path, names) if mmap else {k: z[k] for k in names}
         except Exception as exc:
             raise SceneFileError(
                 f"Expected a scene file written by Scene.save, got '{path}' which could "

@@ -70,12 +70,18 @@ def test_thread_count_does_not_change_results(small_tunnel):
     np.testing.assert_array_equal(occ_a, occ_b)
 
 
-def test_save_load_round_trip(small_tunnel, tmp_path):
+@pytest.mark.parametrize("mmap", [False, True])
+def test_save_load_round_trip(small_tunnel, tmp_path, mmap):
     v, f = small_tunnel
     scene = Scene(v + np.array([450_000.0, 5_350_000.0, 0.0]), f)
     path = scene.save(tmp_path / "tunnel.bvh.npz")
     assert [p.name for p in tmp_path.iterdir()] == ["tunnel.bvh.npz"]  # no temp left
-    again = Scene.load(path)
+    again = Scene.load(path, mmap=mmap)
+    # Mapped: the arrays are views of the file, not copies read from it.
+    assert all(isinstance(a, np.memmap) == mmap
+               for a in (again._nodes, again._tris, again._ids))
+    np.testing.assert_array_equal(again.vertices, scene.vertices)
+    np.testing.assert_array_equal(again.faces, scene.faces)
     o = np.array([450_030.0, 5_350_000.0, 1.5])
     d = np.random.default_rng(2).standard_normal((20_000, 3))
     a, b = scene.cast(o, d), again.cast(o, d)
@@ -95,6 +101,14 @@ def test_load_rejects_bad_files(tmp_path):
     np.savez(tmp_path / "other.npz", x=np.zeros(3))
     with pytest.raises(SceneFileError, match="could not be read"):
         Scene.load(tmp_path / "other.npz")
+    # A compressed copy of a real scene file reads, but cannot be mapped.
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    saved = Scene(v, np.array([[0, 1, 2]])).save(tmp_path / "s.npz")
+    with np.load(saved) as z:
+        np.savez_compressed(tmp_path / "deflated.npz", **{k: z[k] for k in z.files})
+    assert Scene.load(tmp_path / "deflated.npz").faces.shape == (1, 3)
+    with pytest.raises(SceneFileError, match="uncompressed"):
+        Scene.load(tmp_path / "deflated.npz", mmap=True)
 
 
 def test_occluded_matches_cast(small_tunnel):
