@@ -276,9 +276,35 @@ class Planner:
         return (f"Planner({self.sensor.name} at {self.resolution}, "
                 f"{len(self.cells.area):,} cells, {self.th!r})")
 
+    @staticmethod
+    def _key(station: ArrayLike) -> tuple[float, ...]:
+        return tuple(np.round(np.asarray(station, dtype=np.float64), 6))
+
+    def uncached(self, stations: ArrayLike) -> Floats:
+        """The rows of ``stations`` (k, 3) whose quality is not computed yet, once each
+        (for computing them elsewhere: ``remember``)."""
+        seen: set[tuple[float, ...]] = set()
+        rows = []
+        for p in np.asarray(stations, dtype=np.float64).reshape(-1, 3):
+            k = self._key(p)
+            if k not in self._cache and k not in seen:
+                seen.add(k)
+                rows.append(p)
+        return np.array(rows).reshape(-1, 3)
+
+    def remember(self, stations: ArrayLike, qualities: list[StationQuality]) -> None:
+        """Keep qualities computed elsewhere (by ``quality`` in another process) for
+        ``stations`` (k, 3)."""
+        st = np.asarray(stations, dtype=np.float64).reshape(-1, 3)
+        if len(st) != len(qualities):
+            raise PlanningError(f"Expected one quality per station ({len(st)}), got "
+                                f"{len(qualities)}.")
+        for p, q in zip(st, qualities, strict=True):
+            self._cache[self._key(p)] = q
+
     def quality(self, station: ArrayLike) -> StationQuality:
         """Quality of every cell from ``station`` (3,) (cached per station)."""
-        key = tuple(np.round(np.asarray(station, dtype=np.float64), 6))
+        key = self._key(station)
         if key not in self._cache:
             rmax = min(self.sensor.physics.range_max_m, self.th.range_m)
             pattern: Any = self.sensor.pattern

@@ -370,14 +370,28 @@ class Study:
                         float(speed_mps / rate_hz), int(st.get("pulses", 0)),
                         float(st.get("seconds", 0.0)))
 
+    def run_kept(self, speed_mps: float, rate_hz: float, mount: str = "level"
+                 ) -> tuple[StudyRow, NDArray[np.float64] | None]:
+        """``run``, and the points it kept for the figures (``kept``; None without
+        ``keep_points``): for runs in another process, whose ``kept`` is not this one's."""
+        row = self.run(speed_mps, rate_hz, mount)
+        return row, self.kept.get((float(speed_mps), float(rate_hz), mount))
+
+    @staticmethod
+    def configurations(speeds: Iterable[float], rates: Iterable[float],
+                       mounts: Iterable[str] = ("level",)) -> list[tuple[float, float, str]]:
+        """The (speed, rate, mount) triples ``grid`` runs, in its order (speeds varying
+        fastest): each is one ``run``, independent of the others."""
+        speeds, rates, mounts = list(speeds), list(rates), list(mounts)
+        return [(v, f, m) for m in mounts for f in rates for v in speeds]
+
     def grid(self, speeds: Iterable[float], rates: Iterable[float],
              mounts: Iterable[str] = ("level",),
              progress: Callable[[int, int], object] | None = None) -> list[StudyRow]:
         """``run`` for every (speed, rate, mount), speeds varying fastest;
         ``progress(done, total)`` after each."""
         rows = []
-        speeds, rates, mounts = list(speeds), list(rates), list(mounts)
-        combos = [(v, f, m) for m in mounts for f in rates for v in speeds]
+        combos = self.configurations(speeds, rates, mounts)
         for i, (v, f, m) in enumerate(combos):
             rows.append(self.run(v, f, m))
             if progress:

@@ -482,7 +482,33 @@ class Progress:
 
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_USAGE", "NUMBER_LIST", "RADIAN_TOL", "Command",
-           "CommandSet", "radian_like", "warn_radian_like",
+           "CommandSet", "cluster_options", "open_cluster", "radian_like",
+           "warn_radian_like",
            "Option", "Parser", "Progress", "UsageError", "floats", "numbers", "out_dir", "pair",
            "parse_window", "physics_options", "removed_on_failure", "run_command", "say",
            "version", "write_json", "write_text", "xyz"]
+
+
+def cluster_options(c: Command) -> None:
+    """--workers and --scheduler: where the tasks of a command run (``survey.cluster``);
+    neither: in this process."""
+    g = c.exclusive()
+    c.option("--workers", type=int, group=g, metavar="N",
+             help="run on a local dask cluster of N worker processes, each with "
+                  "cores / N Numba threads (needs the extra 'cluster')")
+    c.option("--scheduler", group=g, metavar="ADDRESS",
+             help="run on an existing dask cluster (the address 'dask scheduler' "
+                  "prints, e.g. tcp://10.0.0.5:8786); the output folder must be one "
+                  "every worker sees")
+
+
+def open_cluster(args: argparse.Namespace) -> Any:
+    """The executor --workers / --scheduler ask for (in-process without either), its
+    address and dashboard printed unless --quiet."""
+    from survey.cluster import open_executor
+
+    cores = getattr(args, "threads", None)
+    ex = open_executor(args.workers, args.scheduler, cores=cores)
+    if ex.kind != "in-process" and not args.quiet:
+        print(f"cluster: {ex.describe()}")
+    return ex

@@ -7,13 +7,15 @@ is asked for.
 """
 
 from .execution import (CLUSTER_HINT, ClusterError, DaskExecutor, Executor, InProcess,
-                        SceneRef, TaskProgress, numba_threads_per_worker, open_executor)
+                        SceneRef, Shared, TaskProgress, call_shared,
+                        numba_threads_per_worker, open_executor)
 from .campaign import (MANIFEST_FORMAT, MANIFEST_NAME, Campaign, Station, read_plan,
                        scan_stations, sha256_of, station_file, station_seed)
 from .windows import DRIVE_MANIFEST_FORMAT, Window, drive_windows, simulate_windows
 
 __all__ = ["CLUSTER_HINT", "ClusterError", "DaskExecutor", "Executor", "InProcess",
-           "SceneRef", "TaskProgress", "numba_threads_per_worker", "open_executor",
+           "SceneRef", "Shared", "TaskProgress", "call_shared", "numba_threads_per_worker",
+           "open_executor",
            "MANIFEST_FORMAT", "MANIFEST_NAME", "Campaign", "Station", "read_plan",
            "scan_stations", "sha256_of", "station_file", "station_seed",
            "DRIVE_MANIFEST_FORMAT", "Window", "drive_windows", "simulate_windows"]

@@ -100,14 +100,58 @@ class SceneRef:
             if key not in _LOADED:
                 from raytrace import Scene
 
-                # DECISION: np.load reads the whole .npz (Scene.load has no memory map
-                # yet); per process, once, not per task.
+                # Mapped, not read: the workers on one machine share the file's pages,
+                # and a task touches only the nodes its rays visit.
                 refl = None if self.reflectivity_path is None else \
                     np.load(self.reflectivity_path, mmap_mode="r")
                 while len(_LOADED) >= SCENES_KEPT:
                     _LOADED.pop(next(iter(_LOADED)))
-                _LOADED[key] = (Scene.load(self.path), refl)
+                _LOADED[key] = (Scene.load(self.path, mmap=True), refl)
             return _LOADED[key]
+
+
+@dataclass(frozen=True)
+class Shared:
+    """An object every task of a run uses (a planner, a study: whatever holds a scene
+    and its prepared cells), sent once: held here (in-process), or pickled into a file
+    by ``Executor.share`` that each worker process reads once (``load``).
+
+    Attributes
+    ----------
+    path : str or None
+        The pickle file; None when ``obj`` is held.
+    """
+
+    path: str | None = None
+    obj: Any = field(default=None, compare=False, repr=False)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        if self.path is None:
+            raise ClusterError("Expected a shared object saved for the workers, got one "
+                               "held in memory; use Executor.share.")
+        return (Shared, (self.path,))
+
+    def load(self) -> Any:
+        """The object, unpickled at most once per process and file."""
+        if self.path is None:
+            return self.obj
+        key = (self.path, None)
+        with _LOADED_LOCK:
+            if key not in _LOADED:
+                import pickle
+
+                while len(_LOADED) >= SCENES_KEPT:
+                    _LOADED.pop(next(iter(_LOADED)))
+                # Our own file, written by Executor.share for this run.
+                with open(self.path, "rb") as fh:
+                    _LOADED[key] = (pickle.load(fh), None)  # noqa: S301
+            return _LOADED[key][0]
+
+
+def call_shared(job: tuple[Shared, str, tuple[Any, ...]]) -> Any:
+    """Task: ``getattr(shared object, method)(*args)`` for a job (Shared, method, args)."""
+    ref, method, args = job
+    return getattr(ref.load(), method)(*args)
 
 
 # ---------------------------------------------------------------------------- progress
@@ -187,6 +231,10 @@ class Executor:
         """The scene as tasks receive it: held here (in-process)."""
         return SceneRef(scene=scene, reflectivity=None if reflectivity is None
                         else np.asarray(reflectivity, dtype=np.float64))
+
+    def share(self, obj: Any, folder: str | os.PathLike[str]) -> Shared:
+        """``obj`` as tasks receive it (``Shared``, for ``call_shared``): held here."""
+        return Shared(obj=obj)
 
     def describe(self) -> str:
         """One line saying where the tasks run."""
@@ -281,6 +329,19 @@ class DaskExecutor(Executor):
             np.save(refl, np.asarray(reflectivity, dtype=np.float64))
             self._shared.append(refl)
         return SceneRef(str(path.resolve()), None if refl is None else str(refl.resolve()))
+
+    def share(self, obj: Any, folder: str | os.PathLike[str]) -> Shared:
+        """Pickle ``obj`` (its scene with it) into ``folder`` for each worker to read
+        once; removed by ``close``. The folder must be one every worker sees."""
+        import pickle
+
+        from raytrace.fileio import atomic_writer
+
+        path = Path(folder) / f".tunnelsim-shared-{uuid.uuid4().hex[:12]}.pkl"
+        with atomic_writer(path) as fh:
+            pickle.dump(obj, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        self._shared.append(path)
+        return Shared(str(path.resolve()))
 
     def close(self) -> None:
         for p in self._shared:

@@ -9,8 +9,10 @@ from pathlib import Path
 from survey.cli.common import (
     CommandSet,
     Progress,
+    cluster_options,
     floats,
     out_dir,
+    open_cluster,
     pair,
     say,
     write_json,
@@ -99,6 +101,7 @@ def register(commands: CommandSet) -> None:
                   "--along auto, M is the largest edge of a triangle sample")
     c.option("--height", type=float, default=1.5, metavar="M",
              help="instrument height above the floor (default 1.5)")
+    cluster_options(c)
     c.option("-o", "--output", required=True, path="out", help="output folder")
     c.option("--threads", type=int, help="Numba threads (default: all cores)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
@@ -137,6 +140,7 @@ def register(commands: CommandSet) -> None:
     c.option("--ideal", action="store_true",
              help="exact geometry: no noise, every return detected")
     c.option("--seed", type=int, default=0, help="random seed (default 0)")
+    cluster_options(c)
     c.option("-o", "--output", required=True, path="out", help="output folder")
     c.option("--threads", type=int, help="Numba threads (default: all cores)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
@@ -350,14 +354,21 @@ def cmd_plan(args) -> int:
         pl = Planner(scene, al, hc, spec, resolution=args.resolution, thresholds=th,
                      cell_m=cell_m, cell_rad=np.deg2rad(cell_deg), height_m=args.height)
     out = out_dir(args.output, args.force)
-    plans = [pl.evaluate(pl.spaced(sp), f"every {sp:g} m") for sp in spacings]
-    info = None
+    sets = [pl.spaced(sp) for sp in spacings]
+    cand = None
     if args.optimize:
         if isinstance(pl, RoutePlanner):
             side = np.abs(np.asarray(offsets))
             cand = pl.candidates(args.candidate_step, np.concatenate([side, -side]))
         else:
             cand = pl.spaced(args.candidate_step)
+    with open_cluster(args) as ex:
+        if ex.kind != "in-process":
+            _fan_out_stations(ex, pl, [*sets, *([] if cand is None else [cand])], out,
+                              args.quiet)
+    plans = [pl.evaluate(c, f"every {sp:g} m") for c, sp in zip(sets, spacings)]
+    info = None
+    if cand is not None:
         best, greedy, info = pl.optimize(cand, target=args.target,
                                          time_limit_s=args.time_limit)
         plans += [best, greedy]
@@ -374,6 +385,25 @@ def cmd_plan(args) -> int:
         files += ", route.csv"
     say(args, md.split("\n## Largest")[0].rstrip() + f"\n-> {out}/ ({files})")
     return 0
+
+
+def _fan_out_stations(ex, pl, chainage_sets, out, quiet) -> None:
+    """Compute the station qualities every plan will need as tasks on ``ex`` (the
+    planner, with its scene and cells, sent once) and give them to the planner; the
+    plans are then the same as computed one by one here."""
+    import numpy as np
+
+    from survey.cluster import TaskProgress, call_shared
+
+    need = pl.uncached(np.concatenate([pl.stations_at(c) for c in chainage_sets
+                                       if len(c)] or [np.zeros((0, 3))]))
+    ref = ex.share(pl, out)
+    bar = TaskProgress(quiet, unit="stations")
+    try:
+        got = ex.map(call_shared, [(ref, "quality", (p,)) for p in need], progress=bar)
+    finally:
+        bar.close()
+    pl.remember(need, got)
 
 
 # ---------------------------------------------------------------------------- study
@@ -415,7 +445,20 @@ def cmd_study(args) -> int:
             sys.stderr.write(f"\rstudy: {i}/{n} configurations ")
             sys.stderr.flush()
 
-    rows = st.grid(speeds, rates, mounts, progress=progress)
+    with open_cluster(args) as ex:
+        if ex.kind == "in-process":
+            rows = st.grid(speeds, rates, mounts, progress=progress)
+        else:
+            from survey.cluster import call_shared
+
+            combos = st.configurations(speeds, rates, mounts)
+            ref = ex.share(st, out)
+            got = ex.map(call_shared, [(ref, "run_kept", c) for c in combos],
+                         progress=progress)
+            rows = [row for row, _ in got]
+            for (v, f, m), (_, kp) in zip(combos, got):
+                if kp is not None:
+                    st.kept[(float(v), float(f), m)] = kp
     if not args.quiet and sys.stderr.isatty():
         sys.stderr.write("\n")
     write_text(out / "study.csv", study_csv(rows))

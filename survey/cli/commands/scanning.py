@@ -17,6 +17,8 @@ import warnings
 from survey.cli.common import (
     CommandSet,
     Progress,
+    cluster_options,
+    open_cluster,
     out_dir,
     pair,
     parse_window,
@@ -40,7 +42,6 @@ ROUTE_CLEARANCE_M = 0.2
 #: --format of a campaign: ``survey.cluster.campaign.STATION_FORMATS`` (spelt out here:
 #: every ``tunnelsim`` start reads this module, and the library imports NumPy).
 STATION_FORMATS = ("laz", "las", "ply", "npz", "e57")
-
 
 
 def register(commands: CommandSet) -> None:
@@ -171,31 +172,6 @@ def register(commands: CommandSet) -> None:
                   "correct'")
     _crs_option(c)
     physics_options(c)
-
-
-def cluster_options(c) -> None:
-    """--workers and --scheduler: where the tasks of a command run (``survey.cluster``);
-    neither: in this process."""
-    g = c.exclusive()
-    c.option("--workers", type=int, group=g, metavar="N",
-             help="run on a local dask cluster of N worker processes, each with "
-                  "cores / N Numba threads (needs the extra 'cluster')")
-    c.option("--scheduler", group=g, metavar="ADDRESS",
-             help="run on an existing dask cluster (the address 'dask scheduler' "
-                  "prints, e.g. tcp://10.0.0.5:8786); the output folder must be one "
-                  "every worker sees")
-
-
-def open_cluster(args):
-    """The executor --workers / --scheduler ask for (in-process without either), its
-    address and dashboard printed unless --quiet."""
-    from survey.cluster import open_executor
-
-    cores = getattr(args, "threads", None)
-    ex = open_executor(args.workers, args.scheduler, cores=cores)
-    if ex.kind != "in-process" and not args.quiet:
-        print(f"cluster: {ex.describe()}")
-    return ex
 
 
 def _crs_option(c) -> None:
