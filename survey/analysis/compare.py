@@ -174,16 +174,24 @@ class ReferenceCloud:
     ----------
     reference : (m, 3) array_like of float, or structured array with x, y, z
         Reference points, metres; at least one.
+    origin : (3,) array_like of float, optional
+        Local origin the tree works about (UTM-sized inputs keep their digits); by
+        default the centre of the bounding box rounded to whole metres, so that a tile
+        of the reference given the whole cloud's origin gives the same distances bit
+        for bit (``survey.cluster``).
     """
 
-    def __init__(self, reference: ArrayLike) -> None:
+    def __init__(self, reference: ArrayLike, *, origin: ArrayLike | None = None) -> None:
         self.points, _ = as_points(reference, "reference", CompareError)
         if len(self.points) == 0:
             raise CompareError("Expected a reference cloud with points, got none.")
         #: (2, 3) float64 (min, max) rows of the reference, m.
         self.bounds = np.stack([self.points.min(axis=0), self.points.max(axis=0)])
-        # Local origin: the tree works on small numbers (UTM-sized inputs keep mm).
-        self.origin = self.points.mean(axis=0)
+        # DECISION: whole metres, so that p - origin is exact for UTM-sized p, and the
+        # bounds (not a sum) set it: order-free, the same for any split of the cloud.
+        self.origin = (np.round(0.5 * (self.bounds[0] + self.bounds[1]))
+                       if origin is None else
+                       np.asarray(origin, dtype=np.float64).reshape(3))
         self.tree = cKDTree(self.points - self.origin)
 
     def __repr__(self) -> str:
