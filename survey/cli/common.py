@@ -143,6 +143,10 @@ class Command:
     seeded: bool = False
     printing: bool = False
     options: dict[str, Option] = field(default_factory=dict)
+    #: Options one of which --workers / --scheduler need (drive: "window-s", compare:
+    #: "tile-m", scan: "chainages" or "plan"); a pipeline run on a cluster hands its
+    #: scheduler only to steps that take it and set one of them (``cluster_options``).
+    cluster_needs: tuple[str, ...] = ()
 
     def option(self, *flags: str, path: str | None = None, group: Any = None,
                **kwargs: Any) -> Option:
@@ -489,9 +493,11 @@ __all__ = ["EXIT_INTERRUPTED", "EXIT_USAGE", "NUMBER_LIST", "RADIAN_TOL", "Comma
            "version", "write_json", "write_text", "xyz"]
 
 
-def cluster_options(c: Command) -> None:
+def cluster_options(c: Command, needs: tuple[str, ...] = ()) -> None:
     """--workers and --scheduler: where the tasks of a command run (``survey.cluster``);
-    neither: in this process."""
+    neither: in this process. ``needs``: the options that split the command into tasks,
+    one of which the command wants with them (``Command.cluster_needs``)."""
+    c.cluster_needs = needs
     g = c.exclusive()
     c.option("--workers", type=int, group=g, metavar="N",
              help="run on a local dask cluster of N worker processes, each with "

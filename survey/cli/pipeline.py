@@ -157,14 +157,18 @@ def _value(opt, v: Any, base: Path | None) -> str:
 
 def step_argv(step: dict, *, quick: bool = False, seed: int | None = None,
               threads: int | None = None, quiet: bool = True, force: bool = False,
-              base: Path | None = None, commands: dict[str, Command] | None = None
-              ) -> list[str]:
+              base: Path | None = None, commands: dict[str, Command] | None = None,
+              scheduler: str | None = None) -> list[str]:
     """The command line of one step (options merged with its quick overrides), checked
     against the options its command registered. ``seed`` and ``threads`` go to the steps
     that take them unless a step sets its own; ``quiet`` and ``force`` (a rerun into the
-    same folder replaces the steps' folders too) to those that take them. With ``base``,
-    relative paths are resolved against that folder (what runs); without, they stay as
-    written (what the report shows)."""
+    same folder replaces the steps' folders too) to those that take them. ``scheduler``
+    (the pipeline's cluster) goes as --scheduler to the steps that fan out: those whose
+    command takes it and that set one of the options it needs
+    (``Command.cluster_needs``: --window-s, --tile-m, --chainages...), unless a step
+    names its own --workers or --scheduler. With ``base``, relative paths are resolved
+    against that folder (what runs); without, they stay as written (what the report
+    shows)."""
     cmd = _commands(commands)[step["command"]]
     name = step.get("name", step["command"])
     pos = cmd.positionals
@@ -196,6 +200,11 @@ def step_argv(step: dict, *, quick: bool = False, seed: int | None = None,
     for key, on in (("quiet", quiet), ("force", force)):
         if on and key in cmd.options and f"--{key}" not in argv:
             argv.append(f"--{key}")
+    if scheduler is not None and "scheduler" in cmd.options \
+            and not {"--workers", "--scheduler"} & set(argv) \
+            and (not cmd.cluster_needs
+                 or any(f"--{k}" in argv for k in cmd.cluster_needs)):
+        argv += ["--scheduler", scheduler]
     return argv
 
 
@@ -289,12 +298,14 @@ class _Bar:
 
 def run_pipeline(pipe: dict, out_dir_path, *, quick=False, seed=None, threads=None,
                  quiet=False, force=False, commands: dict[str, Command] | None = None,
-                 available: Callable[[str], bool] | None = None) -> list:
+                 available: Callable[[str], bool] | None = None,
+                 scheduler: str | None = None) -> list:
     """Run the steps that run here (``active_steps``; ``available`` as there) in
     ``out_dir_path`` (created; a non-empty one only with ``force``). Returns
     [(step, argv, seconds)] with each step's ``about`` filled in and its command line as
     the report shows it. A failing step raises ``PipelineError`` naming it (numbered as
-    the report numbers the steps that run)."""
+    the report numbers the steps that run). ``scheduler``: the address of the dask
+    cluster the steps that fan out use (``step_argv``)."""
     commands = _commands(commands)
     out = out_dir(out_dir_path, force)
     base = out.resolve()
@@ -306,13 +317,14 @@ def run_pipeline(pipe: dict, out_dir_path, *, quick=False, seed=None, threads=No
         name = st.get("name", st["command"])
         cmd = commands[st["command"]]
         shown = step_argv(st, quick=quick, seed=seed, threads=threads, force=force,
-                          commands=commands)
+                          commands=commands, scheduler=scheduler)
         about = step_about(st, quick=quick, commands=commands) or st["command"]
         bar.start(i, name, about)
         t = time.perf_counter()
         try:
             args = cmd.parse(step_argv(st, quick=quick, seed=seed, threads=threads,
-                                       force=force, base=base, commands=commands)[1:])
+                                       force=force, base=base, commands=commands,
+                                       scheduler=scheduler)[1:])
             run_command(cmd, args)
         except TunnelsimError as exc:
             text = " ".join(str(exc).split())

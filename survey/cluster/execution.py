@@ -213,6 +213,8 @@ class Executor:
     kind = "in-process"
     workers = 1
     dashboard: str | None = None
+    #: The scheduler's address ("tcp://host:port"), None in-process.
+    address: str | None = None
 
     def map(self, fn: Callable[[T], R], items: Sequence[T], *,
             progress: Callable[[int, int], None] | None = None) -> list[R]:
@@ -268,6 +270,7 @@ class DaskExecutor(Executor):
         self.kind = "cluster" if cluster is None else "local cluster"
         self.workers = len(client.scheduler_info().get("workers", {}))
         self.dashboard = _dashboard(client)
+        self.address = getattr(client.scheduler, "address", None)
         self._shared: list[Path] = []
 
     def warm_up(self) -> None:

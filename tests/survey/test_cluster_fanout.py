@@ -119,3 +119,60 @@ def test_a_memory_mapped_scene_casts_the_same(tunnel, tmp_path):
     scene.cast(np.array([30.0, 0.0, 1.0]), d)            # builds the cube-map view
     again = pickle.loads(pickle.dumps(scene))
     np.testing.assert_array_equal(again.cast(o, d).t, a.t)
+
+
+# ---------------------------------------------------------------------------- pipelines
+def test_a_pipeline_hands_its_scheduler_only_to_steps_that_fan_out():
+    from survey.cli.pipeline import step_argv
+
+    addr = "tcp://10.0.0.5:8786"
+
+    def argv(command, args=(), **options):
+        return step_argv({"command": command, "args": list(args), "options": options},
+                         scheduler=addr)
+
+    assert argv("scan", mesh="m.ply", chainages="10:30:10", output="o")[-2:] == \
+        ["--scheduler", addr]
+    assert "--scheduler" not in argv("scan", mesh="m.ply", chainage=20, output="o.laz")
+    assert "--scheduler" not in argv("drive", mesh="m.ply", output="d.laz")
+    assert argv("drive", mesh="m.ply", output="d.laz", **{"window-s": 5})[-1] == addr
+    assert "--scheduler" not in argv("compare", args=["a.laz", "b.laz"], output="c")
+    assert argv("study", mesh="m.ply", output="s")[-1] == addr
+    assert "--scheduler" not in argv("tunnel", output="t.ply")       # takes none
+    # a step's own choice stands
+    own = argv("plan", mesh="m.ply", output="p", workers=3)
+    assert "--scheduler" not in own and own[own.index("--workers") + 1] == "3"
+    assert "--scheduler" not in step_argv({"command": "plan", "options": {
+        "mesh": "m.ply", "output": "p"}})                             # no cluster
+
+
+def test_run_on_two_workers_writes_what_it_writes_here(tunnel, tmp_path):
+    pytest.importorskip("distributed")
+    pipe = tmp_path / "p.toml"
+    pipe.write_text(f'''[pipeline]
+name = "two stations and one"
+seed = 4
+
+[[steps]]
+command = "scan"
+[steps.options]
+mesh = "{tunnel}"
+chainages = "20:30:10"
+step-deg = 3
+output = "campaign"
+
+[[steps]]
+command = "scan"
+[steps.options]
+mesh = "{tunnel}"
+chainage = 25
+step-deg = 3
+output = "one.laz"
+''')
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main(["run", str(pipe), "-o", str(a), "--quiet"]) == 0
+    assert main(["run", str(pipe), "--workers", "2", "-o", str(b), "--quiet"]) == 0
+    for f in ("campaign/manifest.json", "one.laz"):
+        assert (a / f).read_bytes() == (b / f).read_bytes(), f
+    report = (b / "report.md").read_text()
+    assert report.count("--scheduler tcp://") == 1          # the campaign step only

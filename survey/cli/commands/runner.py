@@ -6,7 +6,13 @@ import sys
 import time
 from pathlib import Path
 
-from survey.cli.common import CommandSet, write_json, write_text
+from survey.cli.common import (
+    CommandSet,
+    cluster_options,
+    open_cluster,
+    write_json,
+    write_text,
+)
 from survey.errors import TunnelsimCLIError
 
 
@@ -48,6 +54,7 @@ def register(commands: CommandSet) -> None:
     c.option("-o", "--output", required=True, path="out", help="output folder")
     c.option("--quick", action="store_true", help="apply the steps' [quick] options")
     c.option("--seed", type=int, help="random seed for every step that takes one")
+    cluster_options(c)
     c.option("--threads", type=int, help="Numba threads (default: all cores)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
     c.option("--quiet", action="store_true", help="no progress lines")
@@ -58,8 +65,16 @@ def _run(args, text, source, intro_fn=None) -> int:
 
     pipe = load_pipeline(text, source)
     t0 = time.perf_counter()
-    done = run_pipeline(pipe, args.output, quick=args.quick, seed=args.seed,
-                        threads=args.threads, quiet=args.quiet, force=args.force)
+    workers, scheduler = getattr(args, "workers", None), getattr(args, "scheduler", None)
+    if workers is None and scheduler is None:
+        done = run_pipeline(pipe, args.output, quick=args.quick, seed=args.seed,
+                            threads=args.threads, quiet=args.quiet, force=args.force)
+    else:
+        # One cluster for the whole pipeline: the steps that fan out connect to it.
+        with open_cluster(args) as ex:
+            done = run_pipeline(pipe, args.output, quick=args.quick, seed=args.seed,
+                                threads=args.threads, quiet=args.quiet, force=args.force,
+                                scheduler=ex.address)
     total = time.perf_counter() - t0
     out = Path(args.output)
     intro = intro_fn(out, done) if intro_fn else ""

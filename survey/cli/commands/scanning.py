@@ -93,8 +93,9 @@ def register(commands: CommandSet) -> None:
              help="with --chainages / --plan: the stations' file format (default laz)")
     c.option("--force", action="store_true",
              help="with --chainages / --plan: write into an output folder that holds "
-                  "files (they are replaced one by one)")
-    cluster_options(c)
+                  "files (they are replaced one by one); a single station's file is "
+                  "replaced with or without it")
+    cluster_options(c, needs=("chainages", "plan"))
     _crs_option(c)
     physics_options(c)
 
@@ -144,7 +145,7 @@ def register(commands: CommandSet) -> None:
              help="simulate in time windows of about S seconds (cut at whole sweeps), "
                   "each a task (on --workers or --scheduler); the output holds the same "
                   "points as one piece")
-    cluster_options(c)
+    cluster_options(c, needs=("window-s",))
     c.option("--keep-partial-sweep", action="store_true",
              help="keep the last sweep (revolution or profile) even when it is partial; "
                   "by default a drive ends at its last whole sweep, as a driver "
@@ -253,8 +254,8 @@ def cmd_scan(args) -> int:
     if args.chainages is not None or args.plan is not None:
         return _scan_campaign(args, heading_deg)
     given = [f for f, v in (("--workers", args.workers), ("--scheduler", args.scheduler),
-                            ("--plan-name", args.plan_name), ("--format", args.format),
-                            ("--force", args.force)) if v]
+                            ("--plan-name", args.plan_name), ("--format", args.format))
+             if v]
     if given:
         raise TunnelsimCLIError(f"Expected {given[0]} with --chainages or --plan (a "
                                 "campaign of stations), got it with a single station.")
