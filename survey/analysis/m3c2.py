@@ -40,7 +40,9 @@ Differences from py4dgeo (``tests/survey/test_m3c2.py`` shows the equality):
 
 Streaming: the two epochs are held as grids (``EpochGrid``: 32 bytes per point);
 core points are processed in chunks of ``CHUNK`` (``M3C2.compute`` per chunk, or
-``m3c2`` for arrays), so the outputs never need to be held whole.
+``m3c2`` for arrays), so the outputs never need to be held whole. Epochs larger than
+memory run in x, y tiles with a halo (``survey.cluster.m3c2_tiles``), each tile on
+the whole epoch's grid lattice (``EpochGrid.lattice_of``), with the same bits.
 """
 
 from __future__ import annotations
@@ -159,29 +161,62 @@ class EpochGrid:
     cell_m : float > 0
         Cell edge, m (raised where the extent would need more than
         ``MAX_CELLS_PER_AXIS`` cells per axis).
+    lattice : (lo (3,), h, dims (3,)), optional
+        The grid to use instead of the points' own (``lattice_of`` of a larger set's
+        bounds; ``cell_m`` is then ignored); the points may then be none, and must lie
+        in the lattice's box (cells are clipped to it).
     """
 
-    def __init__(self, points: ArrayLike, origin: ArrayLike, cell_m: float) -> None:
+    def __init__(self, points: ArrayLike, origin: ArrayLike, cell_m: float, *,
+                 lattice: tuple[ArrayLike, float, ArrayLike] | None = None) -> None:
         from survey._kernels.m3c2 import cell_keys
 
         p, _ = as_points(points, "points", CompareError)
-        if len(p) == 0:
-            raise CompareError("Expected an epoch with points, got none.")
         self.origin = np.asarray(origin, dtype=np.float64).reshape(3)
-        #: (2, 3) float64 (min, max) rows in world coordinates, m.
-        self.bounds = np.stack([p.min(axis=0), p.max(axis=0)])
-        local = p - self.origin
-        lo = local.min(axis=0)
-        ext = float((local.max(axis=0) - lo).max())
-        h = max(_positive(cell_m, "cell_m"), ext / (MAX_CELLS_PER_AXIS - 2))
+        if lattice is None:
+            if len(p) == 0:
+                raise CompareError("Expected an epoch with points, got none.")
+            #: (2, 3) float64 (min, max) rows in world coordinates, m (NaN: no points).
+            self.bounds = np.stack([p.min(axis=0), p.max(axis=0)])
+            lo, h, dims = self.lattice_of(self.bounds, self.origin, cell_m)
+        else:
+            lo = np.asarray(lattice[0], dtype=np.float64).reshape(3)
+            h = _positive(lattice[1], "lattice cell")
+            dims = np.asarray(lattice[2], dtype=np.int64).reshape(3)
+            if (dims < 1).any() or int(np.prod(dims.astype(object))) >= 1 << 62:
+                raise CompareError(f"Expected 1 to 2^62 lattice cells, got dims "
+                                   f"{dims.tolist()}.")
+            self.bounds = np.stack([p.min(axis=0), p.max(axis=0)]) if len(p) else \
+                np.full((2, 3), np.nan)
         self.h = h
         self.lo = lo
-        self.dims = (np.floor((local.max(axis=0) - lo) / h).astype(np.int64) + 1)
+        self.dims = dims
+        local = p - self.origin
         keys = np.empty(len(local), dtype=np.int64)
         cell_keys(local, lo, 1.0 / h, self.dims, keys)
         order = np.argsort(keys, kind="stable")
         self.keys = keys[order]
         self.points = np.ascontiguousarray(local[order])
+
+    @staticmethod
+    def lattice_of(bounds: ArrayLike, origin: ArrayLike, cell_m: float
+                   ) -> tuple[Floats, float, NDArray[np.int64]]:
+        """(lo (3,), h, dims (3,) int64): the grid an epoch with world ``bounds`` (2, 3)
+        gets about ``origin``: its corner at the local minimum, cells of ``cell_m``
+        (raised to keep ``MAX_CELLS_PER_AXIS``).
+
+        DECISION: a function of the bounds alone, so that a piece of the epoch (a
+        tile, ``survey.cluster.m3c2_tiles``) gets the whole epoch's lattice: the same
+        cell keys, the same cells visited per query, the same order of points, hence
+        the same sums to the last bit. (min(p - o) = fl(min(p) - o): rounding is
+        monotone, so bounds taken over chunks give the same corner.)"""
+        b = np.asarray(bounds, dtype=np.float64).reshape(2, 3)
+        o = np.asarray(origin, dtype=np.float64).reshape(3)
+        lo, hi = b[0] - o, b[1] - o
+        ext = float((hi - lo).max())
+        h = max(_positive(cell_m, "cell_m"), ext / (MAX_CELLS_PER_AXIS - 2))
+        dims = np.floor((hi - lo) / h).astype(np.int64) + 1
+        return lo, h, dims
 
     def __len__(self) -> int:
         return len(self.points)
@@ -325,13 +360,41 @@ class M3C2:
             check_overlap(np.stack([p2.min(0), p2.max(0)]),
                           np.stack([p1.min(0), p1.max(0)]), names=("epoch 2", "epoch 1"))
         if origin is None:
-            origin = np.round(0.5 * (p1.min(axis=0) + p1.max(axis=0)))
+            origin = self.default_origin(np.stack([p1.min(axis=0), p1.max(axis=0)]))
         self.origin = np.asarray(origin, dtype=np.float64).reshape(3)
-        # DECISION: cell edge = cylinder radius: a slab's box spans ~3 cells per axis
-        # (9-16 column searches), and normal balls of a few radii stay cheap.
-        h = params.cyl_radius_m
+        h = self.cell_m(params)
         self.grids = (EpochGrid(p1, self.origin, h), EpochGrid(p2, self.origin, h))
         self.normal_epoch = normal_epoch
+
+    @staticmethod
+    def default_origin(bounds1: ArrayLike) -> Floats:
+        """The local origin by default: the centre of epoch 1's bounds (2, 3), rounded
+        to whole metres, (3,)."""
+        b = np.asarray(bounds1, dtype=np.float64).reshape(2, 3)
+        return np.round(0.5 * (b[0] + b[1]))
+
+    @staticmethod
+    def cell_m(params: M3C2Params) -> float:
+        """The grids' cell edge, m.
+
+        DECISION: cell edge = cylinder radius: a slab's box spans ~3 cells per axis
+        (9-16 column searches), and normal balls of a few radii stay cheap."""
+        return params.cyl_radius_m
+
+    @classmethod
+    def from_grids(cls, grid1: EpochGrid, grid2: EpochGrid, params: M3C2Params, *,
+                   normal_epoch: int = 1) -> M3C2:
+        """An M3C2 on grids built already (about one origin; either may be empty when
+        built on a ``lattice``): the tiles of ``survey.cluster.m3c2_tiles``."""
+        if not np.array_equal(grid1.origin, grid2.origin):
+            raise CompareError(f"Expected grids about one origin, got "
+                               f"{grid1.origin.tolist()} and {grid2.origin.tolist()}.")
+        if normal_epoch not in (1, 2):
+            raise CompareError(f"Expected `normal_epoch` 1 or 2, got {normal_epoch!r}.")
+        job = cls.__new__(cls)
+        job.params, job.origin = params, grid1.origin
+        job.grids, job.normal_epoch = (grid1, grid2), normal_epoch
+        return job
 
     def __repr__(self) -> str:
         return (f"M3C2({len(self.grids[0]):,} and {len(self.grids[1]):,} points, "

@@ -5,7 +5,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from survey.cli.common import CommandSet, floats, numbers, out_dir, say, write_json, write_text
+from survey.cli.common import (
+    CommandSet,
+    cluster_options,
+    floats,
+    numbers,
+    open_cluster,
+    out_dir,
+    say,
+    write_json,
+    write_text,
+)
 from survey.errors import TunnelsimCLIError
 
 
@@ -24,7 +34,8 @@ def register(commands: CommandSet) -> None:
                     "stating different CRSs, or lying apart, are refused.",
         epilog="Example: tunnelsim m3c2 e1.laz e2.laz --core-spacing 0.5 --cyl-radius 0.1 "
                "--max-depth 0.2 --normal-radii 0.1,0.2 --orient axis --tunnel t.json "
-               "-o m3c2.laz")
+               "-o m3c2.laz (epochs larger than memory, on 4 local workers: add "
+               "--tile-m 10 --workers 4)")
     c.option("epoch1", path="in", help="earlier epoch (cloud)")
     c.option("epoch2", path="in", help="later epoch (cloud)")
     c.option("-o", "--output", required=True, path="out",
@@ -51,6 +62,11 @@ def register(commands: CommandSet) -> None:
     c.option("--tunnel", path="in", help="tunnel JSON (alignment and profile) for --orient axis")
     c.option("--allow-crs-mismatch", action="store_true",
              help="compare epochs that state different CRSs (refused by default)")
+    c.option("--tile-m", type=float, metavar="M",
+             help="run in square tiles of M metres in x, y with a halo, each a task (on "
+                  "--workers or --scheduler): memory set by the tile, not by the epochs; "
+                  "the same results; epochs as clouds, spilled into tiles beside -o")
+    cluster_options(c, needs=("tile-m",))
 
     c = commands.add(
         "convergence", cmd_convergence,
@@ -139,7 +155,6 @@ def cmd_m3c2(args) -> int:
 
     from survey.analysis.m3c2 import CHUNK, M3C2, M3C2Result, subsample, towards_axis
     from survey.clouds.cloudio import annotate_las, iter_points, write_points_las
-    from survey.report.epochs import m3c2_markdown, m3c2_summary, plot_m3c2_histogram
 
     out = Path(args.output)
     if out.suffix.lower() not in (".las", ".laz"):
@@ -158,8 +173,15 @@ def cmd_m3c2(args) -> int:
         axis = _tunnel(args.tunnel)
     elif orient != "z":
         vector = tuple(numbers(args.orient, "--orient as z, axis or X,Y,Z", 3))
+    if args.tile_m is None and (args.workers is not None or args.scheduler):
+        raise TunnelsimCLIError("Expected --tile-m with --workers or --scheduler (M3C2 "
+                                "runs on a cluster tile by tile), got no --tile-m.")
+    if args.tile_m is not None and not args.tile_m > 0:
+        raise TunnelsimCLIError(f"Expected a positive --tile-m, got {args.tile_m:g}.")
     inputs = [args.epoch1, args.epoch2] + ([args.core] if args.core else [])
     crs = _check_crs(args, inputs)
+    if args.tile_m is not None:
+        return _m3c2_tiled(args, out, prm, orient, vector, axis, crs)
     e1, e2 = _epoch_points(args.epoch1), _epoch_points(args.epoch2)
     job = M3C2(e1, e2, prm)
     say(args, f"M3C2 on {len(e1):,} and {len(e2):,} points...")
@@ -182,19 +204,73 @@ def cmd_m3c2(args) -> int:
         res = M3C2Result.concatenate(parts)
         write_points_las(out, core, res.fields(), crs=crs)
     res = M3C2Result.concatenate(parts)
-    summ = m3c2_summary(res.distance, res.lod, res.significant, prm,
+    _m3c2_reports(args, out, prm, orient, res.distance, res.lod, res.significant)
+    return 0
+
+
+def _m3c2_tiled(args, out: Path, prm, orient: str, vector, axis, crs) -> int:
+    """cmd_m3c2 with --tile-m: ``survey.cluster.m3c2_tiles.m3c2_files`` on the executor
+    --workers / --scheduler ask for; the results stay on disk until written."""
+    from functools import partial
+
+    import numpy as np
+
+    from survey.analysis.m3c2 import CHUNK, towards_axis
+    from survey.clouds.cloudio import annotate_las, write_points_las
+    from survey.cluster.execution import TaskProgress
+    from survey.cluster.m3c2_tiles import m3c2_files
+
+    las_core = bool(args.core) and Path(args.core).suffix.lower() in (".las", ".laz")
+    core = args.core if args.core else args.core_spacing
+    ex = open_cluster(args)
+    prog = TaskProgress(args.quiet, "tiles")
+    say(args, f"M3C2 in tiles of {args.tile_m:g} m on {ex.describe()}...")
+    try:
+        # DECISION: the spill goes beside -o: a folder every worker sees (as the
+        # scenes of 'scan --workers' do), on the disk that takes the output anyway.
+        store = m3c2_files(args.epoch1, args.epoch2, core, prm, tile_m=args.tile_m,
+                           orientation=vector,
+                           towards=None if axis is None else
+                           partial(towards_axis, axis[0], centre=axis[1]),
+                           executor=ex, spill_dir=out.parent, progress=prog)
+    finally:
+        prog.close()
+        ex.close()
+    with store:
+        if las_core:
+            done = [0]
+
+            def annotate(xyz):
+                a = done[0]
+                done[0] += len(xyz)
+                if not np.array_equal(store.xyz(a, done[0]), xyz):
+                    raise TunnelsimCLIError(f"Expected '{args.core}' to read the same "
+                                            "points twice, got others; was it changed?")
+                return store.result(a, done[0]).fields()
+            annotate_las(args.core, out, annotate, chunk=CHUNK)
+        else:
+            write_points_las(out, store.column("xyz"), store.las_fields(), crs=crs)
+        _m3c2_reports(args, out, prm, orient, store.column("distance"),
+                      store.column("lod"), store.column("significant"))
+    return 0
+
+
+def _m3c2_reports(args, out: Path, prm, orient: str, distance, lod, significant) -> None:
+    """The summary (.json, _report.md), the histogram (.png) and the closing line."""
+    from survey.report.epochs import m3c2_markdown, m3c2_summary, plot_m3c2_histogram
+
+    summ = m3c2_summary(distance, lod, significant, prm,
                         epoch1=str(args.epoch1), epoch2=str(args.epoch2),
                         orientation=orient)
     write_json(out.with_name(out.stem + ".json"), summ)
     write_text(out.with_name(out.stem + "_report.md"),
                m3c2_markdown(summ, title=f"M3C2 {Path(args.epoch1).name} -> "
                                          f"{Path(args.epoch2).name}"))
-    plot_m3c2_histogram(res.distance, res.significant, out.with_name(out.stem + ".png"))
+    plot_m3c2_histogram(distance, significant, out.with_name(out.stem + ".png"))
     say(args, f"M3C2: {summ['with_distance']:,} of {summ['core_points']:,} core points, "
               f"median {1000 * summ['median_m']:.2f} mm, {summ['significant']:,} "
               f"significant (median LoD95 {1000 * summ['median_lod_m']:.2f} mm) -> "
               f"{out.name}, {out.stem}_report.md, {out.stem}.json, {out.stem}.png")
-    return 0
 
 
 # ---------------------------------------------------------------------------- convergence
