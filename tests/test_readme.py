@@ -126,3 +126,38 @@ def test_readme_figures_exist():
     for link in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", README.read_text()):
         p = README.parent / link
         assert p.is_file() and p.read_bytes()[:4] == b"\x89PNG", link
+
+
+def _shell_commands() -> list[str]:
+    """Every ``tunnelsim ...`` command line of the README's bash blocks, continuation
+    lines joined and comments dropped."""
+    lines = []
+    for block in re.findall(r"```bash\n(.*?)```", README.read_text(), flags=re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            for part in re.split(r"&&|;", line.split(" #")[0]):
+                part = part.split(">")[0].strip()            # no redirections
+                if part.startswith("tunnelsim ") and not part[10:].startswith("-"):
+                    lines.append(part)                       # not --version, --help
+    return lines
+
+
+SHELL = _shell_commands()
+
+
+def test_the_readme_has_command_lines():
+    assert len(SHELL) > 20
+
+
+@pytest.mark.parametrize("line", SHELL)
+def test_readme_command_lines_parse(line):
+    """Each command line names a command and options it has, with values of the right
+    kinds (the parser refuses anything else): README text that rots fails here."""
+    import shlex
+
+    from survey.cli.main import build_parser
+
+    parser, commands = build_parser()
+    argv = shlex.split(line)[1:]
+    cmd = commands[argv[0]]
+    args = cmd.parse(argv[1:])
+    assert args is not None

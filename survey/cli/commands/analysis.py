@@ -50,6 +50,13 @@ def register(commands: CommandSet) -> None:
     c.option("--allow-crs-mismatch", action="store_true",
              help="compare inputs that state different coordinate reference systems "
                   "(refused by default: reproject one first)")
+    c.option("--tile-m", type=float, metavar="M",
+             help="compare tile by tile (x, y tiles of M metres, spilled to disk in "
+                  "the output folder): memory bounded by a tile, not by the clouds, and "
+                  "the tiles run as tasks (on --workers or --scheduler); the same "
+                  "distances as one piece. A reference cloud needs --max-dist (the "
+                  "tiles' halo)")
+    cluster_options(c, needs=("tile-m",))
     c.option("--threads", type=int, help="Numba threads (default: all cores)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
     c.option("--quiet", action="store_true", help="no progress bar or summary")
@@ -189,20 +196,20 @@ def _load_reference(path):
     return (ReferenceMesh(v, f), "mesh") if f is not None else (ReferenceCloud(v), "cloud")
 
 
-def _compared_boxes(args, compared, ref) -> int:
+def _compared_boxes(args, compared, ref) -> list[int]:
     """Refuse (unless --allow-disjoint) a compared cloud whose bounding box lies more
     than ``OVERLAP_TOL_M`` from the reference's; one pass over each cloud (bounds from
-    the points, not a header). Returns the number of compared points."""
+    the points, not a header). Returns the number of points of each compared cloud."""
     import numpy as np
 
     from survey.analysis.compare import check_overlap
     from survey.clouds.cloudio import cloud_bounds
     from survey.errors import CompareError
 
-    total = 0
+    total = []
     for c in compared:
         lo, hi, n = cloud_bounds(c)
-        total += n
+        total.append(n)
         if args.allow_disjoint:
             continue
         try:
@@ -234,8 +241,6 @@ def _check_crs(args, compared, ref_path) -> dict:
 
 
 def cmd_compare(args) -> int:
-    from survey.report.compare import plot_histogram, stats_csv, stats_markdown
-
     if len(args.clouds) < 2:
         raise TunnelsimCLIError("Expected at least two paths (compared cloud(s), then the "
                                 f"reference), got {len(args.clouds)}.")
@@ -244,13 +249,21 @@ def cmd_compare(args) -> int:
         if not Path(c).is_file():
             raise TunnelsimCLIError(f"Expected a compared cloud, got '{c}' which does not "
                                     "exist.")
+    if (args.workers or args.scheduler) and args.tile_m is None:
+        raise TunnelsimCLIError("Expected --tile-m with --workers or --scheduler (the "
+                                "tasks are tiles), got none.")
+    if args.tile_m is not None and not args.tile_m > 0:
+        raise TunnelsimCLIError(f"Expected --tile-m as a positive number of metres, got "
+                                f"{args.tile_m:g}.")
     # DECISION: before the boxes: two CRSs explain a disjoint pair better than a box.
     crs = _check_crs(args, compared, ref_path)
+    if args.tile_m is not None:
+        return _compare_tiled(args, compared, ref_path, crs)
     ref, kind = _load_reference(ref_path)
     if kind == "mesh" and (args.split or args.model):
         raise TunnelsimCLIError("Expected --split/--model only with a reference cloud, got "
                                 "a mesh (cloud-to-mesh distances are signed, not split).")
-    total = _compared_boxes(args, compared, ref)
+    total = sum(_compared_boxes(args, compared, ref))
     out = out_dir(args.output, args.force)
     prog = Progress(args.quiet, unit="points")
     try:
@@ -258,6 +271,13 @@ def cmd_compare(args) -> int:
                                 crs)
     finally:
         prog.close()
+    return _compare_outputs(args, ref_path, kind, out, rows, hist)
+
+
+def _compare_outputs(args, ref_path, kind, out, rows, hist) -> int:
+    """stats.csv, stats.md and histogram.png of a comparison, and the summary line."""
+    from survey.report.compare import plot_histogram, stats_csv, stats_markdown
+
     title = "C2M (signed)" if kind == "mesh" else "C2C"
     write_text(out / "stats.csv", stats_csv(rows))
     md = stats_markdown(rows, title=title)
@@ -271,13 +291,67 @@ def cmd_compare(args) -> int:
     return 0
 
 
-def _distances(args, compared, ref, kind, out, progress, crs=None):
+def _compare_tiled(args, compared, ref_path, crs) -> int:
+    """compare --tile-m: the reference cloud spilled into tiles with a halo of
+    --max-dist (or the mesh sent once), each compared cloud spilled and compared tile by
+    tile on the executor, then written in its own order (``survey.cluster.compare``)."""
+    from survey.analysis.developed import is_mesh_file
+    from survey.clouds.cloudio import iter_points
+
+    from survey.cluster import TaskProgress
+    from survey.cluster.compare import spill_cloud, tiled_distances
+
+    mesh = is_mesh_file(ref_path)
+    if mesh and (args.split or args.model):
+        raise TunnelsimCLIError("Expected --split/--model only with a reference cloud, got "
+                                "a mesh (cloud-to-mesh distances are signed, not split).")
+    if not mesh and args.max_dist is None:
+        raise TunnelsimCLIError("Expected --max-dist with --tile-m and a reference cloud "
+                                "(the nearest point is looked for within it: the tiles' "
+                                "halo), got none.")
+    if args.model:
+        raise TunnelsimCLIError("Expected --tile-m without --model (a plane's k "
+                                "neighbours can lie beyond a tile's halo), got both.")
+    out = out_dir(args.output, args.force)
+    ref, kind, spill = None, "mesh", None
+    if mesh:
+        ref, kind = _load_reference(ref_path)
+    else:
+        kind = "cloud"
+        spill = spill_cloud(iter_points(ref_path), args.tile_m, args.max_dist, folder=out)
+    try:
+        counts = _compared_boxes(args, compared, ref if ref is not None else spill)
+        tiled = {}
+        with open_cluster(args) as ex:
+            for c, n in zip(compared, counts):
+                bar = TaskProgress(args.quiet, unit=f"tiles of {Path(c).name}")
+                try:
+                    tiled[c] = tiled_distances(
+                        iter_points(c), n, tile_m=args.tile_m, reference=spill, mesh=ref,
+                        max_distance_m=args.max_dist, split=args.split, executor=ex,
+                        folder=out, progress=bar)
+                finally:
+                    bar.close()
+    finally:
+        if spill is not None:
+            spill.close()
+    try:
+        rows, hist = _distances(args, compared, None, kind, out, lambda n: None, crs,
+                                tiled=tiled)
+    finally:
+        for t in tiled.values():
+            t.close()
+    return _compare_outputs(args, ref_path, kind, out, rows, hist)
+
+
+def _distances(args, compared, ref, kind, out, progress, crs=None, tiled=None):
     """Write each compared cloud with its distances (``NAME_distance.laz``, stating the
     cloud's CRS ``crs[path]``), block by block (``progress(points done)`` after each);
-    returns (stats rows, distances) by cloud name."""
+    returns (stats rows, distances) by cloud name. ``tiled``: {path: TiledDistances}
+    computed before (``compare --tile-m``), read in the cloud's order."""
     import numpy as np
 
-    from survey.analysis.compare import BLOCK, distance_stats
+    from survey.analysis.compare import BLOCK, Distances, distance_stats
     from survey.clouds.cloudio import annotate_las, iter_points, write_points_las
 
     rows, hist = {}, {}
@@ -285,10 +359,17 @@ def _distances(args, compared, ref, kind, out, progress, crs=None):
     for c in compared:
         name = Path(c).stem
         got: list = []
+        pos = 0
 
-        def dist(xyz, got=got):
-            nonlocal done
-            if kind == "mesh":
+        def dist(xyz, got=got, c=c):
+            nonlocal done, pos
+            if tiled is not None:
+                t, sl = tiled[c], slice(pos, pos + len(xyz))
+                pos += len(xyz)
+                r = Distances(np.array(t.distance[sl]), np.zeros(len(xyz), np.int64))
+                if t.diff is not None:
+                    r.dx, r.dy, r.dz = (np.array(t.diff[sl, i]) for i in range(3))
+            elif kind == "mesh":
                 r = ref.distances(xyz, max_distance_m=args.max_dist)
             else:
                 r = ref.distances(xyz, max_distance_m=args.max_dist, split=args.split,
