@@ -8,13 +8,13 @@ options the command registered.
 
 from __future__ import annotations
 
-from survey.cli.commands import (adjustment, analysis, clouds, detectability, epochs,
-                                 inspection, scanning, sections, slam, world)
+from survey.cli.commands import (adjustment, analysis, clouds, detectability, driving,
+                                 epochs, inspection, scanning, sections, slam, world)
 from survey.cli.common import Command, CommandSet, Parser, version
 
 #: The command groups a pipeline step may use (``run`` and ``demo`` run pipelines and
 #: are added by ``survey.cli.main``).
-STEP_GROUPS = (world, scanning, slam, adjustment, clouds, analysis, sections, epochs,
+STEP_GROUPS = (world, scanning, driving, slam, adjustment, clouds, analysis, sections, epochs,
                inspection, detectability)
 
 
