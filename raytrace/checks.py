@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._kernels.rays import count_nonfinite, unit_directions
 from .errors import MeshError, RayError
 
-__all__ = ["as_points", "as_xyz", "first_rows", "prepare_rays", "shape_text",
+__all__ = ["as_points", "as_xyz", "first_rows", "positive", "prepare_rays", "shape_text",
            "validate_mesh"]
 
 
@@ -30,6 +30,20 @@ def first_rows(idx: ArrayLike, k: int = 10) -> str:
     flat = np.asarray(idx).ravel()
     s = ", ".join(str(int(i)) for i in flat[:k])
     return s + (f", ... ({flat.size} in all)" if flat.size > k else "")
+
+
+def positive(value: Any, name: str, error: type[ValueError], *, zero: bool = False,
+             what: str = "a number of metres") -> float:
+    """``value`` as a float that is finite and > 0 (>= 0 with ``zero``), else ``error``
+    naming the argument ``name`` (``what`` says the kind: "a number of metres")."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise error(f"Expected `{name}` as {what}, got {value!r}.") from None
+    if not (np.isfinite(v) and (v >= 0 if zero else v > 0)):
+        raise error(f"Expected a {'non-negative' if zero else 'positive'} finite "
+                    f"`{name}`, got {value!r}.")
+    return v
 
 
 def as_xyz(a: ArrayLike, name: str, error: type[ValueError]) -> NDArray[np.float64]:

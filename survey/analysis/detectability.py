@@ -56,6 +56,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from raytrace.checks import positive
 from survey.errors import StudyError
 from survey.world.deformation import Bulge, Convergence, Deformation, total_field
 
@@ -85,14 +86,7 @@ BULGE_CORE_FRACTION = 1.0 / 3.0
 
 
 def _pos(value: Any, name: str, zero: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise StudyError(f"Expected `{name}` as a number, got {value!r}.") from None
-    if not (np.isfinite(v) and (v >= 0 if zero else v > 0)):
-        raise StudyError(f"Expected a {'non-negative' if zero else 'positive'} finite "
-                         f"`{name}`, got {value!r}.")
-    return v
+    return positive(value, name, StudyError, zero=zero, what="a number")
 
 
 @dataclass(frozen=True)

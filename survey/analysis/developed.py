@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from raytrace.checks import as_points
+from raytrace.checks import as_points, positive
 from survey.analysis.design import DesignProfile
 from survey.errors import CloudFileError, CompareError, ProfileError
 from survey.world.alignment import Alignment
@@ -71,14 +71,7 @@ MESH_CHUNK = 1 << 16
 
 
 def _positive(value: Any, name: str) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise CompareError(f"Expected `{name}` as a number of metres, got {value!r}."
-                           ) from None
-    if not (np.isfinite(v) and v > 0):
-        raise CompareError(f"Expected a positive finite `{name}`, got {value!r}.")
-    return v
+    return positive(value, name, CompareError)
 
 
 # ---------------------------------------------------------------------- the frame

@@ -54,7 +54,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from raytrace.checks import as_points
+from raytrace.checks import as_points, positive
 from survey.analysis.compare import check_overlap
 from survey.errors import CompareError
 
@@ -76,15 +76,7 @@ MAX_CELLS_PER_AXIS = 1 << 20
 
 
 def _positive(value: Any, name: str, zero: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise CompareError(f"Expected `{name}` as a number of metres, got {value!r}."
-                           ) from None
-    if not (np.isfinite(v) and (v >= 0 if zero else v > 0)):
-        raise CompareError(f"Expected a {'non-negative' if zero else 'positive'} finite "
-                           f"`{name}`, got {value!r}.")
-    return v
+    return positive(value, name, CompareError, zero=zero)
 
 
 @dataclass(frozen=True)

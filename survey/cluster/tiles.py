@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from raytrace.checks import positive
 from survey.errors import ClusterError
 
 __all__ = ["TileData", "TileRef", "TileSpill", "tile_key_text"]
@@ -55,15 +56,7 @@ def tile_key_text(key: Key) -> str:
 
 
 def _positive(value: Any, name: str, zero: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ClusterError(f"Expected `{name}` as a number of metres, got {value!r}."
-                           ) from None
-    if not (np.isfinite(v) and (v >= 0 if zero else v > 0)):
-        raise ClusterError(f"Expected a {'non-negative' if zero else 'positive'} finite "
-                           f"`{name}`, got {value!r}.")
-    return v
+    return positive(value, name, ClusterError, zero=zero)
 
 
 @dataclass(frozen=True)
