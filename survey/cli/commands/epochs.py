@@ -224,7 +224,8 @@ def _m3c2_tiled(args, out: Path, prm, orient: str, vector, axis, crs) -> int:
     core = args.core if args.core else args.core_spacing
     ex = open_cluster(args)
     prog = TaskProgress(args.quiet, "tiles")
-    say(args, f"M3C2 in tiles of {args.tile_m:g} m on {ex.describe()}...")
+    where = "in this process" if ex.kind == "in-process" else f"on the {ex.kind}"
+    say(args, f"M3C2 in tiles of {args.tile_m:g} m {where}...")
     try:
         # DECISION: the spill goes beside -o: a folder every worker sees (as the
         # scenes of 'scan --workers' do), on the disk that takes the output anyway.
