@@ -51,8 +51,9 @@ _EXPORTS = {
                               "write_points_las"),
     "survey.clouds.preprocess": ("VoxelGrid", "radius_outliers", "statistical_outliers",
                                  "voxel_down_sample"),
-    "survey.clouds.axis": ("estimate_axis", "tunnel_frame", "unroll"),
-    "survey.clouds.segment": ("CLASS_NAMES", "segment_tunnel"),
+    "survey.clouds.axis": ("LiningExtent", "estimate_axis", "extend_chainage",
+                           "lining_extent", "tunnel_frame", "unroll", "unroll_extended"),
+    "survey.clouds.segment": ("CLASS_NAMES", "TERRAIN", "segment_tunnel"),
     "survey.clouds.reconstruct": ("ReconstructedTunnel", "poisson_tunnel",
                                   "reconstruct_tunnel", "reconstruct_within_budget"),
     "survey.clouds.detail": ("attachment_tubes", "DetailedMesh", "with_detail_layer"),
@@ -140,8 +141,16 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
         cloud_bounds, iter_points, map_cloud, write_points_las)
     from survey.clouds.preprocess import (VoxelGrid, radius_outliers, statistical_outliers,
         voxel_down_sample)
-    from survey.clouds.axis import estimate_axis, tunnel_frame, unroll
-    from survey.clouds.segment import CLASS_NAMES, segment_tunnel
+    from survey.clouds.axis import (
+        LiningExtent,
+        estimate_axis,
+        extend_chainage,
+        lining_extent,
+        tunnel_frame,
+        unroll,
+        unroll_extended,
+    )
+    from survey.clouds.segment import CLASS_NAMES, TERRAIN, segment_tunnel
     from survey.clouds.reconstruct import (ReconstructedTunnel, poisson_tunnel,
         reconstruct_tunnel, reconstruct_within_budget)
     from survey.clouds.detail import attachment_tubes, DetailedMesh, with_detail_layer
