@@ -28,6 +28,16 @@ def tbm_mesh(tmp_path_factory):
     return make
 
 
+@pytest.fixture(scope="session")
+def tbm_20k(tmp_path_factory):
+    """A 100 m 'tbm' tunnel of ~20k triangles with its JSON (alignment on x), once per
+    session (tests must not modify it)."""
+    out = tmp_path_factory.mktemp("tbm20k") / "tbm.ply"
+    assert main(["tunnel", "--preset", "tbm", "--triangles", "20000", "-o", str(out),
+                 "--quiet"]) == 0
+    return out
+
+
 CHECKER = Path(__file__).parent / "sdf" / "sdf_check.cpp"
 
 

@@ -36,12 +36,9 @@ STEP_RAD = np.deg2rad(2.0)
 
 
 @pytest.fixture(scope="module")
-def tunnel(tmp_path_factory):
+def tunnel(tbm_20k):
     """A 100 m 'tbm' tunnel of ~20k triangles with its JSON (alignment on x)."""
-    out = tmp_path_factory.mktemp("cl") / "tbm.ply"
-    assert main(["tunnel", "--preset", "tbm", "--triangles", "20000", "-o", str(out),
-                 "--quiet"]) == 0
-    return out
+    return tbm_20k
 
 
 @pytest.fixture(scope="module")

@@ -21,12 +21,9 @@ from survey.errors import PlanningError
 
 
 @pytest.fixture(scope="module")
-def tunnel(tmp_path_factory):
-    """A 100 m 'tbm' tunnel of ~20k triangles with its JSON."""
-    out = tmp_path_factory.mktemp("fan") / "tbm.ply"
-    assert main(["tunnel", "--preset", "tbm", "--triangles", "20000", "-o", str(out),
-                 "--quiet"]) == 0
-    return out
+def tunnel(tbm_20k):
+    """A 100 m 'tbm' tunnel of ~20k triangles with its JSON (alignment on x)."""
+    return tbm_20k
 
 
 class _Counter:
