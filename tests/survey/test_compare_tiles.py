@@ -144,3 +144,12 @@ def test_compare_tile_errors_are_one_line(clouds, tmp_path, capsys, extra, match
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and match in err[0], err
     assert not (tmp_path / "o").exists()
+
+
+def test_a_halo_larger_than_the_tile_is_a_one_line_warning(clouds, tmp_path, capsys):
+    """--max-dist given in mm by mistake (50 for 5 cm): still right, but slow; said."""
+    cmp_, ref = clouds
+    assert main(["compare", str(cmp_), str(ref), "--max-dist", "6", "--tile-m", "5",
+                 "--quiet", "-o", str(tmp_path / "o")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--max-dist 6 m is larger than --tile-m 5 m" in err[0], err

@@ -312,6 +312,14 @@ def _compare_tiled(args, compared, ref_path, crs) -> int:
     if args.model:
         raise TunnelsimCLIError("Expected --tile-m without --model (a plane's k "
                                 "neighbours can lie beyond a tile's halo), got both.")
+    if not mesh and args.max_dist > args.tile_m:
+        import warnings
+
+        warnings.warn(f"--max-dist {args.max_dist:g} m is larger than --tile-m "
+                      f"{args.tile_m:g} m: each tile reads its neighbours' points within "
+                      "it too, so memory and time grow with (1 + 2 max-dist / tile)^2; "
+                      "--max-dist is in metres (0.05 for 5 cm).", UserWarning,
+                      stacklevel=2)
     out = out_dir(args.output, args.force)
     ref, kind, spill = None, "mesh", None
     if mesh:
