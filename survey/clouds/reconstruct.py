@@ -321,6 +321,9 @@ def poisson_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
     "bulbous closures" Poisson puts at the portals cut off: every vertex beyond the
     chainage range of the points goes. Returns (vertices (n, 3), faces (m, 3)).
     Needs the optional Open3D (``pip install open3d``)."""
+    from raytrace.config import threading_info
+
+    threading_info()        # before Open3D's TBB is loaded (see survey.clouds.solid)
     try:
         import open3d as o3d
     except ImportError as exc:  # pragma: no cover - depends on the environment

@@ -260,6 +260,11 @@ class SolidMesh:
 
 
 def _open3d() -> Any:
+    from raytrace.config import threading_info
+
+    # DECISION: Numba picks its threading layer first. Open3D ships an older TBB; once it
+    # is loaded, Numba finds it, refuses it and warns (a NumbaWarning on every run).
+    threading_info()
     try:
         import open3d as o3d
     except ImportError as exc:  # pragma: no cover - depends on the environment

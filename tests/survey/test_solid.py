@@ -381,3 +381,24 @@ def test_cli_mesh_bad_input_is_one_line(station_files, tmp_path, capsys):
     (tmp_path / "st.txt").write_text("\n".join(" ".join(map(str, s)) for s in STATIONS))
     assert main(["mesh", str(plain), "-o", str(tmp_path / "e.ply"), "--scanners",
                  str(tmp_path / "st.txt"), "--voxel", "0.06", "--quiet"]) == 0
+
+
+def test_no_numba_tbb_warning_when_open3d_is_loaded():
+    """Open3D carries an older TBB: loaded before Numba picks its threading layer, Numba
+    warns on every run. The solid route picks the layer first (a fresh process: the
+    layer is chosen once per process)."""
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from survey.clouds import reconstruct_solid\n"
+            "rng = np.random.default_rng(0)\n"
+            "p = rng.normal(size=(5000, 3))\n"
+            "p = 3 * p / np.linalg.norm(p, axis=1)[:, None]\n"
+            "m = reconstruct_solid(p, scanners=np.zeros(3), cell_m=0.2)\n"
+            "print(len(m.faces))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert int(r.stdout.split()[-1]) > 100
+    assert "TBB" not in r.stderr and "NumbaWarning" not in r.stderr, r.stderr
