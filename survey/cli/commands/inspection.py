@@ -140,6 +140,12 @@ def _setup(args):
                     ("--tile-m", args.tile_m)):
         if v is not None and not v > 0:
             raise TunnelsimCLIError(f"Expected {flag} > 0 m, got {v}.")
+    if args.tile_m is not None:
+        # Checked before the (long) pass over the input.
+        r = args.tile_m / args.cell
+        if abs(r - round(r)) > 1e-6 * max(1.0, r):
+            raise TunnelsimCLIError(f"Expected --tile-m a whole multiple of --cell "
+                                    f"({args.cell:g} m), got {args.tile_m:g} m.")
     al, prof, crs = _tunnel(args)
     design = _design(args, prof)
     rng = None
@@ -161,12 +167,6 @@ def cmd_develop(args) -> int:
     al, design, rng, crs = _setup(args)
     if args.max_deviation is not None and not args.max_deviation > 0:
         raise TunnelsimCLIError(f"Expected --max-deviation > 0 m, got {args.max_deviation}.")
-    if args.tile_m is not None:
-        # Checked before the (long) pass over the input.
-        r = args.tile_m / args.cell
-        if abs(r - round(r)) > 1e-6 * max(1.0, r):
-            raise TunnelsimCLIError(f"Expected --tile-m a whole multiple of --cell "
-                                    f"({args.cell:g} m), got {args.tile_m:g} m.")
     out = out_dir(args.output, args.force)
     raster = develop_file(args.input, al, design, field=args.field, cell_m=args.cell,
                           cell_arc_m=args.cell_arc, chainage_range=rng,
@@ -220,11 +220,6 @@ def cmd_clearance(args) -> int:
     envelope = read_envelope(args.envelope)
     if not (args.required >= 0):
         raise TunnelsimCLIError(f"Expected --required >= 0 m, got {args.required}.")
-    if args.tile_m is not None:
-        r = args.tile_m / args.cell
-        if abs(r - round(r)) > 1e-6 * max(1.0, r):
-            raise TunnelsimCLIError(f"Expected --tile-m a whole multiple of --cell "
-                                    f"({args.cell:g} m), got {args.tile_m:g} m.")
     out = out_dir(args.output, args.force)
     res = clearance_file(args.input, al, envelope, design, cell_m=args.cell,
                          cell_arc_m=args.cell_arc, chainage_range=rng,
