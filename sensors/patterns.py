@@ -34,6 +34,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_number, as_whole
+from ._threads import run_parts
 from .errors import SimulationError
 from .spec import ProfilerPattern, SensorSpec, SpinningPattern, TLSPattern
 
@@ -247,21 +248,35 @@ class SpinningScan:
         cols_per = max(1, chunk_size(chunk_pulses) // nch)
         sgn = -1.0 if p.clockwise else 1.0
         ce, se = np.cos(p.elevations_rad), np.sin(p.elevations_rad)
+        channel = np.arange(nch, dtype=np.int32)
         for k0 in range(0, self.n_columns, cols_per):
-            k = np.arange(k0, min(self.n_columns, k0 + cols_per), dtype=np.int64)
-            start = k * self.T
-            t = start[:, None] + p.firing_offsets_s[None, :]
-            az = sgn * 2 * np.pi * self.rotation_hz * t + p.azimuth_offsets_rad[None, :]
-            frame = np.floor(start * self.rotation_hz + 1e-9).astype(np.int64)
-            first = np.ceil(frame * self.columns_per_rev - 1e-9).astype(np.int64)
-            d = np.empty((len(k), nch, 3))
-            d[..., 0] = ce[None, :] * np.cos(az)
-            d[..., 1] = ce[None, :] * np.sin(az)
-            d[..., 2] = np.broadcast_to(se, (len(k), nch))
-            yield Pulses(t.ravel(), d.reshape(-1, 3),
-                         np.tile(np.arange(nch, dtype=np.int32), len(k)),
-                         np.repeat((k - first).astype(np.int32), nch),
-                         np.repeat(frame.astype(np.int32), nch))
+            m = min(self.n_columns, k0 + cols_per) - k0
+            t = np.empty((m, nch))
+            d = np.empty((m, nch, 3))
+            ch = np.empty((m, nch), dtype=np.int32)
+            col = np.empty((m, nch), dtype=np.int32)
+            fr = np.empty((m, nch), dtype=np.int32)
+
+            def columns(a: int, b: int, k0: int = k0, t: NDArray[np.float64] = t,
+                        d: NDArray[np.float64] = d, ch: NDArray[np.int32] = ch,
+                        col: NDArray[np.int32] = col, fr: NDArray[np.int32] = fr) -> None:
+                # Columns k0 + [a, b) into rows [a, b): element-wise, so any split of the
+                # rows gives the same bits (run on the thread pool; issue 16).
+                k = np.arange(k0 + a, k0 + b, dtype=np.int64)
+                start = k * self.T
+                t[a:b] = start[:, None] + p.firing_offsets_s[None, :]
+                az = sgn * 2 * np.pi * self.rotation_hz * t[a:b] + p.azimuth_offsets_rad[None, :]
+                frame = np.floor(start * self.rotation_hz + 1e-9).astype(np.int64)
+                first = np.ceil(frame * self.columns_per_rev - 1e-9).astype(np.int64)
+                d[a:b, :, 0] = ce[None, :] * np.cos(az)
+                d[a:b, :, 1] = ce[None, :] * np.sin(az)
+                d[a:b, :, 2] = se[None, :]
+                ch[a:b] = channel[None, :]
+                col[a:b] = (k - first).astype(np.int32)[:, None]
+                fr[a:b] = frame.astype(np.int32)[:, None]
+            run_parts(columns, m, max(1, (1 << 16) // nch))
+            yield Pulses(t.reshape(-1), d.reshape(-1, 3), ch.reshape(-1), col.reshape(-1),
+                         fr.reshape(-1))
 
 
 class ProfileScan:

@@ -39,6 +39,7 @@ from scipy.spatial.transform import Rotation
 from raytrace import Scene
 
 from . import physics as ph
+from ._threads import run_each
 from ._checks import as_number, as_points, as_whole
 from ._kernels.pulses import (
     detect_and_noise,
@@ -369,10 +370,18 @@ class _Streams:
               width: int) -> NDArray[np.float64]:
         b0 = self.first // RANDOM_BLOCK
         b1 = (self.first + max(self.n, 1) - 1) // RANDOM_BLOCK
-        parts = [draw(np.random.default_rng([self.seed, stream, b]), (RANDOM_BLOCK, width))
-                 for b in range(b0, b1 + 1)]
+        whole = np.empty(((b1 - b0 + 1) * RANDOM_BLOCK, width))
+
+        def fill(b: int) -> None:
+            q = (b - b0) * RANDOM_BLOCK
+            whole[q:q + RANDOM_BLOCK] = draw(np.random.default_rng([self.seed, stream, b]),
+                                             (RANDOM_BLOCK, width))
+        # DECISION: the blocks are drawn on a small thread pool (NumPy's generators
+        # release the GIL while they fill): each block has its own generator, so the
+        # numbers are the same bits in any order; 2x faster on 2 cores (issue 16).
+        run_each(fill, range(b0, b1 + 1))
         off = self.first - b0 * RANDOM_BLOCK
-        out = np.concatenate(parts)[off:off + self.n]
+        out = whole[off:off + self.n]
         return out[:, 0] if width == 1 else out
 
     def normal(self, stream: int, width: int = 2) -> NDArray[np.float64]:

@@ -10,10 +10,12 @@ from raytrace.config import CACHE, ERROR_MODEL
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)
-def interpolate_poses(times, pos, quat, t, lever, bore, out_pos, out_mat):
+def interpolate_poses(times, pos, quat, t, rows, lever, bore, out_pos, out_mat):
     """times (k,) increasing; pos (k, 3) local; quat (k, 4) x, y, z, w; t (n,) within
-    [times[0], times[-1]]; lever (3,); bore (3, 3). Writes out_pos (n, 3) local sensor
-    positions and out_mat (n, 3, 3) sensor-to-world matrices."""
+    [times[0], times[-1]]; rows (n + 1,) increasing offsets; lever (3,); bore (3, 3).
+    Writes the pose at t[j] into rows rows[j] to rows[j + 1] - 1 of out_pos (local
+    sensor positions, (rows[n], 3)) and out_mat (sensor-to-world matrices,
+    (rows[n], 3, 3)): pulses fired at one instant share one interpolation."""
     k = times.shape[0]
     for j in prange(t.shape[0]):
         tj = min(max(t[j], times[0]), times[k - 1])
@@ -60,12 +62,17 @@ def interpolate_poses(times, pos, quat, t, lever, bore, out_pos, out_mat):
         r20 = 2 * (x * z - y * w)
         r21 = 2 * (y * z + x * w)
         r22 = 1 - 2 * (x * x + y * y)
-        for c in range(3):
-            out_pos[j, c] = pos[i, c] + f * (pos[i1, c] - pos[i, c])
-        out_pos[j, 0] += r00 * lever[0] + r01 * lever[1] + r02 * lever[2]
-        out_pos[j, 1] += r10 * lever[0] + r11 * lever[1] + r12 * lever[2]
-        out_pos[j, 2] += r20 * lever[0] + r21 * lever[1] + r22 * lever[2]
-        for c in range(3):
-            out_mat[j, 0, c] = r00 * bore[0, c] + r01 * bore[1, c] + r02 * bore[2, c]
-            out_mat[j, 1, c] = r10 * bore[0, c] + r11 * bore[1, c] + r12 * bore[2, c]
-            out_mat[j, 2, c] = r20 * bore[0, c] + r21 * bore[1, c] + r22 * bore[2, c]
+        px = pos[i, 0] + f * (pos[i1, 0] - pos[i, 0])
+        py = pos[i, 1] + f * (pos[i1, 1] - pos[i, 1])
+        pz = pos[i, 2] + f * (pos[i1, 2] - pos[i, 2])
+        px += r00 * lever[0] + r01 * lever[1] + r02 * lever[2]
+        py += r10 * lever[0] + r11 * lever[1] + r12 * lever[2]
+        pz += r20 * lever[0] + r21 * lever[1] + r22 * lever[2]
+        for q in range(rows[j], rows[j + 1]):
+            out_pos[q, 0] = px
+            out_pos[q, 1] = py
+            out_pos[q, 2] = pz
+            for c in range(3):
+                out_mat[q, 0, c] = r00 * bore[0, c] + r01 * bore[1, c] + r02 * bore[2, c]
+                out_mat[q, 1, c] = r10 * bore[0, c] + r11 * bore[1, c] + r12 * bore[2, c]
+                out_mat[q, 2, c] = r20 * bore[0, c] + r21 * bore[1, c] + r22 * bore[2, c]
