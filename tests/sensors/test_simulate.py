@@ -276,3 +276,37 @@ def test_fast_pose_path_equals_scipy_slerp():
     pos_b, mat_b = tr.sensor_matrices(q, mount)
     np.testing.assert_allclose(pos_b, pos_a, atol=1e-9)
     np.testing.assert_allclose(mat_b, rot_a.as_matrix(), atol=1e-12)
+
+
+def test_pulses_fired_together_share_one_pose_bit_for_bit():
+    """Poses are interpolated once per run of equal times (the Airy fires 8 channels at
+    once) and written to each pulse of the run: every row equals the pose of its own
+    time computed alone, and scipy's SLERP to rounding."""
+    rng = np.random.default_rng(4)
+    t = np.cumsum(rng.uniform(0.05, 0.2, 9))
+    tr = Trajectory(t, rng.normal(0, 5, (9, 3)) + [451000.0, 5352000.0, 300.0],
+                    Rotation.random(9, random_state=2))
+    mount = Mount.from_degrees((0.1, 0.0, 0.3), roll_deg=3.0, yaw_deg=-20.0)
+    q = np.linspace(t[0], t[-1], 257)
+    rep = np.repeat(q, rng.integers(1, 9, len(q)))
+    pos, mat = tr.sensor_matrices(rep, mount)
+    for i in rng.choice(len(rep), 40, replace=False):
+        p1, m1 = tr.sensor_matrices(rep[i:i + 1], mount)
+        assert p1.tobytes() == pos[i:i + 1].tobytes() and m1.tobytes() == mat[i:i + 1].tobytes()
+    pos_s, rot_s = tr.sensor_poses(rep, mount)
+    np.testing.assert_allclose(pos, pos_s, atol=1e-9)
+    np.testing.assert_allclose(mat, rot_s.as_matrix(), atol=1e-12)
+
+
+def test_large_chunks_on_the_thread_pool_equal_small_chunks(cyl):
+    """Chunks of 1M pulses draw their random blocks and pattern columns on a thread pool;
+    chunks of 10,000 do it in one thread: the points must be the same bytes."""
+    scene, _ = cyl
+    traj = Trajectory.along_polyline([[5.0, 0, 0], [55.0, 0, 0]], 2.0)
+
+    def run(chunk):
+        return _all(simulate_drive(scene, "robosense_airy", traj, Mount(), seed=5,
+                                   t_end=0.35, chunk_pulses=chunk))
+    big, small = run(1 << 20), run(10_000)
+    assert len(big) > 200_000        # several random blocks of 65,536 in one chunk
+    assert big.tobytes() == small.tobytes()
