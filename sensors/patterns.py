@@ -199,16 +199,29 @@ class TLSScan:
         slot = self._slot.astype(np.float64)
         sa, ca = np.sin(self._alpha), np.cos(self._alpha)
         for j0 in range(0, len(self._lines), lines_per):
-            j = self._lines[j0:j0 + lines_per].astype(np.float64)
-            t = (j[:, None] * self.n_slots + slot[None, :]) / self.rate_hz
-            phi = (j[:, None] + slot[None, :] / self.n_slots) * self.step_rad
-            d = np.empty((len(j), per, 3))
-            d[..., 0] = sa[None, :] * np.cos(phi)
-            d[..., 1] = sa[None, :] * np.sin(phi)
-            d[..., 2] = np.broadcast_to(ca, (len(j), per))
-            out = Pulses(t.ravel(), d.reshape(-1, 3), np.tile(self._row, len(j)),
-                         np.repeat(j.astype(np.int32), per),
-                         np.zeros(len(j) * per, dtype=np.int32))
+            lines = self._lines[j0:j0 + lines_per]
+            m = len(lines)
+            t = np.empty((m, per))
+            d = np.empty((m, per, 3))
+            row = np.empty((m, per), dtype=np.int32)
+            col = np.empty((m, per), dtype=np.int32)
+
+            def rows(a: int, b: int, lines: NDArray[np.int64] = lines,
+                     t: NDArray[np.float64] = t, d: NDArray[np.float64] = d,
+                     row: NDArray[np.int32] = row, col: NDArray[np.int32] = col) -> None:
+                # Lines [a, b) of the chunk: element-wise, so any split gives the same
+                # bits (run on the thread pool; issue 16).
+                j = lines[a:b].astype(np.float64)
+                t[a:b] = (j[:, None] * self.n_slots + slot[None, :]) / self.rate_hz
+                phi = (j[:, None] + slot[None, :] / self.n_slots) * self.step_rad
+                d[a:b, :, 0] = sa[None, :] * np.cos(phi)
+                d[a:b, :, 1] = sa[None, :] * np.sin(phi)
+                d[a:b, :, 2] = ca[None, :]
+                row[a:b] = self._row[None, :]
+                col[a:b] = j.astype(np.int32)[:, None]
+            run_parts(rows, m, max(1, (1 << 16) // max(per, 1)))
+            out = Pulses(t.reshape(-1), d.reshape(-1, 3), row.reshape(-1), col.reshape(-1),
+                         np.zeros(m * per, dtype=np.int32))
             if self.window is not None:
                 m = self._in_window(out.direction)
                 out = Pulses(out.time[m], out.direction[m], out.channel[m], out.column[m],
