@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from sensors import ProfileScan, SpinningScan, TLSScan, load_sensor
+from sensors.patterns import scan_for
 
 ZF = load_sensor("zf_imager_5016")
 
@@ -91,3 +92,17 @@ def test_profiler_plane_blind_sector_and_times():
     assert scan.points_per_profile == 5000 - int(np.sum(
         (np.degrees(2 * np.pi * (np.arange(5000) + 0.5) / 5000) >= 165) &
         (np.degrees(2 * np.pi * (np.arange(5000) + 0.5) / 5000) <= 195)))
+
+
+@pytest.mark.parametrize("name, kw", [("zf_imager_5016", dict(resolution="preview")),
+                                      ("robosense_airy", dict(duration_s=0.4))])
+def test_chunks_on_the_thread_pool_equal_small_chunks(name, kw):
+    """Large chunks are generated on a thread pool in parts, small ones in one thread:
+    the pulses must be the same bits however the pattern is cut."""
+    scan = scan_for(load_sensor(name), **kw)
+    fields = ("time", "direction", "channel", "column", "frame")
+    big = [np.concatenate([getattr(p, f) for p in scan.chunks(1 << 20)]) for f in fields]
+    small = [np.concatenate([getattr(p, f) for p in scan.chunks(5_000)]) for f in fields]
+    assert len(big[0]) > 300_000
+    for b, s in zip(big, small):
+        assert b.dtype == s.dtype and b.tobytes() == s.tobytes()
