@@ -32,7 +32,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from . import config
 from .checks import first_rows, prepare_rays, validate_mesh
-from ._kernels.build import build_bvh, slot_triangles, to_quad_layout, triangle_setup
+from ._kernels.build import build_bvh, slot_triangles, triangle_setup
+from ._kernels.collapse import to_quad_layout
 from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
 from ._kernels.order import counting_sort, is_coherent, morton_keys, origin_runs
 from ._kernels.rays import input_triangles

@@ -223,9 +223,9 @@ class TLSScan:
             out = Pulses(t.reshape(-1), d.reshape(-1, 3), row.reshape(-1), col.reshape(-1),
                          np.zeros(m * per, dtype=np.int32))
             if self.window is not None:
-                m = self._in_window(out.direction)
-                out = Pulses(out.time[m], out.direction[m], out.channel[m], out.column[m],
-                             out.frame[m])
+                keep = self._in_window(out.direction)
+                out = Pulses(out.time[keep], out.direction[keep], out.channel[keep],
+                             out.column[keep], out.frame[keep])
             yield out
 
 

@@ -9,15 +9,20 @@ Steps:
 
 1. ``triangle_setup``: per triangle a 36-byte primitive record (float32 box rounded
    outward, float32 centroid) and a zero-area flag, in parallel.
-2. ``build_bvh``: a serial top phase splits the triangles until every open task holds at
-   most ``stop`` triangles; those tasks are then built in parallel (``prange``), each
-   into its own pre-allocated range of the node arrays. Each task carries its node box
-   and centroid box (the union of the parent's bins on its side), so a level touches
-   each primitive twice: once to bin it, once to partition it. Primitive records are
-   partitioned physically (rows swapped with their triangle index), so every pass
-   reads memory sequentially. Work O(n log n); no Python loop over triangles.
-3. ``to_quad_layout``: collapses the binary tree into 4-wide records (the traversal
-   layout, see ``traverse.py``) and collects the tree statistics.
+2. ``build_bvh``: a top phase, serial over nodes, splits the triangles until every open
+   task holds at most ``stop`` triangles; those tasks are then built in parallel
+   (``prange``), each into its own pre-allocated range of the node arrays. Each task
+   carries its node box (the union of the parent's bins on its side) and centroid box
+   (gathered while partitioning), so a level touches each primitive twice: once to bin
+   it, once to partition it. Primitive records are partitioned physically (rows moved
+   with their triangle index), so every pass reads memory sequentially. Top-phase nodes
+   are binned and partitioned in parallel chunks: a stable partition from one row
+   buffer into a second (ping-pong; a task's rows are copied back once, when it starts
+   its subtree). Below, partitions are in place (Hoare-style swaps). The tree does not
+   depend on the thread count (fixed chunks; counts, min and max are order-free).
+   Work O(n log n); no Python loop over triangles.
+3. ``collapse.to_quad_layout`` (its own module): collapses the binary tree into 4-wide
+   records (the traversal layout, see ``traverse.py``) and collects the tree statistics.
 
 Build arrays (explicit child pointers; node order is irrelevant, only the walk matters)::
 
@@ -105,7 +110,7 @@ def slot_triangles(verts, faces, order, out):
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH, inline="always")
-def _half_area(b):
+def half_area(b):
     dx = b[3] - b[0]
     dy = b[4] - b[1]
     dz = b[5] - b[2]
@@ -129,42 +134,50 @@ def _bounds(prim, s, e, box, cbox):
             cbox[c + 3] = max(cbox[c + 3], prim[j, _CE + c])
 
 
-#: Nodes of at least this many triangles are binned in parallel chunks (top phase only).
-_PAR_BIN_MIN = 65_536
+#: Top-phase nodes of at least this many triangles are binned and partitioned in
+#: parallel chunks. DECISION: 4096 (= config.BUILD_TASK_MIN, so every top-phase node on
+#: the benchmark tunnel): at 65,536 the nodes of 12k-65k triangles left a serial bin and
+#: partition over all rows on each of the last top levels (810k triangles, 2 threads:
+#: top phase 0.22 -> 0.14 s with the parallel partition, ping-pong buffers and this).
+_PAR_BIN_MIN = 4096
+#: Chunks of a parallel bin/partition: a fixed count, so results never depend on the
+#: thread count.
 _PAR_BIN_CHUNKS = 16
 
 
+@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH, inline="always")
+def _bin_of(x, lo, scale, nb):
+    """Bin of centroid coordinate x (one formula for binning and partitioning, so a
+    row always goes to the side its bin was counted on)."""
+    k = int((x - lo) * scale)
+    return min(nb - 1, max(0, k))
+
+
 @njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH, parallel=True)
-def _bin_parallel(prim, s, e, cbox, scale, nb, b_cnt, b_box):
+def _bin_parallel(prim, s, e, cbox, scale, nb, b_cnt, b_box, loc_cnt):
     """Bin rows [s, e) like the serial loop in ``_split``, in parallel chunks with local
     bins, then reduce. Counts, minima and maxima do not depend on the order, so the
-    bins (and the tree) are identical to the serial result."""
+    bins (and the tree) are identical to the serial result. The per-chunk counts stay
+    in loc_cnt (_PAR_BIN_CHUNKS, 3, >= nb) for ``_partition_parallel``."""
     n_ch = _PAR_BIN_CHUNKS
-    loc_cnt = np.zeros((n_ch, 3, nb), dtype=np.int64)
-    loc_box = np.empty((n_ch, 3, nb, 12))
+    loc_box = np.empty((n_ch, 3, nb, 6))
     step = (e - s + n_ch - 1) // n_ch
     for ch in prange(n_ch):
         for a in range(3):
             for k in range(nb):
+                loc_cnt[ch, a, k] = 0
                 for c in range(3):
                     loc_box[ch, a, k, c] = np.inf
                     loc_box[ch, a, k, c + 3] = -np.inf
-                    loc_box[ch, a, k, c + 6] = np.inf
-                    loc_box[ch, a, k, c + 9] = -np.inf
         for j in range(s + ch * step, min(e, s + (ch + 1) * step)):
             for a in range(3):
                 if scale[a] > 0.0:
-                    k = int((prim[j, _CE + a] - cbox[a]) * scale[a])
-                    k = min(nb - 1, max(0, k))
+                    k = _bin_of(prim[j, _CE + a], cbox[a], scale[a], nb)
                     loc_cnt[ch, a, k] += 1
                     for c in range(3):
                         loc_box[ch, a, k, c] = min(loc_box[ch, a, k, c], prim[j, _LO + c])
                         loc_box[ch, a, k, c + 3] = max(loc_box[ch, a, k, c + 3],
                                                        prim[j, _HI + c])
-                        loc_box[ch, a, k, c + 6] = min(loc_box[ch, a, k, c + 6],
-                                                       prim[j, _CE + c])
-                        loc_box[ch, a, k, c + 9] = max(loc_box[ch, a, k, c + 9],
-                                                       prim[j, _CE + c])
     for ch in range(n_ch):
         for a in range(3):
             for k in range(nb):
@@ -172,23 +185,106 @@ def _bin_parallel(prim, s, e, cbox, scale, nb, b_cnt, b_box):
                 for c in range(3):
                     b_box[a, k, c] = min(b_box[a, k, c], loc_box[ch, a, k, c])
                     b_box[a, k, c + 3] = max(b_box[a, k, c + 3], loc_box[ch, a, k, c + 3])
-                    b_box[a, k, c + 6] = min(b_box[a, k, c + 6], loc_box[ch, a, k, c + 6])
-                    b_box[a, k, c + 9] = max(b_box[a, k, c + 9], loc_box[ch, a, k, c + 9])
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
+def _scatter_chunk(prim, idx, j0, j1, a, lo, scale, nb, best_k, li, ri, tmp_prim, tmp_idx,
+                   cb, ch):
+    """Rows [j0, j1) to tmp rows li.. (left) and ri.. (right), in order; the centroid
+    boxes of both sides into cb[ch] (2, 6)."""
+    for q in range(2):
+        for c in range(3):
+            cb[ch, q, c] = np.inf
+            cb[ch, q, c + 3] = -np.inf
+    for j in range(j0, j1):
+        if _bin_of(prim[j, _CE + a], lo, scale, nb) <= best_k:
+            q = 0
+            dst = li
+            li += 1
+        else:
+            q = 1
+            dst = ri
+            ri += 1
+        for c in range(9):
+            tmp_prim[dst, c] = prim[j, c]
+        tmp_idx[dst] = idx[j]
+        for c in range(3):
+            cb[ch, q, c] = min(cb[ch, q, c], prim[j, _CE + c])
+            cb[ch, q, c + 3] = max(cb[ch, q, c + 3], prim[j, _CE + c])
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH, parallel=True)
+def _scatter_parallel(prim, idx, s, e, step, a, lo, scale, nb, best_k, l_ofs, r_ofs,
+                      tmp_prim, tmp_idx, loc_cb):
+    """``_scatter_chunk`` over the chunks of rows [s, e), in parallel."""
+    for g in prange(l_ofs.shape[0]):
+        _scatter_chunk(prim, idx, s + g * step, min(e, s + (g + 1) * step), a, lo, scale,
+                       nb, best_k, l_ofs[g], r_ofs[g], tmp_prim, tmp_idx, loc_cb, g)
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
+def _partition_parallel(prim, idx, s, e, a, lo, scale, nb, best_k, loc_cnt, dst_prim,
+                        dst_idx, out):
+    """Stable partition of rows [s, e) (bins <= best_k of axis a go left) of prim/idx
+    into the same rows of dst_prim/dst_idx, in the chunks of ``_bin_parallel``, whose
+    per-chunk counts give each chunk its output offsets. Writes the children's centroid
+    boxes into out[2] (left) and out[3] (right); returns the split position.
+
+    The row order is that of a stable partition, whatever the thread count.
+    """
+    n_ch = _PAR_BIN_CHUNKS
+    step = (e - s + n_ch - 1) // n_ch
+    n_l = np.zeros(n_ch, dtype=np.int64)
+    n_left = 0
+    for ch in range(n_ch):
+        for k in range(best_k + 1):
+            n_l[ch] += loc_cnt[ch, a, k]
+        n_left += n_l[ch]
+    l_ofs = np.empty(n_ch, dtype=np.int64)
+    r_ofs = np.empty(n_ch, dtype=np.int64)
+    l_at = s
+    r_at = s + n_left
+    for ch in range(n_ch):
+        l_ofs[ch] = l_at
+        r_ofs[ch] = r_at
+        size = max(0, min(e, s + (ch + 1) * step) - (s + ch * step))
+        l_at += n_l[ch]
+        r_at += size - n_l[ch]
+    loc_cb = np.empty((n_ch, 2, 6))
+    # DECISION: the parallel loop is a kernel of its own, its chunk body a serial
+    # function: written inline, the prange body's running offsets and min/max updates
+    # were not kept per chunk (Numba's parfor lowering treats in-place updates of outer
+    # variables as reductions), and the centroid boxes came out wrong. test_build.py
+    # checks the kernel against a NumPy partition.
+    _scatter_parallel(prim, idx, s, e, step, a, lo, scale, nb, best_k, l_ofs, r_ofs,
+                      dst_prim, dst_idx, loc_cb)
+    for ch in range(n_ch):
+        for side in range(2):
+            for c in range(3):
+                out[2 + side, c] = min(out[2 + side, c], loc_cb[ch, side, c])
+                out[2 + side, c + 3] = max(out[2 + side, c + 3], loc_cb[ch, side, c + 3])
+    return s + n_left
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
 def _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_leaf,
-           max_leaf_forced, par, b_cnt, b_box, acc, r_area, r_cnt, scale, out):
+           max_leaf_forced, par, b_cnt, b_box, acc, r_area, r_cnt, scale, out, loc_cnt,
+           alt_prim, alt_idx):
     """Decide leaf or split for [s, e) (Wald 2007 binned SAH); on a split, partition the
-    rows in place and write the children's boxes into out (4, 6): left box, right box,
-    left centroid box, right centroid box. Returns the split position, or -1 for a leaf.
+    rows and write the children's boxes into out (4, 6): left box, right box, left
+    centroid box, right centroid box.
+
+    Returns (split position or -1 for a leaf, moved): with ``moved`` the partitioned
+    rows are in alt_prim/alt_idx (parallel partition of a big top-phase node), else in
+    place in prim/idx.
     """
     count = e - s
     if count == 1:
-        return -1
+        return -1, False
     # Small nodes get fewer bins: with ~n/2 nodes of a handful of triangles, clearing
     # and sweeping 3 x n_bins bins per node would dominate the build.
     nb = min(n_bins, max(2, count))
+    big = par and count >= _PAR_BIN_MIN
     any_extent = False
     longest = 0
     for a in range(3):
@@ -211,22 +307,17 @@ def _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_le
                 for c in range(3):
                     b_box[a, k, c] = np.inf
                     b_box[a, k, c + 3] = -np.inf
-                    b_box[a, k, c + 6] = np.inf
-                    b_box[a, k, c + 9] = -np.inf
-        if par and e - s >= _PAR_BIN_MIN:
-            _bin_parallel(prim, s, e, cbox, scale, nb, b_cnt, b_box)
+        if big:
+            _bin_parallel(prim, s, e, cbox, scale, nb, b_cnt, b_box, loc_cnt)
         else:
             for j in range(s, e):
                 for a in range(3):
                     if scale[a] > 0.0:
-                        k = int((prim[j, _CE + a] - cbox[a]) * scale[a])
-                        k = min(nb - 1, max(0, k))
+                        k = _bin_of(prim[j, _CE + a], cbox[a], scale[a], nb)
                         b_cnt[a, k] += 1
                         for c in range(3):
                             b_box[a, k, c] = min(b_box[a, k, c], prim[j, _LO + c])
                             b_box[a, k, c + 3] = max(b_box[a, k, c + 3], prim[j, _HI + c])
-                            b_box[a, k, c + 6] = min(b_box[a, k, c + 6], prim[j, _CE + c])
-                            b_box[a, k, c + 9] = max(b_box[a, k, c + 9], prim[j, _CE + c])
         # Sweep from the right, then from the left; cost of a split after bin k:
         # C_trav + C_isect * (A_L N_L + A_R N_R) / A_parent  (half areas suffice).
         for a in range(3):
@@ -242,7 +333,7 @@ def _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_le
                     acc[c] = min(acc[c], b_box[a, k, c])
                     acc[c + 3] = max(acc[c + 3], b_box[a, k, c + 3])
                 r_cnt[k] = n_acc
-                r_area[k] = _half_area(acc)
+                r_area[k] = half_area(acc)
             for c in range(3):
                 acc[c] = np.inf
                 acc[c + 3] = -np.inf
@@ -255,12 +346,12 @@ def _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_le
                 n_r = r_cnt[k + 1]
                 if n_acc == 0 or n_r == 0:
                     continue
-                cost = _half_area(acc) * n_acc + r_area[k + 1] * n_r
+                cost = half_area(acc) * n_acc + r_area[k + 1] * n_r
                 if cost < best_cost:
                     best_cost = cost
                     best_axis = a
                     best_k = k
-        parent_area = _half_area(box)
+        parent_area = half_area(box)
         if parent_area > 0.0:
             best_cost = c_trav + c_isect * best_cost / parent_area
         else:
@@ -269,35 +360,19 @@ def _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_le
     if best_axis < 0:
         # Every centroid coincides: no positional split exists.
         if count <= max_leaf_forced:
-            return -1
+            return -1, False
         mid = s + count // 2
         for c in range(6):
             out[0, c] = box[c]
             out[1, c] = box[c]
             out[2, c] = cbox[c]
             out[3, c] = cbox[c]
-        return mid
+        return mid, False
     if count <= max_leaf and c_isect * count <= best_cost:
-        return -1
+        return -1, False
 
-    # Partition rows [s, e): bins <= best_k go left.
+    # Node boxes of the children: the union of their side's bins.
     a = best_axis
-    lo_j = s
-    hi_j = e - 1
-    while lo_j <= hi_j:
-        k = int((prim[lo_j, _CE + a] - cbox[a]) * scale[a])
-        k = min(nb - 1, max(0, k))
-        if k <= best_k:
-            lo_j += 1
-        else:
-            for c in range(9):
-                tmp = prim[lo_j, c]
-                prim[lo_j, c] = prim[hi_j, c]
-                prim[hi_j, c] = tmp
-            ti = idx[lo_j]
-            idx[lo_j] = idx[hi_j]
-            idx[hi_j] = ti
-            hi_j -= 1
     for q in range(4):
         for c in range(3):
             out[q, c] = np.inf
@@ -309,25 +384,55 @@ def _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_le
         for c in range(3):
             out[side, c] = min(out[side, c], b_box[a, k, c])
             out[side, c + 3] = max(out[side, c + 3], b_box[a, k, c + 3])
-            out[2 + side, c] = min(out[2 + side, c], b_box[a, k, c + 6])
-            out[2 + side, c + 3] = max(out[2 + side, c + 3], b_box[a, k, c + 9])
-    return lo_j
+    # Partition rows [s, e): bins <= best_k go left. DECISION: the children's centroid
+    # boxes are gathered here, from the rows the pass reads anyway, not kept per bin
+    # (bins of 6 instead of 12 floats: the subtree phase 0.46 -> 0.35 s on 810k
+    # triangles, 2 threads; min/max are exact, so the tree is bit-identical).
+    if big:
+        mid = _partition_parallel(prim, idx, s, e, a, cbox[a], scale[a], nb, best_k,
+                                  loc_cnt, alt_prim, alt_idx, out)
+        return mid, True
+    lo_j = s
+    hi_j = e - 1
+    while lo_j <= hi_j:
+        side = 2 if _bin_of(prim[lo_j, _CE + a], cbox[a], scale[a], nb) <= best_k else 3
+        for c in range(3):
+            out[side, c] = min(out[side, c], prim[lo_j, _CE + c])
+            out[side, c + 3] = max(out[side, c + 3], prim[lo_j, _CE + c])
+        if side == 2:
+            lo_j += 1
+        else:
+            for c in range(9):
+                tmp = prim[lo_j, c]
+                prim[lo_j, c] = prim[hi_j, c]
+                prim[hi_j, c] = tmp
+            ti = idx[lo_j]
+            idx[lo_j] = idx[hi_j]
+            idx[hi_j] = ti
+            hi_j -= 1
+    return lo_j, False
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, fastmath=BUILD_FASTMATH)
 def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, all_axes, c_trav,
-          c_isect, max_leaf, max_leaf_forced, stop, node_box, node_meta, pend):
+          c_isect, max_leaf, max_leaf_forced, stop, node_box, node_meta, pend, pend_box,
+          alt_prim, alt_idx):
     """Build the tree over rows [s0, e0) with its root at node ``root`` and further
     nodes allocated from ``next_free`` on. Tasks of at most ``stop`` triangles are not
-    expanded but appended to ``pend`` (rows: node, s, e) when stop > 0.
+    expanded but appended to ``pend`` (rows: node, s, e, rows in alt_prim/alt_idx?) and
+    ``pend_box`` (box, centroid box) when stop > 0. Big nodes (stop > 0) are
+    partitioned from one buffer into the other (prim/idx, alt_prim/alt_idx), so each
+    task remembers which buffer holds its rows.
     Returns (next_free, number of pending tasks)."""
     cap = e0 - s0 + 1
     t_s = np.empty(cap, dtype=np.int64)
     t_e = np.empty(cap, dtype=np.int64)
     t_node = np.empty(cap, dtype=np.int64)
+    t_alt = np.zeros(cap, dtype=np.bool_)
     t_box = np.empty((cap, 12))
     b_cnt = np.zeros((3, n_bins), dtype=np.int64)
-    b_box = np.empty((3, n_bins, 12))
+    b_box = np.empty((3, n_bins, 6))
+    loc_cnt = np.zeros((_PAR_BIN_CHUNKS if stop > 0 else 1, 3, n_bins), dtype=np.int64)
     acc = np.empty(6)
     r_area = np.empty(n_bins)
     r_cnt = np.empty(n_bins, dtype=np.int64)
@@ -348,6 +453,7 @@ def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, all_axes, c_t
         s = t_s[sp]
         e = t_e[sp]
         node = t_node[sp]
+        in_alt = t_alt[sp]
         for c in range(6):
             box[c] = t_box[sp, c]
             cbox[c] = t_box[sp, 6 + c]
@@ -356,12 +462,27 @@ def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, all_axes, c_t
             pend[n_pend, 0] = node
             pend[n_pend, 1] = s
             pend[n_pend, 2] = e
+            pend[n_pend, 3] = in_alt
+            pend_box[n_pend, :6] = box
+            pend_box[n_pend, 6:] = cbox
             n_pend += 1
             continue
-        mid = _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav, c_isect, max_leaf,
-                     max_leaf_forced, stop > 0, b_cnt, b_box, acc, r_area, r_cnt, scale,
-                     out)
+        if in_alt:
+            mid, moved = _split(alt_prim, alt_idx, s, e, box, cbox, n_bins, all_axes, c_trav,
+                                c_isect, max_leaf, max_leaf_forced, stop > 0, b_cnt, b_box,
+                                acc, r_area, r_cnt, scale, out, loc_cnt, prim, idx)
+        else:
+            mid, moved = _split(prim, idx, s, e, box, cbox, n_bins, all_axes, c_trav,
+                                c_isect, max_leaf, max_leaf_forced, stop > 0, b_cnt, b_box,
+                                acc, r_area, r_cnt, scale, out, loc_cnt, alt_prim, alt_idx)
+        if moved:
+            in_alt = not in_alt
         if mid < 0:
+            if in_alt:  # a leaf of the top phase (only with a tiny ``stop``)
+                for j in range(s, e):
+                    for c in range(9):
+                        prim[j, c] = alt_prim[j, c]
+                    idx[j] = alt_idx[j]
             node_meta[node, 0] = -1
             node_meta[node, 1] = -1
             node_meta[node, 2] = s
@@ -378,12 +499,14 @@ def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, all_axes, c_t
         t_s[sp] = mid
         t_e[sp] = e
         t_node[sp] = right
+        t_alt[sp] = in_alt
         t_box[sp, :6] = out[1]
         t_box[sp, 6:] = out[3]
         sp += 1
         t_s[sp] = s
         t_e[sp] = mid
         t_node[sp] = left
+        t_alt[sp] = in_alt
         t_box[sp, :6] = out[0]
         t_box[sp, 6:] = out[2]
         sp += 1
@@ -391,24 +514,34 @@ def _grow(prim, idx, s0, e0, root, next_free, box0, cbox0, n_bins, all_axes, c_t
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def _grow_pending(prim, idx, pend, n_pend, bases, n_bins, all_axes, c_trav, c_isect,
-                  max_leaf, max_leaf_forced, node_box, node_meta):
-    dummy = np.zeros((1, 3), dtype=np.int64)
+def _grow_pending(prim, idx, pend, pend_box, n_pend, bases, n_bins, all_axes, c_trav,
+                  c_isect, max_leaf, max_leaf_forced, node_box, node_meta, alt_prim, alt_idx):
+    """Build the pending tasks of ``build_top`` in parallel, each into its own node
+    range; rows a task left in alt_prim/alt_idx are first copied back into prim/idx."""
+    no_pend = np.zeros((1, 4), dtype=np.int64)
+    no_box = np.empty((1, 12))
     for q in prange(n_pend):
         node = pend[q, 0]
         s = pend[q, 1]
         e = pend[q, 2]
-        box = np.empty(6)
-        cbox = np.empty(6)
-        _bounds(prim, s, e, box, cbox)
+        if pend[q, 3]:
+            for j in range(s, e):
+                for c in range(9):
+                    prim[j, c] = alt_prim[j, c]
+                idx[j] = alt_idx[j]
+        box = pend_box[q, :6].copy()
+        cbox = pend_box[q, 6:].copy()
         _grow(prim, idx, s, e, node, bases[q], box, cbox, n_bins, all_axes, c_trav, c_isect,
-              max_leaf, max_leaf_forced, 0, node_box, node_meta, dummy)
+              max_leaf, max_leaf_forced, 0, node_box, node_meta, no_pend, no_box, alt_prim,
+              alt_idx)
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
 def build_top(prim, idx, n_bins, all_axes, c_trav, c_isect, max_leaf, max_leaf_forced, stop):
-    """Serial top phase over all rows. Returns node arrays (2m - 1 rows), the pending
-    tasks (node, s, e) and, per pending task, the first free node of its range."""
+    """Top phase over all rows (serial over nodes, parallel within big ones). Returns
+    node arrays (2m - 1 rows); the pending tasks (node, s, e, rows in the second
+    buffer?), their boxes and centroid boxes (n_pend, 12) and, per pending task, the
+    first free node of its range; the second row buffer (alt_prim, alt_idx)."""
     m = prim.shape[0]
     n_nodes = 2 * m - 1
     node_box = np.empty((n_nodes, 6), dtype=np.float32)
@@ -416,15 +549,19 @@ def build_top(prim, idx, n_bins, all_axes, c_trav, c_isect, max_leaf, max_leaf_f
     box = np.empty(6)
     cbox = np.empty(6)
     _bounds(prim, 0, m, box, cbox)
-    pend = np.empty((m, 3), dtype=np.int64)
+    pend = np.empty((m, 4), dtype=np.int64)
+    pend_box = np.empty((m, 12))
+    alt_prim = np.empty_like(prim)
+    alt_idx = np.empty_like(idx)
     next_free, n_pend = _grow(prim, idx, 0, m, 0, 1, box, cbox, n_bins, all_axes, c_trav,
                               c_isect, max_leaf, max_leaf_forced, stop, node_box, node_meta,
-                              pend)
+                              pend, pend_box, alt_prim, alt_idx)
     bases = np.empty(n_pend, dtype=np.int64)
     for q in range(n_pend):
         bases[q] = next_free
         next_free += 2 * (pend[q, 2] - pend[q, 1]) - 2
-    return node_box, node_meta, pend[:n_pend].copy(), bases
+    return (node_box, node_meta, pend[:n_pend].copy(), pend_box[:n_pend].copy(), bases,
+            alt_prim, alt_idx)
 
 
 def build_bvh(prim, idx, n_bins, all_axes, c_trav, c_isect, max_leaf, max_leaf_forced, stop):
@@ -436,140 +573,10 @@ def build_bvh(prim, idx, n_bins, all_axes, c_trav, c_isect, max_leaf, max_leaf_f
     Returns node_box (2m - 1, 6) float32 and node_meta (2m - 1, 4) int32 with the root
     at 0 (rows not reached from the root are unused).
     """
-    node_box, node_meta, pend, bases = build_top(prim, idx, n_bins, all_axes, c_trav,
-                                                 c_isect, max_leaf, max_leaf_forced, stop)
+    node_box, node_meta, pend, pend_box, bases, alt_prim, alt_idx = build_top(
+        prim, idx, n_bins, all_axes, c_trav, c_isect, max_leaf, max_leaf_forced, stop)
     if len(pend):
-        _grow_pending(prim, idx, pend, len(pend), bases, n_bins, all_axes, c_trav, c_isect,
-                      max_leaf, max_leaf_forced, node_box, node_meta)
+        _grow_pending(prim, idx, pend, pend_box, len(pend), bases, n_bins, all_axes, c_trav,
+                      c_isect, max_leaf, max_leaf_forced, node_box, node_meta, alt_prim,
+                      alt_idx)
     return node_box, node_meta
-
-
-@njit(cache=CACHE, error_model=ERROR_MODEL)
-def to_quad_layout(node_box, node_meta, c_trav, c_isect):
-    """Collapse the binary tree into 4-wide records and collect the tree statistics.
-
-    Wide-BVH collapse by surface area as in Embree's BVH4 and Wald, Benthin & Boulos
-    2008 ("Getting rid of packets"): a record starts with the two children of a binary
-    node and repeatedly opens its largest-area internal child until it has four.
-    The root is record 0; the internal children of a record get consecutive record
-    indices when it is filled (siblings sit side by side in memory).
-
-    Returns
-    -------
-    box : (n4, 24) float32
-        Child boxes, structure of arrays: min x[4], min y[4], min z[4], max x[4],
-        max y[4], max z[4]. Unused lanes hold an empty box (min +inf, max -inf).
-    link : (n4, 8) int64
-        child[4] (record index for an internal child, first triangle slot for a leaf),
-        count[4] (0: internal child or unused lane; > 0: leaf).
-    stats : tuple
-        binary nodes, leaves, binary max depth, triangles in leaves, SAH cost (Wald 2007:
-        sum over internal nodes of C_trav A / A_root plus over leaves of
-        C_isect N A / A_root), 4-wide max depth.
-    """
-    n = node_box.shape[0]
-    root_area = _half_area(node_box[0])
-    if root_area <= 0.0:
-        root_area = 1.0
-    # Binary statistics.
-    stack = np.empty(n + 1, dtype=np.int64)
-    depth = np.empty(n + 1, dtype=np.int64)
-    n_nodes = 0
-    n_leaves = 0
-    in_leaves = 0
-    max_depth = 0
-    cost = 0.0
-    stack[0] = 0
-    depth[0] = 0
-    sp = 1
-    while sp > 0:
-        sp -= 1
-        i = stack[sp]
-        d = depth[sp]
-        n_nodes += 1
-        max_depth = max(max_depth, d)
-        area = _half_area(node_box[i]) / root_area
-        if node_meta[i, 3] > 0:
-            n_leaves += 1
-            in_leaves += node_meta[i, 3]
-            cost += c_isect * node_meta[i, 3] * area
-        else:
-            cost += c_trav * area
-            stack[sp] = node_meta[i, 1]
-            depth[sp] = d + 1
-            stack[sp + 1] = node_meta[i, 0]
-            depth[sp + 1] = d + 1
-            sp += 2
-
-    n_rec_max = max(1, n // 2 + 1)
-    box = np.empty((n_rec_max, 24), dtype=np.float32)
-    link = np.zeros((n_rec_max, 8), dtype=np.int64)
-    ch = np.empty(4, dtype=np.int64)
-    # Work list: (binary node, record index). Pre-order: records are numbered when
-    # their parent record is filled, children pushed in reverse.
-    work = np.empty(n + 1, dtype=np.int64)
-    wrec = np.empty(n + 1, dtype=np.int64)
-    wdep = np.empty(n + 1, dtype=np.int64)
-    n_rec = 1
-    max_depth4 = 0
-    work[0] = 0
-    wrec[0] = 0
-    wdep[0] = 0
-    sp = 1
-    while sp > 0:
-        sp -= 1
-        i = work[sp]
-        r = wrec[sp]
-        d4 = wdep[sp]
-        max_depth4 = max(max_depth4, d4)
-        if node_meta[i, 3] > 0:  # the root itself is a leaf
-            ch[0] = i
-            k = 1
-        else:
-            ch[0] = node_meta[i, 0]
-            ch[1] = node_meta[i, 1]
-            k = 2
-            while k < 4:
-                best = -1
-                best_a = -1.0
-                for q in range(k):
-                    if node_meta[ch[q], 3] == 0:
-                        a = _half_area(node_box[ch[q]])
-                        if a > best_a:
-                            best_a = a
-                            best = q
-                if best < 0:
-                    break
-                opened = ch[best]
-                ch[best] = node_meta[opened, 0]
-                ch[k] = node_meta[opened, 1]
-                k += 1
-        for lane in range(4):
-            if lane >= k:
-                for c in range(3):
-                    box[r, 4 * c + lane] = np.inf
-                    box[r, 12 + 4 * c + lane] = -np.inf
-                link[r, lane] = 0
-                link[r, 4 + lane] = 0
-                continue
-            c_node = ch[lane]
-            for c in range(3):
-                box[r, 4 * c + lane] = node_box[c_node, c]
-                box[r, 12 + 4 * c + lane] = node_box[c_node, 3 + c]
-            if node_meta[c_node, 3] > 0:
-                link[r, lane] = node_meta[c_node, 2]
-                link[r, 4 + lane] = node_meta[c_node, 3]
-            else:
-                link[r, lane] = n_rec
-                link[r, 4 + lane] = 0
-                n_rec += 1
-        # Push internal children in reverse lane order so that the first is next.
-        for lane in range(k - 1, -1, -1):
-            c_node = ch[lane]
-            if node_meta[c_node, 3] == 0:
-                work[sp] = c_node
-                wrec[sp] = link[r, lane]
-                wdep[sp] = d4 + 1
-                sp += 1
-    return box[:n_rec].copy(), link[:n_rec].copy(), (n_nodes, n_leaves, max_depth,
-                                                      in_leaves, cost, max_depth4)

@@ -1,7 +1,7 @@
 """Stack-based BVH traversal over 4-wide records: closest hit and any hit, ``prange``
 over ray blocks.
 
-Layout read here (made by ``build.to_quad_layout``; boxes float32, rounded outward)::
+Layout read here (made by ``collapse.to_quad_layout``; boxes float32, rounded outward)::
 
     nodes (n4, 32) float32   per record: child boxes as structure of arrays (0:24,
                              see ``intersect.slab``); 128 bytes, two cache lines
