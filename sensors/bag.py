@@ -46,18 +46,22 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from functools import partial
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.spatial.transform import Rotation
 
 from .errors import PointFileError
 from .fields import POINT_DTYPE
-from .spec import Driver, ProfilerPattern, SensorSpec, SpinningPattern
+# Message contents live in two modules of their own; their public names are re-exported
+# here, where users have always imported them from.
+from .imu import (DEFAULT_IMU, IMU_STREAM, STANDARD_GRAVITY, ImuModel, imu_normals,
+                  platform_motion)
+from .pointcloud2 import GENERIC_DRIVER, LAYOUTS, PointLayout, cloud_points
+from .spec import ProfilerPattern, SensorSpec, SpinningPattern
 from .stream import Stream
 from .trajectory import Mount, Trajectory
 
@@ -72,196 +76,10 @@ FRAMES: Final = ("map", "odom", "base_link")
 POSE_RATE_HZ: Final = 100.0
 ODOMETRY_TOPIC: Final = "/odometry/ground_truth"
 IMU_TOPIC: Final = "/imu/data_raw"
-#: Standard gravity (m/s^2, 3rd CGPM 1901); the IMU's specific force adds it along +z.
-STANDARD_GRAVITY: Final = 9.80665
 #: Pose and IMU messages are made this many seconds of trajectory at a time.
 MOTION_BLOCK_S: Final = 2.0
-#: Random stream of the IMU noise, apart from the simulation's streams (0-4).
-_IMU_STREAM: Final = 101
-_IMU_BLOCK: Final = 1 << 14
-
-
-# ---------------------------------------------------------------------- point layouts
-@dataclass(frozen=True)
-class PointLayout:
-    """One driver's PointCloud2 point: (name, byte offset, little-endian NumPy type) per
-    field and the point step, as the driver's own code lays them out."""
-
-    name: str
-    package: str
-    source: str
-    fields: tuple[tuple[str, int, str], ...]
-    point_step: int
-
-    @property
-    def dtype(self) -> np.dtype:
-        """The point as a NumPy structured dtype (offsets and item size kept)."""
-        return np.dtype({"names": [f[0] for f in self.fields],
-                         "formats": [np.dtype("<" + f[2]) for f in self.fields],
-                         "offsets": [f[1] for f in self.fields],
-                         "itemsize": self.point_step})
-
-
-LAYOUTS: Final[dict[str, PointLayout]] = {
-    # ros-drivers/velodyne (ROS 2), velodyne_pointcloud/src/lib/pointcloudXYZIRT.cpp:
-    # six fields given to PointCloud2Modifier::setPointCloud2Fields, which packs them
-    # (offset += count * size; point_step = the sum). time: s after the cloud's stamp.
-    "velodyne": PointLayout(
-        "velodyne", "velodyne_pointcloud",
-        "ros-drivers/velodyne velodyne_pointcloud/src/lib/pointcloudXYZIRT.cpp",
-        (("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 12, "f4"),
-         ("ring", 16, "u2"), ("time", 18, "f4")), 22),
-    # ouster-lidar/ouster-ros, include/ouster_ros/os_point.h (ouster_ros::Point):
-    # PCL_ADD_POINT4D pads x y z to 16 bytes, EIGEN_ALIGN16 rounds the struct to 48;
-    # pcl::toROSMsg keeps the C++ offsets. intensity = signal, t: ns after the cloud's
-    # stamp, ring = pixel row, ambient = near-IR, range in mm.
-    "ouster": PointLayout(
-        "ouster", "ouster-ros", "ouster-lidar/ouster-ros include/ouster_ros/os_point.h",
-        (("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 16, "f4"),
-         ("t", 20, "u4"), ("reflectivity", 24, "u2"), ("ring", 26, "u2"),
-         ("ambient", 28, "u2"), ("range", 32, "u4")), 48),
-    # RoboSense-LiDAR/rslidar_sdk, src/source/source_pointcloud_ros.hpp toRosMsg with
-    # POINT_TYPE_XYZIRT: addPointField packs the fields; timestamp: absolute s.
-    "robosense": PointLayout(
-        "robosense", "rslidar_sdk",
-        "RoboSense-LiDAR/rslidar_sdk src/source/source_pointcloud_ros.hpp",
-        (("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 12, "f4"),
-         ("ring", 16, "u2"), ("timestamp", 18, "f8")), 26),
-}
-
-#: For a sensor file without a ``[driver]`` table (a profiler, a user's lidar): the
-#: velodyne layout, which most LiDAR odometry reads, with ring = the pattern's channel.
-GENERIC_DRIVER: Final = Driver("tunnelsim", "velodyne", "lidar", "/points", "channel",
-                               255.0, 0.0)
-
 #: sensor_msgs/msg/PointField datatype of each NumPy type.
 _ROS_TYPE: Final = {"i1": 1, "u1": 2, "i2": 3, "u2": 4, "i4": 5, "u4": 6, "f4": 7, "f8": 8}
-
-
-def cloud_points(layout: PointLayout, sweep: NDArray[np.void], stamp_s: float,
-                 rings: NDArray[np.uint16], intensity_max: float) -> NDArray[np.void]:
-    """One sweep's ``POINT_DTYPE`` records (n,) as the layout's points (n,).
-
-    x, y, z are the sensor-frame point (sx, sy, sz) as float32; ring = ``rings`` of
-    the channel; intensity-like fields = intensity x ``intensity_max`` (rounded for
-    integer fields); times relative to ``stamp_s`` (s) except robosense's absolute
-    ``timestamp``. ouster's ambient (near-IR) is 0: no ambient light is simulated.
-    """
-    out = np.zeros(len(sweep), dtype=layout.dtype)
-    for a, b in (("x", "sx"), ("y", "sy"), ("z", "sz")):
-        out[a] = sweep[b]
-    level = sweep["intensity"].astype(np.float64) * intensity_max
-    out["intensity"] = level
-    out["ring"] = rings[sweep["channel"]]
-    dt = sweep["time"] - stamp_s
-    if layout.name == "velodyne":
-        out["time"] = dt
-    elif layout.name == "ouster":
-        out["t"] = np.round(dt * 1e9)
-        # ASSUMED: the 8-bit calibrated reflectivity carries the same level as the
-        # signal; signal photon counts are not modelled.
-        out["reflectivity"] = np.round(level)
-        out["range"] = np.round(sweep["range"] * 1e3)
-    else:
-        out["timestamp"] = sweep["time"]
-    return out
-
-
-# ---------------------------------------------------------------------- platform motion
-def platform_motion(trajectory: Trajectory, t: ArrayLike, step_s: float | None = None
-                    ) -> tuple[NDArray[np.float64], Rotation, NDArray[np.float64],
-                               NDArray[np.float64], NDArray[np.float64]]:
-    """True platform motion at times t (n,): positions (n, 3) world, body-to-world
-    Rotation (n), world velocity (n, 3) m/s, body angular rate (n, 3) rad/s and world
-    acceleration (n, 3) m/s^2.
-
-    Central differences of the interpolated poses over ``step_s`` (default: the
-    trajectory's median pose spacing): the interpolant is piecewise linear (positions)
-    and piecewise constant-rate (SLERP), so a shorter step would see its kinks as
-    spikes; over the pose spacing a uniformly sampled parabola gives its exact second
-    derivative. Within ``step_s`` of the ends the nearest interior difference is used.
-    Angular rate: rotvec(R(t - h)^T R(t + h)) / 2h (body frame).
-    """
-    tq = np.atleast_1d(np.asarray(t, dtype=np.float64))
-    pos, rot = trajectory.interpolate(tq)
-    n = len(tq)
-    zero = np.zeros((n, 3))
-    if len(trajectory) < 2:
-        return pos, rot, zero, zero.copy(), zero.copy()
-    h = float(np.median(np.diff(trajectory.times))) if step_s is None else float(step_s)
-    lo, hi = trajectory.start_s, trajectory.end_s
-    h = min(h, 0.5 * (hi - lo))
-    tc = np.clip(tq, lo + h, hi - h)
-    (pm, rm), (p0, _), (pp, rp) = (trajectory.interpolate(tc + d, local=True)
-                                   for d in (-h, 0.0, h))
-    vel = (pp - pm) / (2 * h)
-    acc = (pp - 2 * p0 + pm) / h ** 2
-    omega = (rm.inv() * rp).as_rotvec() / (2 * h)
-    return pos, rot, vel, omega, acc
-
-
-@dataclass(frozen=True)
-class ImuModel:
-    """Noise and bias of the simulated IMU (Kalibr's continuous-time model; Kalibr wiki
-    "IMU Noise Model"): per sample, white noise sigma = density sqrt(rate_hz); the bias
-    starts at N(0, bias_sigma) per axis and takes random-walk steps of sigma =
-    random_walk / sqrt(rate_hz). Densities in rad/s/sqrt(Hz) and m/s^2/sqrt(Hz),
-    random walks in rad/s^2/sqrt(Hz) and m/s^3/sqrt(Hz), bias sigmas in rad/s and m/s^2.
-
-    Defaults: the EuRoC MAV dataset's VI-Sensor IMU (ADIS16448, imu0/sensor.yaml) for
-    the densities and random walks; rate and turn-on biases ASSUMED.
-    """
-
-    rate_hz: float = 200.0                 # EuRoC imu0 rate
-    gyro_noise_density: float = 1.6968e-4
-    gyro_random_walk: float = 1.9393e-5
-    accel_noise_density: float = 2.0e-3
-    accel_random_walk: float = 3.0e-3
-    gyro_bias_sigma: float = 1.0e-3        # ASSUMED (0.06 deg/s turn-on bias, 1 sigma)
-    accel_bias_sigma: float = 0.02         # ASSUMED (2 mg turn-on bias, 1 sigma)
-
-    def __post_init__(self) -> None:
-        for name, v in asdict(self).items():
-            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and \
-                np.isfinite(v) and (v > 0 if name == "rate_hz" else v >= 0)
-            if not ok:
-                least = "> 0" if name == "rate_hz" else ">= 0"
-                raise PointFileError(f"Expected `ImuModel.{name}` to be a finite number "
-                                     f"{least}, got {v!r}.")
-
-    def sample_sigmas(self) -> tuple[float, float, float, float]:
-        """Per-sample sigmas: gyro white noise (rad/s), accel white noise (m/s^2), gyro
-        bias step (rad/s), accel bias step (m/s^2)."""
-        r = np.sqrt(self.rate_hz)
-        return (self.gyro_noise_density * r, self.accel_noise_density * r,
-                self.gyro_random_walk / r, self.accel_random_walk / r)
-
-
-DEFAULT_IMU: Final = ImuModel()
-
-
-def _normals(seed: int, first: int, n: int, width: int,
-             cache: list[tuple[int, NDArray[np.float64]]] | None = None
-             ) -> NDArray[np.float64]:
-    """Standard normals (n, width) for samples [first, first + n), the same however
-    they are asked for: block b of ``_IMU_BLOCK`` samples comes from
-    ``default_rng([seed, _IMU_STREAM, b])``. ``cache`` (a one-item list) keeps the
-    last block drawn."""
-    if n <= 0:
-        return np.empty((0, width))
-    b0, b1 = first // _IMU_BLOCK, (first + n - 1) // _IMU_BLOCK
-    parts = []
-    for b in range(b0, b1 + 1):
-        if cache and cache[0][0] == b:
-            parts.append(cache[0][1])
-            continue
-        block = np.random.default_rng([seed, _IMU_STREAM, b]).standard_normal(
-            (_IMU_BLOCK, width))
-        if cache is not None:
-            cache[:] = [(b, block)]
-        parts.append(block)
-    off = first - b0 * _IMU_BLOCK
-    return np.concatenate(parts)[off:off + n]
 
 
 def _ns(t_s: float) -> int:
@@ -586,9 +404,9 @@ class RosbagStream(Stream):
         force = rot.inv().apply(acc + np.array([0.0, 0.0, STANDARD_GRAVITY]))
         sg, sa, sbg, sba = imu.sample_sigmas()
         if self._imu_j == 0:     # turn-on bias, drawn once per seed
-            z0 = np.random.default_rng([self.seed, _IMU_STREAM + 1]).standard_normal(6)
+            z0 = np.random.default_rng([self.seed, IMU_STREAM + 1]).standard_normal(6)
             self._bias = z0 * np.repeat([imu.gyro_bias_sigma, imu.accel_bias_sigma], 3)
-        z = _normals(self.seed, self._imu_j, len(t), 12, self._noise)
+        z = imu_normals(self.seed, self._imu_j, len(t), 12, self._noise)
         steps = z[:, 6:] * np.repeat([sbg, sba], 3)
         # Bias of sample j: the turn-on bias plus the steps before j.
         bias = self._bias + np.cumsum(steps, axis=0) - steps
