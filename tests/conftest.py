@@ -9,7 +9,13 @@ settings.register_profile("ci", derandomize=True, print_blob=True)
 if os.environ.get("CI"):
     settings.load_profile("ci")
 
+from raytrace.config import threading_info
 from raytrace.shapes import tunnel_tube
+
+# Numba picks its threading layer at the first parallel kernel. Test modules import
+# Open3D at collection, whose bundled TBB is older than Numba accepts, and Numba then
+# warns once where it first launches one (the CLI does the same before Open3D loads).
+threading_info()
 
 
 @pytest.fixture(scope="session")
