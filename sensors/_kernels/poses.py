@@ -68,11 +68,17 @@ def interpolate_poses(times, pos, quat, t, rows, lever, bore, out_pos, out_mat):
         px += r00 * lever[0] + r01 * lever[1] + r02 * lever[2]
         py += r10 * lever[0] + r11 * lever[1] + r12 * lever[2]
         pz += r20 * lever[0] + r21 * lever[1] + r22 * lever[2]
-        for q in range(rows[j], rows[j + 1]):
-            out_pos[q, 0] = px
-            out_pos[q, 1] = py
-            out_pos[q, 2] = pz
+        q0 = rows[j]
+        out_pos[q0, 0] = px
+        out_pos[q0, 1] = py
+        out_pos[q0, 2] = pz
+        for c in range(3):
+            out_mat[q0, 0, c] = r00 * bore[0, c] + r01 * bore[1, c] + r02 * bore[2, c]
+            out_mat[q0, 1, c] = r10 * bore[0, c] + r11 * bore[1, c] + r12 * bore[2, c]
+            out_mat[q0, 2, c] = r20 * bore[0, c] + r21 * bore[1, c] + r22 * bore[2, c]
+        # The other pulses of the run copy the first one's pose.
+        for q in range(q0 + 1, rows[j + 1]):
             for c in range(3):
-                out_mat[q, 0, c] = r00 * bore[0, c] + r01 * bore[1, c] + r02 * bore[2, c]
-                out_mat[q, 1, c] = r10 * bore[0, c] + r11 * bore[1, c] + r12 * bore[2, c]
-                out_mat[q, 2, c] = r20 * bore[0, c] + r21 * bore[1, c] + r22 * bore[2, c]
+                out_pos[q, c] = out_pos[q0, c]
+                for a in range(3):
+                    out_mat[q, a, c] = out_mat[q0, a, c]
