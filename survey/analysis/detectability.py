@@ -35,6 +35,9 @@ Definitions (per configuration and deformation kind):
   sign). With LoD95 = 1.96 sigma_d it is 5 % for Gaussian distances; more where the
   spreads are estimated from few points (Student's t), less where the two epochs sample
   the same roughness (identical poses: the roughness cancels in d but not in the spreads).
+  ``reference_sd_m``, the observed spread of d there, shows which: at a Z+F's own noise
+  the lining's shape inside a cylinder dominates the spreads, LoD95 / 1.96 exceeds the
+  observed spread ~1.5x and the rate is ~0 % (benchmarks/RESULTS.md, 2026-11-27).
 
 DECISION: common random numbers (Law & Kelton, Simulation Modeling and Analysis, 4th
 ed., chapter 11): every configuration draws epoch 1 and epoch 2 with the same two
@@ -122,6 +125,9 @@ class DetectRow:
     detectable_m: dict[str, float]
     a95_m: dict[str, float]
     targets: list[TargetScore] = field(default_factory=list)
+    #: Standard deviation of the M3C2 distance on the reference lining (m): against
+    #: ``median_lod_m`` / 1.96 it shows how conservative LoD95 is for this survey.
+    reference_sd_m: float = float("nan")
 
     def to_dict(self) -> dict[str, Any]:
         d = dict(self.__dict__)
@@ -402,7 +408,7 @@ class Detectability:
         n2 = 0
         scores: list[TargetScore] = []
         fit: dict[str, list[tuple[Floats, Floats, Floats]]] = {k: [] for k in KINDS}
-        fa, nref, lod_ref = float("nan"), 0, float("nan")
+        fa, nref, lod_ref, sd_ref = float("nan"), 0, float("nan"), float("nan")
         for j, m in enumerate(self.layout.magnitudes_m):
             e2, _ = self._scan(self.scenes[1 + j], self.epoch_seeds[1], *scan)
             if len(e2) < 3:
@@ -423,6 +429,7 @@ class Detectability:
                 nref = int(ref.sum())
                 fa = float(res.significant[ref].mean()) if nref else float("nan")
                 lod_ref = float(np.median(lod[ref])) if nref else float("nan")
+                sd_ref = float(np.std(d[ref])) if nref > 1 else float("nan")
             for kind in KINDS:
                 reg = regions[kind] & ok
                 n = int(reg.sum())
@@ -441,7 +448,8 @@ class Detectability:
             a95[kind] = ahat_a95(a, dd, ll)["a_pod"]
         return DetectRow(
             sensor.name, sensor.kind, float(speed_mps), float(spacing_m), float(noise),
-            len(e1), n2, len(core), nref, fa, lod_ref, detectable, a95, scores)
+            len(e1), n2, len(core), nref, fa, lod_ref, detectable, a95, scores,
+            reference_sd_m=sd_ref)
 
     def grid(self, sensors: Sequence[SensorSpec], *, speeds_mps: Iterable[float] = (),
              spacings_m: Iterable[float] = (), noises: Iterable[float] = (1.0,),
