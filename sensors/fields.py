@@ -33,8 +33,8 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["FIELD_NAMES", "FIELD_UNITS", "FILE_DTYPE", "FILE_FIELDS", "FILE_NAMES",
-           "LAS_COMPACT", "LAS_EXTRA", "POINT_DTYPE", "XYZ", "FileField", "field_offset",
-           "file_records", "point_field"]
+           "LAS_COMPACT", "LAS_DESCRIPTIONS", "LAS_EXTRA", "POINT_DTYPE", "XYZ",
+           "FileField", "field_offset", "file_records", "las_description", "point_field"]
 
 #: One simulated return (a structured NumPy dtype, native byte order).
 POINT_DTYPE = np.dtype([
@@ -48,6 +48,11 @@ FIELD_NAMES: tuple[str, ...] = tuple(POINT_DTYPE.names or ())
 
 #: The world-coordinate fields.
 XYZ = ("x", "y", "z")
+
+
+#: Longest description an extra-bytes descriptor holds (LAS 1.4 R15, table 24: 32
+#: bytes, NUL-terminated by laspy's writer when shorter).
+LAS_DESCRIPTION_BYTES = 32
 
 
 @dataclass(frozen=True)
@@ -66,6 +71,9 @@ class FileField:
     old_name : str
         The PLY/NPZ name of files written before this naming (== ``name`` where it
         did not change).
+    description : str
+        What it is, with its unit in brackets: the description of its LAS extra-bytes
+        descriptor (at most 32 bytes).
     """
 
     field: str
@@ -73,6 +81,7 @@ class FileField:
     unit: str
     las: str
     old_name: str
+    description: str = ""
 
 
 # DECISION: the LAS names for every format (not the in-memory ones): LAS is the format
@@ -81,23 +90,27 @@ class FileField:
 # extra-bytes types are the ones written since the first LAS writer (channel, column
 # and frame as uint32), so LAS files stay byte-identical.
 FILE_FIELDS: tuple[FileField, ...] = (
-    FileField("x", "x", "m", "xyz", "x"),
-    FileField("y", "y", "m", "xyz", "y"),
-    FileField("z", "z", "m", "xyz", "z"),
-    FileField("sx", "sensor_x", "m", "f8", "sx"),
-    FileField("sy", "sensor_y", "m", "f8", "sy"),
-    FileField("sz", "sensor_z", "m", "f8", "sz"),
-    FileField("range", "range", "m", "f8", "range"),
-    FileField("azimuth", "azimuth", "rad", "f4", "azimuth"),
-    FileField("elevation", "elevation", "rad", "f4", "elevation"),
-    FileField("time", "gps_time", "s", "standard", "time"),
-    FileField("channel", "channel", "1", "u4", "channel"),
-    FileField("column", "column", "1", "u4", "column"),
-    FileField("frame", "frame", "1", "u4", "frame"),
-    FileField("intensity", "intensity", "1", "standard", "intensity"),
-    FileField("incidence", "incidence", "rad", "f4", "incidence"),
-    FileField("triangle", "triangle", "1", "i4", "triangle"),
-    FileField("flag", "flag", "1", "u1", "flag"),
+    FileField("x", "x", "m", "xyz", "x", "world x [m]"),
+    FileField("y", "y", "m", "xyz", "y", "world y [m]"),
+    FileField("z", "z", "m", "xyz", "z", "world z [m]"),
+    FileField("sx", "sensor_x", "m", "f8", "sx", "x in sensor frame [m]"),
+    FileField("sy", "sensor_y", "m", "f8", "sy", "y in sensor frame [m]"),
+    FileField("sz", "sensor_z", "m", "f8", "sz", "z in sensor frame [m]"),
+    FileField("range", "range", "m", "f8", "range", "measured range [m]"),
+    FileField("azimuth", "azimuth", "rad", "f4", "azimuth", "beam azimuth, sensor [rad]"),
+    FileField("elevation", "elevation", "rad", "f4", "elevation",
+              "beam elevation, sensor [rad]"),
+    FileField("time", "gps_time", "s", "standard", "time", "pulse time [s]"),
+    FileField("channel", "channel", "1", "u4", "channel", "laser channel [index]"),
+    FileField("column", "column", "1", "u4", "column", "firing in sweep [index]"),
+    FileField("frame", "frame", "1", "u4", "frame", "sweep number [index]"),
+    FileField("intensity", "intensity", "1", "standard", "intensity",
+              "intensity [fraction 0-1]"),
+    FileField("incidence", "incidence", "rad", "f4", "incidence",
+              "incidence angle [rad]"),
+    FileField("triangle", "triangle", "1", "i4", "triangle",
+              "mesh face hit, -1 none [index]"),
+    FileField("flag", "flag", "1", "u1", "flag", "1 surf 2 particle 3 mix [code]"),
 )
 
 #: ``POINT_DTYPE`` field -> its name in files.
@@ -106,6 +119,41 @@ FILE_NAMES: dict[str, str] = {f.field: f.name for f in FILE_FIELDS}
 #: Unit of every ``POINT_DTYPE`` field ("1" for counts, indices and fractions); the
 #: module docstring gives each field's meaning. Angles are radians.
 FIELD_UNITS: dict[str, str] = {f.field: f.unit for f in FILE_FIELDS}
+
+#: Description, with its unit in brackets, of every extra dimension tunnelsim writes
+#: into LAS/LAZ (the simulation's fields, ``compare``'s distances, ``m3c2``'s
+#: results, ``preprocess``'s counts): the 32-byte description of its extra-bytes
+#: descriptor (LAS 1.4 R15, 2.6 and table 24), which has no unit of its own.
+#: ``LasWriter`` and ``output_header`` fill it in (``las_description``).
+LAS_DESCRIPTIONS: dict[str, str] = {
+    **{f.name: f.description for f in FILE_FIELDS if f.las not in ("xyz", "standard")},
+    # compare (C2C unsigned, C2M signed) and m3c2 (signed along the normal)
+    "distance": "distance to reference [m]",
+    "dx": "x of distance vector [m]",
+    "dy": "y of distance vector [m]",
+    "dz": "z of distance vector [m]",
+    "lod": "M3C2 level of detection 95% [m]",
+    "significant": "|distance| > lod [0/1]",
+    "spread1": "M3C2 spread, epoch 1 [m]",
+    "spread2": "M3C2 spread, epoch 2 [m]",
+    "n1": "M3C2 points, epoch 1 [count]",
+    "n2": "M3C2 points, epoch 2 [count]",
+    "nx": "M3C2 normal x [unit vector]",
+    "ny": "M3C2 normal y [unit vector]",
+    "nz": "M3C2 normal z [unit vector]",
+    "voxel_count": "input points in voxel [count]",
+}
+
+
+def las_description(name: str) -> str:
+    """The extra-bytes description of a dimension tunnelsim writes (``LAS_DESCRIPTIONS``),
+    "" for a name it does not know.
+
+    >>> las_description("lod")
+    'M3C2 level of detection 95% [m]'
+    """
+    return LAS_DESCRIPTIONS.get(name, "")
+
 
 def field_offset(dtype: np.dtype, name: str) -> int:
     """Byte offset of field ``name`` in the records of the structured ``dtype``."""
@@ -139,6 +187,9 @@ _BY_NAME = {**{f.old_name: f.field for f in FILE_FIELDS},
 # of LAS extra bytes, PLY properties and NPZ arrays).
 if tuple(FILE_NAMES) != FIELD_NAMES or len(set(FILE_NAMES.values())) != len(FILE_FIELDS):
     raise AssertionError("FILE_FIELDS must name every POINT_DTYPE field once, in order")
+if any(len(d.encode()) > LAS_DESCRIPTION_BYTES or "[" not in d
+       for d in LAS_DESCRIPTIONS.values()):
+    raise AssertionError("LAS_DESCRIPTIONS must fit 32 bytes and name a [unit]")
 
 
 def point_field(name: str) -> str | None:

@@ -12,6 +12,15 @@ a silently shorter cloud:
   read; LAZ: while decompressing), with how many points were promised and read;
 - coordinate scales or offsets that are zero, NaN or infinite.
 
+Files as other writers leave them (issue 29): every version (1.0-1.4) and point format
+(0-10) reads; a rewrite keeps every point record byte but what it is asked to change
+and says in one warning line what it cannot keep: a LAS 1.3 "start of waveform data"
+that points at no waveform record (zero, the end, the points, padding: a waveform
+format without waveform data, as Leica writers leave it), wave packet fields that
+index no waveform data, waveform data in an external ``.wdp`` file (not copied), a
+LAS 1.0 input (written as 1.1, which laspy writes), and the wave packet fields of
+point formats 9 and 10 in a LAZ output (zeros: lazrs 0.8 does not keep varying ones).
+
 COPC files (``.copc.laz``) read as the LAZ 1.4 they are; their octree VLR and EVLR do not
 describe a rewritten file and are left out of it (laspy cannot write them).
 
@@ -33,6 +42,7 @@ import copy
 import logging
 import os
 import struct
+import warnings
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, Self
@@ -40,12 +50,12 @@ from typing import Any, Self
 import numpy as np
 
 from .errors import PointFileError
-from .fields import field_offset
+from .fields import field_offset, las_description
 from .stream import AtomicStream, deferred_interrupt
 
-__all__ = ["CRS_USER", "LAS_SCALE", "LasRecords", "LasSource", "LasWriter", "is_crs_record",
-           "las_crs_wkt", "offsets_near", "output_header", "point_records", "quantize",
-           "set_las_crs", "write_las"]
+__all__ = ["CRS_USER", "LAS_SCALE", "WAVEFORM_FORMATS", "LasRecords", "LasSource",
+           "LasWriter", "extra_params", "is_crs_record", "las_crs_wkt", "offsets_near",
+           "output_header", "point_records", "quantize", "set_las_crs", "write_las"]
 
 #: Default coordinate scale of the files tunnelsim writes (m): 0.1 mm.
 LAS_SCALE = 1e-4
@@ -58,6 +68,13 @@ CRS_USER = "LASF_Projection"
 CRS_WKT_RECORD = 2112
 #: (user, record) of the EVLR holding waveform data packets.
 WAVEFORM_EVLR = ("LASF_Spec", 65535)
+#: Point formats with wave packet fields (LAS 1.3: 4, 5; LAS 1.4: 9, 10 too).
+WAVEFORM_FORMATS = (4, 5, 9, 10)
+#: Point formats whose wave packet fields lazrs does not keep in LAZ (``LasWriter``).
+LAZ_WAVE_BROKEN = (9, 10)
+#: The wave packet fields of a laspy point record (LAS 1.4 R15, table 14).
+WAVE_FIELDS = ("wavepacket_index", "wavepacket_offset", "wavepacket_size",
+               "return_point_wave_location", "x_t", "y_t", "z_t")
 #: Byte offsets in the public header block (LAS 1.4 R15, table 3).
 _HEADER = struct.Struct("<4s20xBB68xHIIBHI")     # signature ... legacy point count
 _OFFSET_COUNT_14 = 247                            # uint64 point count (LAS 1.4)
@@ -128,6 +145,12 @@ def _raw_header(path: Path, size: int) -> dict[str, int]:
         count = struct.unpack_from("<Q", raw, _OFFSET_COUNT_14)[0] or legacy
     return {"minor": minor, "offset": offset, "record": rec_len, "count": count,
             "compressed": compressed, "format": fmt}
+
+
+def _warn(text: str) -> None:
+    """Say what a read or rewrite leaves out or changes: one line (the CLI prints a
+    warning as "tunnelsim: warning: ...")."""
+    warnings.warn(text + ".", UserWarning, stacklevel=3)
 
 
 def _cut_short(path, promised: int, got: int, how: str) -> PointFileError:
@@ -209,28 +232,98 @@ class LasSource:
                 np.asarray(self.header.maxs, dtype=np.float64))
 
     def evlrs(self) -> list[Any]:
-        """The file's EVLRs (COPC octree pages left out); for a LAS 1.3 file, its
-        waveform data record, which laspy does not read."""
+        """The EVLRs to carry into a rewrite of this file (COPC octree pages left out);
+        for a LAS 1.3 file, its waveform data record, which laspy does not read.
+
+        Files as other writers leave them (issue 29) are taken as they are: a LAS 1.3
+        header whose "start of waveform data packet record" points at no waveform
+        record (zero, the end of the file, the points, padding) gives no record. What
+        a rewrite cannot keep is said in one warning line each (``warnings.warn``): a
+        waveform pointer to nothing, waveform data kept in an external ``.wdp`` file
+        (not copied), wave packet fields of points (formats 4, 5, 9, 10) without the
+        waveform data they index (kept as they are, pointing nowhere)."""
+        why = None
+        if self.header.version.minor >= 4:
+            out = [v for v in (self.header.evlrs or []) if v.user_id != COPC_USER]
+        else:
+            out, why = self._waveform_record_13()
+        self._say_waveform_state(out, why)
+        return out
+
+    def _waveform_record_13(self) -> tuple[list[Any], str | None]:
+        """([the LAS 1.3 waveform data record], None) when the header points at one,
+        else ([], None) or ([], why the pointer leads to none)."""
         import laspy
 
-        if self.header.version.minor >= 4:
-            return [v for v in (self.header.evlrs or []) if v.user_id != COPC_USER]
+        if self.header.version.minor < 3:
+            return [], None
         start = int(self.header.start_of_waveform_data_packet_record)
-        if self.header.version.minor < 3 or start == 0:
-            return []
-        with open(self.path, "rb") as fh:
-            fh.seek(start)
-            head = fh.read(_EVLR_HEAD.size)
-            if len(head) < _EVLR_HEAD.size:
-                raise _bad(self.path, "whose waveform data record lies beyond its end: it "
-                                      "is cut short")
-            _, user, rid, length, desc = _EVLR_HEAD.unpack(head)
-            data = fh.read(length)
-        if len(data) != length:
+        if start == 0:
+            return [], None
+        points_end = self._points_end()
+        head = b""
+        if points_end <= start <= self.size - _EVLR_HEAD.size:
+            with open(self.path, "rb") as fh:
+                fh.seek(start)
+                head = fh.read(_EVLR_HEAD.size)
+        if len(head) < _EVLR_HEAD.size:
+            return [], (f"its header's waveform data start, byte {start:,}, is where "
+                        f"no waveform data record can lie (points end at byte "
+                        f"{points_end:,}, the file at {self.size:,})")
+        _, user, rid, length, desc = _EVLR_HEAD.unpack(head)
+        user_s = user.split(b"\0", 1)[0].decode("ascii", "replace")
+        if (user_s, rid) != WAVEFORM_EVLR:
+            return [], (f"its header's waveform data start, byte {start:,}, holds no "
+                        f"waveform data record (user {WAVEFORM_EVLR[0]!r} record "
+                        f"{WAVEFORM_EVLR[1]}), but {user_s[:16]!r} record {rid}")
+        if length > self.size - start - _EVLR_HEAD.size:
             raise _bad(self.path, f"whose waveform data record promises {length:,} bytes "
-                                  f"and holds {len(data):,}: it is cut short")
-        return [laspy.VLR(user.rstrip(b"\0").decode("ascii", "replace"), rid,
-                          desc.rstrip(b"\0").decode("ascii", "replace"), data)]
+                                  f"and holds {self.size - start - _EVLR_HEAD.size:,}: it "
+                                  "is cut short")
+        with open(self.path, "rb") as fh:
+            fh.seek(start + _EVLR_HEAD.size)
+            data = fh.read(length)
+        return [laspy.VLR(user_s, rid, desc.rstrip(b"\0").decode("ascii", "replace"),
+                          data)], None
+
+    def _points_end(self) -> int:
+        """The byte after the point records (LAS; for LAZ, the header's offset: the
+        compressed size is unknown before reading)."""
+        offset = int(self.header.offset_to_point_data)
+        if self.compressed:
+            return offset
+        return offset + self.point_count * int(self.header.point_format.size)
+
+    def waveform_file(self) -> Path | None:
+        """The external waveform data file beside this one (same name, ``.wdp``, as
+        LAS 1.3 R11 names it), or None when there is none."""
+        for suffix in (".wdp", ".WDP"):
+            p = self.path.with_suffix(suffix)
+            if p.is_file():
+                return p
+        return None
+
+    def _say_waveform_state(self, evlrs: list[Any], why: str | None) -> None:
+        """Warn, in one line, about waveform data a rewrite does not carry (see
+        ``evlrs``); ``why``: how the header's waveform pointer leads nowhere."""
+        if any((str(v.user_id).rstrip("\0"), v.record_id) == WAVEFORM_EVLR
+               for v in evlrs):
+            return
+        wdp = self.waveform_file()
+        pointer = "" if why is None else f"; {why}, which is not carried"
+        if self.header.global_encoding.waveform_data_packets_external and wdp is not None:
+            _warn(f"'{self.path}' keeps its waveform data in '{wdp.name}' (external), "
+                  "which a rewrite does not copy: the wave packet fields are kept; copy "
+                  "that file beside the output, named as the output with .wdp, to use "
+                  f"them{pointer}")
+        elif self.header.point_format.id in WAVEFORM_FORMATS:
+            _warn(f"'{self.path}' has wave packet fields (point format "
+                  f"{self.header.point_format.id}) but no waveform data (none in the "
+                  "file, no .wdp beside it): they are kept as they are and point "
+                  f"nowhere{pointer}")
+        elif why is not None:
+            _warn(f"'{self.path}' (LAS {self.header.version}): {why}; no waveform data "
+                  "carried")
 
     def close(self) -> None:
         self._reader.close()
@@ -246,10 +339,14 @@ def output_header(source: Any, *, scales: np.ndarray | None = None,
                   offsets: np.ndarray | None = None,
                   extra: Mapping[str, np.dtype] | None = None) -> Any:
     """A header for rewriting the file ``source`` (a ``LasSource``): its version, point
-    format (extra bytes included), global encoding, identifiers, dates and VLRs, with
-    the COPC octree VLR left out and the ``extra`` dimensions {name: dtype} added (an
-    input extra dimension of the same name is replaced). EVLRs are passed to
-    ``LasWriter`` separately (``source.evlrs()``)."""
+    format (extra bytes included, with their descriptions), global encoding,
+    identifiers, dates and VLRs, with the COPC octree VLR left out and the ``extra``
+    dimensions {name: dtype} added, each described with its unit
+    (``sensors.fields.las_description``; an input extra dimension of the same name is
+    replaced). EVLRs are passed to ``LasWriter`` separately (``source.evlrs()``).
+
+    A LAS 1.0 input gives a LAS 1.1 header (laspy writes 1.1 and later; the point
+    records of formats 0 and 1 are the same bytes), with a warning."""
     import laspy
 
     head = copy.deepcopy(source.header)
@@ -257,6 +354,15 @@ def output_header(source: Any, *, scales: np.ndarray | None = None,
                                type(v).__name__ != "LasZipVlr"])
     head.evlrs = None
     head.start_of_waveform_data_packet_record = 0
+    if head.version.minor == 0:
+        # DECISION: 1.1, the nearest version laspy writes: LAS 1.1 turned the
+        # header's reserved bytes 4-5 into the file source ID (zero in a 1.0 file,
+        # zero here) and dropped the 0xCCDD point data start signature; the public
+        # header keeps its 227 bytes and the point records of formats 0 and 1 are byte
+        # for byte the same.
+        head.version = laspy.header.Version(1, 1)
+        _warn(f"'{source.path}' is LAS 1.0, which laspy does not write: the output is "
+              "LAS 1.1, with the same point records")
     if scales is not None:
         head.scales = np.asarray(scales, dtype=np.float64)
     if offsets is not None:
@@ -265,9 +371,18 @@ def output_header(source: Any, *, scales: np.ndarray | None = None,
         old = [e for e in head.point_format.extra_dimension_names if e in extra]
         if old:
             head.remove_extra_dims(old)
-        head.add_extra_dims([laspy.ExtraBytesParams(name=k, type=np.dtype(t))
-                             for k, t in extra.items()])
+        head.add_extra_dims(extra_params(extra))
     return head
+
+
+def extra_params(extra: Mapping[str, Any]) -> list[Any]:
+    """laspy ``ExtraBytesParams`` of dimensions {name: dtype (or array)}, each described
+    with its unit where tunnelsim writes it (``sensors.fields.LAS_DESCRIPTIONS``)."""
+    import laspy
+
+    return [laspy.ExtraBytesParams(name=k, type=np.dtype(getattr(t, "dtype", t)),
+                                   description=las_description(k))
+            for k, t in extra.items()]
 
 
 def is_crs_record(vlr: Any) -> bool:
@@ -506,12 +621,40 @@ class LasWriter(AtomicStream):
             raise
         self.header = self._writer.header
         self.n_points = 0
+        # DECISION: lazrs 0.8 (laspy's LAZ codec) changes varying wave packet fields of
+        # point formats 9 and 10 in a LAZ round trip (found by
+        # tests/sensors/test_las_versions.py: offsets, sizes and x(t) of a third of
+        # the points differ; constant fields survive). Silently wrong values are
+        # worse than none: a LAZ output of those formats gets them as zeros, said
+        # once; a .las output keeps them.
+        self._zero_wave = compress and header.point_format.id in LAZ_WAVE_BROKEN
+        self._said_wave = False
 
     def write_points(self, records: Any) -> None:
         """Append laspy point records (``point_records`` makes them)."""
+        if self._zero_wave:
+            records = self._without_wave(records)
         with deferred_interrupt():
             self._writer.write_points(records)
         self.n_points += len(records)
+
+    def _without_wave(self, records: Any) -> Any:
+        """``records`` with their wave packet fields zero (see ``__init__``)."""
+        import laspy
+
+        a = records.array
+        if not any(np.any(a[k]) for k in WAVE_FIELDS):
+            return records
+        if not self._said_wave:
+            self._said_wave = True
+            _warn(f"'{self.path}': LAZ (lazrs) does not keep varying wave packet fields "
+                  f"of point format {self.header.point_format.id}, so they are written "
+                  "as zeros (every other field is kept); write .las to keep them")
+        a = a.copy()
+        for k in WAVE_FIELDS:
+            a[k] = 0
+        return laspy.ScaleAwarePointRecord(a, records.point_format, records.scales,
+                                           records.offsets)
 
     def _finish(self) -> None:
         with deferred_interrupt():
@@ -549,14 +692,19 @@ def write_las(path: str | os.PathLike[str], xyz: np.ndarray, *,
               extra: Mapping[str, np.ndarray] | None = None,
               point_format: int = 6, scale: float = LAS_SCALE,
               vlrs: Iterable[Any] = (), system_identifier: str = "",
-              compress: bool | None = None, crs: Any = None) -> Path:
+              compress: bool | None = None, crs: Any = None,
+              extra_dims: Mapping[str, Any] | None = None) -> Path:
     """Write points ``xyz`` (n, 3) float64 as LAS 1.4 (default point format 6, scale
     ``scale`` m, offsets near the data), atomically, in chunks.
 
     ``fields`` fills standard dimensions {name: (n,) array} (e.g. ``classification``,
     ``intensity``, ``gps_time``); ``extra`` adds extra-bytes dimensions of the arrays'
-    dtypes; ``crs`` (as ``sensors.crs.parse_crs`` takes it) writes the WKT VLR. Every
-    point is "return 1 of 1". Returns the path.
+    dtypes, each described with its unit where tunnelsim knows the name
+    (``sensors.fields.LAS_DESCRIPTIONS``); ``extra_dims`` {name: laspy
+    ``ExtraBytesParams``} describes an ``extra`` array as another file had it (type,
+    description, scale and offset: the array holds the stored values); ``crs`` (as
+    ``sensors.crs.parse_crs`` takes it) writes the WKT VLR. Every point is "return 1
+    of 1". Returns the path.
     """
     import laspy
 
@@ -568,7 +716,8 @@ def write_las(path: str | os.PathLike[str], xyz: np.ndarray, *,
     if system_identifier:
         head.system_identifier = system_identifier[:32]
     extra = {k: np.asarray(v) for k, v in (extra or {}).items()}
-    head.add_extra_dims([laspy.ExtraBytesParams(name=k, type=v.dtype)
+    given = dict(extra_dims or {})
+    head.add_extra_dims([given[k] if k in given else extra_params({k: v})[0]
                          for k, v in extra.items()])
     head.vlrs.extend(vlrs)
     if crs is not None:

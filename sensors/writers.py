@@ -81,7 +81,14 @@ from .fields import (
     POINT_DTYPE,
     file_records,
 )
-from .las import LAS_SCALE, LasRecords, LasWriter, offsets_near, set_las_crs
+from .las import (
+    LAS_SCALE,
+    LasRecords,
+    LasWriter,
+    extra_params,
+    offsets_near,
+    set_las_crs,
+)
 from .ply import PlyWriter
 from .spec import SensorSpec, load_sensor
 from .stream import Background, Stream, deferred_interrupt
@@ -230,8 +237,8 @@ class _LasPoints(PointWriter):
         header = laspy.LasHeader(point_format=6, version="1.4")
         header.scales = np.full(3, LAS_SCALE)
         header.offsets = offsets_near(first_xyz)
-        header.add_extra_dims([laspy.ExtraBytesParams(name=n, type=np.dtype(t))
-                               for n, _, t in self._extra])
+        # Each extra dimension described with its unit (sensors.fields.FILE_FIELDS).
+        header.add_extra_dims(extra_params({n: np.dtype(t) for n, _, t in self._extra}))
         header.system_identifier = f"tunnelsim {self.sensor}"[:32]
         header.generating_software = "tunnelsim"
         header.vlrs.append(laspy.VLR(user_id="tunnelsim", record_id=1,

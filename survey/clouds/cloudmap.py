@@ -185,20 +185,38 @@ def _map_las(src: Path, dst: Path, fn: XyzFn, chunk: int, fields: tuple[str, ...
         # A finer scale never loses what the input held; 0.1 mm at most.
         scales = np.minimum(LAS_SCALE, np.asarray(source.header.scales, dtype=np.float64))
 
+        wave = {"x_t", "y_t", "z_t"} <= names
+
         def step(rec: Any, first: int) -> tuple[dict[str, Any], Callable[[Any], Any]]:
             t = np.asarray(rec.gps_time) if has_time else None
             if fields:
                 extra = {f: np.asarray(rec[f]) for f in fields}
-                new = _new_xyz(lambda xyz, tt: fn(xyz, tt, extra), las_xyz(rec), t, src)
+                f1: XyzFn = lambda xyz, tt: fn(xyz, tt, extra)  # noqa: E731
             else:
-                new = _new_xyz(fn, las_xyz(rec), t, src)
+                f1 = fn
+            xyz = las_xyz(rec)
+            new = _new_xyz(f1, xyz, t, src)
             check_finite(new, dst, first)
+            d_new = None
+            if wave:
+                # The wave packet's direction (x(t), y(t), z(t): coordinate units per
+                # picosecond, LAS 1.4 R15 table 17) turns with the points: mapped as
+                # the difference of two mapped points ~1 m apart along it, exact for
+                # a Helmert transform and the local linearisation of any other.
+                d = np.stack([np.asarray(rec[k], dtype=np.float64)
+                              for k in ("x_t", "y_t", "z_t")], 1)
+                tau = 1.0 / np.maximum(np.abs(d).max(axis=1), 1e-12)
+                d_new = (_new_xyz(f1, xyz + d * tau[:, None], t, src) - new) \
+                    / tau[:, None]
 
             def records(head: Any) -> Any:
                 out = laspy.ScaleAwarePointRecord(rec.array.copy(), head.point_format,
                                                   head.scales, head.offsets)
                 q = quantize(new, head.scales, head.offsets)
                 out.array["X"], out.array["Y"], out.array["Z"] = q.T
+                if d_new is not None:
+                    for k, col in zip(("x_t", "y_t", "z_t"), d_new.T):
+                        out[k] = col.astype(np.float32)
                 return out
             return {"scales": scales, "offsets": offsets_near(new)}, records
 

@@ -24,10 +24,21 @@ Outlier filters, on an in-memory cloud (run them after the voxel grid):
   in the tests).
 
 Points may be (n, 3), a single (3,) point or a structured array with fields x, y, z.
+
+Extra dimensions (issue 31): a LAS/LAZ input's extra bytes (``section``, ``chainage``,
+another writer's fields) travel with the points (``iter_points_extra``), through the
+voxel grid (``VoxelGrid.add(points, fields)``, ``VoxelGrid.fields``) into the output
+with their types, scales and descriptions (``extra_dims``, ``write_preprocessed``).
+A voxel's value of a floating-point dimension is the mean of its points' values, an
+integer dimension's the value of its first point in file order (see
+``VoxelGrid.fields``).
 """
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterator, Mapping
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -37,7 +48,10 @@ from scipy.spatial import cKDTree
 from raytrace.checks import as_points
 from survey.errors import PreprocessError
 
-__all__ = ["VoxelGrid", "radius_outliers", "statistical_outliers", "voxel_down_sample"]
+__all__ = ["VoxelGrid", "extra_dims", "iter_points_extra", "radius_outliers",
+           "statistical_outliers", "voxel_down_sample", "write_preprocessed"]
+
+Fields = dict[str, NDArray[Any]]
 
 
 def _check_points(p: ArrayLike, name: str = "points") -> NDArray[np.float64]:
@@ -53,6 +67,10 @@ class VoxelGrid:
     ``VoxelGrid(voxel_size_m, min_bound)``, then ``add(points)`` per chunk, then
     ``result()`` -> (m, 3) centroids and (m,) counts. ``min_bound`` (3,) is the cloud's
     minimum, metres (the grid anchor is min_bound - voxel_size_m / 2).
+
+    Per-point fields (``add(points, fields)``, the same names in every chunk) give one
+    value per voxel (``fields()``, in ``result``'s order): 8 more bytes a voxel per
+    field.
     """
 
     #: Bits per axis in the packed voxel key (2 cm voxels: 42 km per axis).
@@ -75,16 +93,27 @@ class VoxelGrid:
         self._keys = np.empty(0, dtype=np.int64)
         self._sums = np.empty((0, 3))
         self._counts = np.empty(0, dtype=np.int64)
-        self._pending: list[tuple[NDArray[Any], NDArray[Any], NDArray[Any]]] = []
+        self._pending: list[tuple[NDArray[Any], NDArray[Any], NDArray[Any], Fields]] = []
         self._pending_n = 0
+        self._fields: Fields | None = None           # per voxel: sums or first values
 
     def __repr__(self) -> str:
         return (f"VoxelGrid({self.voxel_size_m:g} m, "
                 f"{len(self._keys) + self._pending_n:,} voxels so far)")
 
-    def add(self, points: ArrayLike) -> None:
-        """Accumulate a chunk of points (n, 3) or (3,), or a structured array."""
+    def add(self, points: ArrayLike, fields: Mapping[str, ArrayLike] | None = None
+            ) -> None:
+        """Accumulate a chunk of points (n, 3) or (3,), or a structured array, with
+        per-point ``fields`` {name: (n,) array} (the same names in every chunk)."""
         p, _ = as_points(points, "points", PreprocessError, finite=False)
+        vals = {k: np.asarray(v) for k, v in (fields or {}).items()}
+        if self._fields is None:
+            self._fields = {k: np.empty((0,) + v.shape[1:], _kept_dtype(v.dtype))
+                            for k, v in vals.items()}
+        if set(vals) != set(self._fields) or any(len(v) != len(p) for v in vals.values()):
+            raise PreprocessError(f"Expected the fields {sorted(self._fields)} with one "
+                                  f"value per point ({len(p)}), got "
+                                  f"{ {k: len(v) for k, v in vals.items()} }.")
         if len(p) == 0:
             return
         local = p - self.anchor
@@ -95,10 +124,11 @@ class VoxelGrid:
                                   f"bound (or the extent exceeds "
                                   f"{(1 << self.BITS) * self.voxel_size_m:.0f} m).")
         key = (idx[:, 0] << (2 * self.BITS)) | (idx[:, 1] << self.BITS) | idx[:, 2]
-        u, inv = np.unique(key, return_inverse=True)
+        u, first, inv = np.unique(key, return_index=True, return_inverse=True)
         sums = np.stack([np.bincount(inv, weights=local[:, k], minlength=len(u))
                          for k in range(3)], 1)
-        self._pending.append((u, sums, np.bincount(inv, minlength=len(u))))
+        self._pending.append((u, sums, np.bincount(inv, minlength=len(u)),
+                              {k: _reduce(v, inv, first, len(u)) for k, v in vals.items()}))
         self._pending_n += len(u)
         if self._pending_n > max(1 << 22, len(self._keys)):
             self._merge()
@@ -108,25 +138,68 @@ class VoxelGrid:
             return
         # The grid's arrays and the pending chunks go once concatenated: the merge's
         # peak is the concatenation and the sort's arrays, not those beside them too.
-        parts = [(self._keys, self._sums, self._counts)] + self._pending
+        # The grid's own voxels come first, then the chunks in the order they came:
+        # a key's first occurrence is its first point in input order.
+        parts = [(self._keys, self._sums, self._counts, self._fields or {})] + \
+            self._pending
         self._pending, self._pending_n = [], 0
         del self._keys, self._sums, self._counts
-        keys = np.concatenate([k for k, _, _ in parts])
-        counts = np.concatenate([c for _, _, c in parts])
-        sums = np.concatenate([s for _, s, _ in parts])
+        keys = np.concatenate([k for k, _, _, _ in parts])
+        counts = np.concatenate([c for _, _, c, _ in parts])
+        sums = np.concatenate([s for _, s, _, _ in parts])
+        fields = {k: np.concatenate([f[k] for _, _, _, f in parts])
+                  for k in (self._fields or {})}
         del parts
-        u, inv = np.unique(keys, return_inverse=True)
+        u, first, inv = np.unique(keys, return_index=True, return_inverse=True)
         del keys
         self._sums = np.stack([np.bincount(inv, weights=sums[:, k], minlength=len(u))
                                for k in range(3)], 1)
         del sums
         self._counts = np.bincount(inv, weights=counts, minlength=len(u)).astype(np.int64)
+        self._fields = {k: _reduce(v, inv, first, len(u)) for k, v in fields.items()}
         self._keys = u
 
     def result(self) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """(centroids (m, 3) float64 world, counts (m,) int64), ordered by voxel key."""
         self._merge()
         return self._sums / self._counts[:, None] + self.anchor, self._counts.copy()
+
+    def fields(self, dtypes: Mapping[str, Any] | None = None) -> Fields:
+        """The value of every field per voxel {name: (m,)}, in ``result``'s order.
+
+        DECISION: a floating-point field gets the mean of the voxel's points (summed
+        in float64, as the coordinates: the centroid's chainage is the points' mean
+        chainage), an integer field the value of the voxel's first point in input
+        order: integers are labels and counts (a section number, a class, an id),
+        whose mean is no value any point had (the mean of sections 3 and 4 is no
+        section). ``dtypes`` {name: dtype}: the types to return (default: float64
+        for floating-point fields, the input's type for integers)."""
+        self._merge()
+        out: Fields = {}
+        for k, v in (self._fields or {}).items():
+            if v.dtype.kind == "f":
+                v = v / np.maximum(self._counts, 1).reshape((-1,) + (1,) * (v.ndim - 1))
+            out[k] = v.astype((dtypes or {}).get(k, v.dtype), copy=False)
+        return out
+
+
+def _kept_dtype(dt: np.dtype) -> np.dtype:
+    """What a voxel keeps of a field of type ``dt``: float64 sums of a floating-point
+    field, the values of any other."""
+    return np.dtype(np.float64) if dt.kind == "f" else dt
+
+
+def _reduce(values: NDArray[Any], inv: NDArray[np.intp], first: NDArray[np.intp],
+            m: int) -> NDArray[Any]:
+    """Per-voxel float64 sums of a floating-point field (``values`` may be sums
+    already), the first value of any other (``first``: index of each voxel's first
+    element)."""
+    if values.dtype.kind == "f":
+        flat = values.reshape(len(values), -1).astype(np.float64)
+        sums = np.stack([np.bincount(inv, weights=flat[:, j], minlength=m)
+                         for j in range(flat.shape[1])], 1)
+        return sums.reshape((m,) + values.shape[1:])
+    return values[first]
 
 
 def voxel_down_sample(points: ArrayLike, voxel_size_m: float) -> NDArray[np.float64]:
@@ -171,3 +244,98 @@ def radius_outliers(points: ArrayLike, *, min_neighbours: int = 4,
     tree = cKDTree(local)
     counts = tree.query_ball_point(local, radius_m, return_length=True, workers=-1)
     return counts - 1 < int(min_neighbours)          # the query point is in its own ball
+
+
+def extra_dims(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The extra dimensions of a LAS/LAZ cloud {name: laspy ``ExtraBytesParams``}
+    (type, description, scale and offset as the file has them; bytes no descriptor
+    names are left out), in record order; {} for other formats."""
+    from sensors.las import LasSource
+    from survey.clouds.cloudread import cloud_errors, existing_cloud
+
+    p = existing_cloud(path)
+    if p.suffix.lower() not in (".las", ".laz"):
+        return {}
+    import laspy
+
+    with cloud_errors(), LasSource(p) as src:
+        dims = list(src.header.point_format.extra_dimensions)
+    if any(d.name == "ExtraBytes" for d in dims):
+        import warnings
+
+        warnings.warn(f"'{p}' holds extra bytes that no extra-bytes descriptor names; "
+                      "they are not carried (only described dimensions are).",
+                      UserWarning, stacklevel=2)
+    return {d.name: laspy.ExtraBytesParams(
+        name=d.name, type=np.dtype(d.dtype), description=d.description,
+        offsets=d.offsets, scales=d.scales, no_data=d.no_data)
+        for d in dims if d.name != "ExtraBytes"}
+
+
+def iter_points_extra(path: str | os.PathLike[str], *, chunk: int = 1 << 20
+                      ) -> Iterator[tuple[NDArray[np.float64], Fields]]:
+    """(xyz (n, 3) float64, {name: (n,) stored values}) of a cloud, chunk by chunk:
+    a LAS/LAZ file's extra dimensions (``extra_dims``) as stored (before their scale
+    and offset), {} for other formats (``survey.clouds.cloudread.iter_points``). The
+    same checks and errors as ``iter_points``."""
+    from sensors.las import LasSource
+    from survey.clouds.cloudread import (
+        check_finite,
+        check_las_scale,
+        cloud_errors,
+        existing_cloud,
+        iter_points,
+        las_xyz,
+        no_points,
+    )
+
+    p = existing_cloud(path)
+    names = list(extra_dims(p))
+    if not names:
+        for xyz in iter_points(p, chunk=chunk):
+            yield xyz, {}
+        return
+    n = 0
+    with cloud_errors(), LasSource(p) as src:
+        check_las_scale(src.header, p)
+        for rec in src.chunks(chunk):
+            xyz = las_xyz(rec)
+            check_finite(xyz, p, n)
+            n += len(xyz)
+            yield xyz, {k: np.array(rec.array[k]) for k in names}
+    if n == 0:
+        raise no_points(p)
+
+
+def write_preprocessed(path: str | os.PathLike[str], xyz: ArrayLike,
+                       counts: ArrayLike, extra: Mapping[str, ArrayLike] | None = None,
+                       dims: Mapping[str, Any] | None = None,
+                       classification: ArrayLike | None = None, *, crs: Any = None
+                       ) -> Path:
+    """Write a preprocessed cloud as LAS/LAZ 1.4 (``sensors.las.write_las``): points
+    ``xyz`` (n, 3), ``voxel_count`` (n,) (input points per voxel, 1 without a grid),
+    the input's extra dimensions ``extra`` {name: (n,) stored values} described by
+    ``dims`` (``extra_dims``: type, description, scale, offset kept), classification
+    codes (n,) and the CRS ``crs``. Atomic. Returns the path."""
+    from sensors.las import write_las
+    from survey.clouds.cloudread import cloud_errors
+
+    dims = dict(dims or {})
+    cols: dict[str, NDArray[Any]] = {"voxel_count": np.asarray(counts).astype(np.uint32)}
+    for k, v in (extra or {}).items():
+        if k in cols:
+            # DECISION: an input preprocessed before has its own counts; this grid's
+            # replace them (a count per voxel of a voxel grid is not a sum of labels).
+            import warnings
+
+            warnings.warn(f"The input's {k!r} is replaced by this run's count of input "
+                          "points per voxel.", UserWarning, stacklevel=2)
+            dims.pop(k, None)
+            continue
+        dt = np.dtype(dims[k].type) if k in dims else np.asarray(v).dtype
+        cols[k] = np.asarray(v).astype(dt)
+    fields = {} if classification is None else {"classification":
+                                                np.asarray(classification)}
+    with cloud_errors():
+        return write_las(path, np.asarray(xyz, dtype=np.float64), fields=fields,
+                         extra=cols, extra_dims=dims, crs=crs)
