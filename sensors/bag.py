@@ -11,8 +11,11 @@ Topics (frames ``map``, ``odom``, ``base_link`` and the driver's cloud frame):
 - the driver's cloud topic (``[driver] topic``; ``/points`` for a sensor without a
   ``[driver]`` table): ``sensor_msgs/msg/PointCloud2``, one per whole sweep (a sweep
   is one ``frame`` value of the points: a revolution, or a profile), in the sensor
-  frame (``sx, sy, sz``), unorganised (height 1, returns only, ``is_dense``), in the
-  driver's field layout (``LAYOUTS``).
+  frame (``sx, sy, sz``), in the driver's field layout (``LAYOUTS``): unorganised
+  (height 1, returns only, ``is_dense``), or organised where the driver organises
+  its clouds (``[driver] organized``, the OS1: height = rings, width = the columns of
+  a revolution, a cell for every pulse, zeros (or NaN, ``no_return``) where a pulse
+  had no return, ``is_dense`` false then; ``sensors.pointcloud2.organise``).
 - ``/tf_static``: ``map -> odom`` (the trajectory's local origin, so that ``odom``
   coordinates stay small where ``map`` holds UTM ones) and ``base_link -> <cloud
   frame>`` (the mount: lever arm and boresight).
@@ -22,7 +25,10 @@ Topics (frames ``map``, ``odom``, ``base_link`` and the driver's cloud frame):
   ``sensor_msgs/msg/Imu`` at ``ImuModel.rate_hz`` in ``base_link``, the trajectory's
   derivatives (``platform_motion``) plus the noise and bias of ``ImuModel``, seeded.
 
-Stamps are the trajectory's time base (s -> ns; negative times are refused). A cloud's
+Stamps are the trajectory's time base (s -> ns; negative times are refused), or, with
+``start_time_ns``, that epoch at the scan's start: a time t is stamped
+``start_time_ns + round((t - t_start) 1e9)`` ns, so that a bag can be merged with
+recorded data (the robosense layout's absolute point times shift with it). A cloud's
 header stamp is its sweep's start (``t0 + k / rate``) and its per-point times are
 measured from it (the robosense layout's are absolute); its log time is the sweep's
 end, when a driver would publish it, so that a player has the poses of the whole sweep
@@ -34,6 +40,13 @@ revolution completes; the points of a last, partial sweep are dropped and counte
 (``RosbagStream.dropped_points``, and ``dropped_partial_sweep_points`` in the bag's
 custom data). A whole sweep without any return is published empty, so that the clouds
 are one per sweep. Memory: one sweep plus the chunk being split.
+
+Metadata: ``ros_distro`` "jazzy" writes rosbag2 metadata version 9 (rosbag2 0.26; the
+QoS profiles as a YAML list with policy names, ros2/rosbag2 PR #1476), "humble"
+version 5 (rosbag2 0.15: QoS profiles as one YAML string with policy numbers, no
+``custom_data``, ``ros_distro`` or ``type_description_hash``; the MCAP file keeps its own
+metadata record, custom data included). A single ``.mcap`` file has no
+``metadata.yaml``; its embedded record is rosbags' version 8 (humble) or 9 (jazzy).
 
 DECISION: a TLS station is refused (one structured scan without motion is not a
 recording a robotics stack replays; write LAZ or E57).
@@ -60,14 +73,16 @@ from .fields import POINT_DTYPE
 # here, where users have always imported them from.
 from .imu import (DEFAULT_IMU, IMU_STREAM, STANDARD_GRAVITY, ImuModel, imu_normals,
                   platform_motion)
-from .pointcloud2 import GENERIC_DRIVER, LAYOUTS, PointLayout, cloud_points
+from .pointcloud2 import (GENERIC_DRIVER, LAYOUTS, PointLayout, cloud_points, organise,
+                          organised_width)
 from .spec import ProfilerPattern, SensorSpec, SpinningPattern
 from .stream import Stream
 from .trajectory import Mount, Trajectory
 
 __all__ = ["DEFAULT_IMU", "FRAMES", "GENERIC_DRIVER", "IMU_TOPIC", "INSTALL_HINT",
-           "LAYOUTS", "ODOMETRY_TOPIC", "POSE_RATE_HZ", "STANDARD_GRAVITY", "ImuModel",
-           "PointLayout", "RosbagStream", "cloud_points", "platform_motion"]
+           "LAYOUTS", "METADATA_VERSIONS", "ODOMETRY_TOPIC", "POSE_RATE_HZ",
+           "STANDARD_GRAVITY", "ImuModel", "PointLayout", "RosbagStream", "cloud_points",
+           "parse_start_time", "platform_motion"]
 
 INSTALL_HINT: Final = "pip install 'tunnelsim[ros]' (or: pip install rosbags)"
 #: The tf tree: global frame, odometry frame, platform frame (REP 105).
@@ -78,15 +93,46 @@ ODOMETRY_TOPIC: Final = "/odometry/ground_truth"
 IMU_TOPIC: Final = "/imu/data_raw"
 #: Pose and IMU messages are made this many seconds of trajectory at a time.
 MOTION_BLOCK_S: Final = 2.0
+#: rosbag2 metadata.yaml version each ROS 2 distribution writes (``ros_distro``):
+#: Humble's rosbag2 0.15 writes 5, Jazzy's 0.26 writes 9.
+METADATA_VERSIONS: Final = {"humble": 5, "jazzy": 9}
 #: sensor_msgs/msg/PointField datatype of each NumPy type.
 _ROS_TYPE: Final = {"i1": 1, "u1": 2, "i2": 3, "u2": 4, "i4": 5, "u4": 6, "f4": 7, "f8": 8}
 
 
-def _ns(t_s: float) -> int:
-    if not t_s >= 0:
-        raise PointFileError(f"Expected times >= 0 s for ROS stamps, got {t_s!r} s; shift "
-                             "the trajectory's time base (e.g. start_time=...).")
-    return int(round(t_s * 1e9))
+def parse_start_time(text: str) -> int:
+    """A bag epoch (``--start-time``) in ns since the Unix epoch, from seconds since the
+    epoch ("1700000000.5") or an ISO 8601 time with its UTC offset
+    ("2024-05-01T12:00:00Z", "2024-05-01T14:00:00+02:00").
+
+    Raises
+    ------
+    PointFileError
+        For text that is neither, a time without an offset, or one before 1970.
+    """
+    from datetime import datetime, timezone
+    from decimal import Decimal, InvalidOperation
+
+    s = str(text).strip()
+    ns: int | None = None
+    try:
+        d = Decimal(s)
+        if d.is_finite():
+            ns = int((d * 10 ** 9).to_integral_value())
+    except InvalidOperation:
+        try:
+            when = datetime.fromisoformat(s.replace("Z", "+00:00"))
+        except ValueError:
+            when = None
+        if when is not None and when.tzinfo is not None:
+            # Exact integer arithmetic (a float timestamp would lose the microseconds).
+            td = when - datetime(1970, 1, 1, tzinfo=timezone.utc)
+            ns = (td.days * 86400 + td.seconds) * 10 ** 9 + td.microseconds * 1000
+    if ns is None or ns < 0:
+        raise PointFileError(f"Expected a start time as seconds since 1970-01-01 UTC or an "
+                             f"ISO 8601 time with its offset (2024-05-01T12:00:00Z), got "
+                             f"{text!r}; pass e.g. --start-time 2024-05-01T12:00:00Z.")
+    return ns
 
 
 # ---------------------------------------------------------------------- the stream
@@ -118,12 +164,18 @@ class RosbagStream(Stream):
         JSON-ready origin of the data, stored in the bag's custom data.
     compress : bool
         zstd chunk compression (MCAP readers decompress it transparently).
+    start_time_ns : int, optional
+        ROS time (ns since the Unix epoch) of the scan's start (``span_s[0]``, else the
+        first sweep's start); None: the trajectory's own time base.
+    ros_distro : {"jazzy", "humble"}
+        The rosbag2 metadata layout of a bag folder (``METADATA_VERSIONS``).
 
     Raises
     ------
     PointFileError
         For a TLS sensor, a missing ``rosbags``, an existing bag folder, or a driver
-        table that does not fit the pattern.
+        table that does not fit the pattern, a ``ros_distro`` not in
+        ``METADATA_VERSIONS`` or a negative ``start_time_ns``.
     """
 
     def __init__(self, path: str | os.PathLike[str], spec: SensorSpec, *, single_file: bool,
@@ -131,8 +183,20 @@ class RosbagStream(Stream):
                  trajectory: Trajectory | None = None,
                  span_s: tuple[float, float] | None = None,
                  imu: ImuModel | None = DEFAULT_IMU, info: dict[str, Any] | None = None,
-                 compress: bool = True) -> None:
+                 compress: bool = True, start_time_ns: int | None = None,
+                 ros_distro: str = "jazzy") -> None:
         self.path = Path(path)
+        if ros_distro not in METADATA_VERSIONS:
+            raise PointFileError(f"Expected a ROS 2 distribution in "
+                                 f"{sorted(METADATA_VERSIONS)} for the bag's metadata, got "
+                                 f"{ros_distro!r}; pass --ros-distro humble or jazzy.")
+        if start_time_ns is not None and (isinstance(start_time_ns, bool) or not isinstance(
+                start_time_ns, (int, np.integer)) or start_time_ns < 0):
+            raise PointFileError(f"Expected the bag's start time as whole ns >= 0 since "
+                                 f"1970, got {start_time_ns!r}; pass e.g. --start-time "
+                                 "2024-05-01T12:00:00Z.")
+        self.ros_distro = ros_distro
+        self.start_time_ns = None if start_time_ns is None else int(start_time_ns)
         pat = spec.pattern
         if not isinstance(pat, (SpinningPattern, ProfilerPattern)):
             raise PointFileError(f"Expected a spinning lidar or a profiler on a moving "
@@ -146,10 +210,20 @@ class RosbagStream(Stream):
                                  f"got none ({exc}); {INSTALL_HINT}.") from None
         self.driver = spec.driver or GENERIC_DRIVER
         self.layout = LAYOUTS[self.driver.point_layout]
+        self._width = 0                           # organised: columns per revolution
         if isinstance(pat, SpinningPattern):
             self.period_s = 1.0 / pat.rotation_hz
             self._rings = self.driver.rings(pat.elevations_rad)
+            if self.driver.organized:
+                self._width = organised_width(pat.rotation_hz, pat.column_period_s)
+                if len(np.unique(self._rings)) != len(self._rings):
+                    raise PointFileError(f"Expected one ring per beam for the organised "
+                                         f"cloud of {spec.name}, got beams sharing a ring "
+                                         f"in {spec.path}; set organized = false.")
         else:
+            if self.driver.organized:
+                raise PointFileError(f"Expected `organized = false` for a profiler's "
+                                     f"driver table, got true in {spec.path}.")
             if self.driver.ring_order != "channel":
                 raise PointFileError(f"Expected ring_order 'channel' for a profiler's "
                                      f"driver table, got {self.driver.ring_order!r} in "
@@ -163,6 +237,7 @@ class RosbagStream(Stream):
             raise PointFileError(f"Expected a new bag folder in an existing folder, got "
                                  f"'{self.path}'; remove it or choose another name.")
         self.mount, self.trajectory, self.imu, self.seed = mount, trajectory, imu, int(seed)
+        self.spec = spec
         self.span_s = None if span_s is None else (float(span_s[0]), float(span_s[1]))
         if trajectory is None:
             self.imu = None
@@ -185,7 +260,10 @@ class RosbagStream(Stream):
                                           dir=self.path.parent))
         try:
             inner = self.path.stem if single_file else self.path.name
-            self._bag = Writer(self._tmp / inner, version=8,
+            # DECISION: Humble's version 5 is version 8 less its newer keys (rosbags
+            # writes 8 and 9 only); the metadata.yaml is rewritten on close.
+            self._bag = Writer(self._tmp / inner,
+                               version=9 if ros_distro == "jazzy" else 8,
                                storage_plugin=StoragePlugin.MCAP)
             if compress:
                 from rosbags.rosbag2 import CompressionFormat, CompressionMode
@@ -217,8 +295,19 @@ class RosbagStream(Stream):
                                                      offered_qos_profiles=list(qos))
                       for name, kind, qos in topics}
 
+    def _ns(self, t_s: float) -> int:
+        """ROS time (ns) of trajectory time ``t_s`` (see the module notes)."""
+        if self.start_time_ns is None:
+            if not t_s >= 0:
+                raise PointFileError(f"Expected times >= 0 s for ROS stamps, got {t_s!r} s;"
+                                     " shift the trajectory's time base or pass "
+                                     "--start-time.")
+            return int(round(t_s * 1e9))
+        ref = 0.0 if self._t0 is None else self._t0
+        return self.start_time_ns + int(round((t_s - ref) * 1e9))
+
     def _put(self, topic: str, log_s: float, msg: Any) -> None:
-        ns = _ns(log_s)
+        ns = self._ns(log_s)
         if ns < self._last_log:
             raise PointFileError(f"Expected messages in time order, got {topic} at "
                                  f"{log_s} s after a later one; feed the points in time "
@@ -230,7 +319,7 @@ class RosbagStream(Stream):
 
     def _header(self, t_s: float, frame: str) -> Any:
         T = self._ts.types
-        ns = _ns(t_s)
+        ns = self._ns(t_s)
         return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
             sec=ns // 10 ** 9, nanosec=ns % 10 ** 9), frame_id=frame)
 
@@ -303,17 +392,30 @@ class RosbagStream(Stream):
             stamp = float(sweep["time"].min())
         log = stamp + self.period_s
         self._motion_until(log)
-        pts = cloud_points(self.layout, sweep, stamp, self._rings,
-                           self.driver.intensity_max)
+        shift = 0.0 if self.start_time_ns is None else \
+            self.start_time_ns * 1e-9 - (self._t0 or 0.0)
+        drv = self.driver
+        pts = cloud_points(self.layout, sweep, stamp, self._rings, drv.intensity_max,
+                           physics=self.spec.physics,
+                           signal_photons_at_threshold=drv.signal_photons_at_threshold,
+                           time_shift_s=shift)
+        height, width, dense = 1, len(pts), True
+        if self._width:
+            pat = self.spec.pattern
+            assert isinstance(pat, SpinningPattern)
+            pts, dense = organise(self.layout, pts, sweep, self._rings, self._width,
+                                  pat.column_period_s, pat.firing_offsets_s,
+                                  self.driver.no_return)
+            height, width = len(self._rings), self._width
         T = self._ts.types
         field = T["sensor_msgs/msg/PointField"]
         fields = [field(name=n, offset=o, datatype=_ROS_TYPE[f], count=1)
                   for n, o, f in self.layout.fields]
         msg = T["sensor_msgs/msg/PointCloud2"](
-            header=self._header(stamp, self.driver.frame_id), height=1, width=len(pts),
+            header=self._header(stamp, self.driver.frame_id), height=height, width=width,
             fields=fields, is_bigendian=False, point_step=self.layout.point_step,
-            row_step=self.layout.point_step * len(pts),
-            data=np.ascontiguousarray(pts).view(np.uint8).reshape(-1), is_dense=True)
+            row_step=self.layout.point_step * width,
+            data=np.ascontiguousarray(pts).view(np.uint8).reshape(-1), is_dense=dense)
         self._put(self.driver.topic, log, msg)
         self._next = k + 1
 
@@ -449,6 +551,8 @@ class RosbagStream(Stream):
             imu=None if self.imu is None else asdict(self.imu))))
         self._bag.close()
         inner = self._bag.path
+        if self.ros_distro == "humble" and not self._single:
+            _humble_metadata(inner / "metadata.yaml")
         try:
             if self._single:
                 os.replace(inner / f"{inner.name}.mcap", self.path)
@@ -465,3 +569,30 @@ class RosbagStream(Stream):
             self._bag.abort()
         finally:
             shutil.rmtree(self._tmp, ignore_errors=True)
+
+
+#: Keys rosbag2 metadata gained after version 5 (Humble; they came with rosbag2 0.17 to
+#: 0.22, Iron): custom_data and ros_distro, and the topics' type_description_hash.
+#: ruamel.yaml comes with rosbags.
+_AFTER_V5: Final = ("custom_data", "ros_distro")
+
+
+def _humble_metadata(path: Path) -> None:
+    """Rewrite a version-8 ``metadata.yaml`` (rosbags) in Humble's version 5: the same
+    keys less those added after it (QoS profiles stay one YAML string of numbers, as
+    version 8 keeps them). rosbag2 0.15 metadata_io.cpp reads the keys by name."""
+    from ruamel.yaml import YAML
+
+    yaml = YAML(typ="safe")
+    data = yaml.load(path.read_text("utf8"))
+    info = data["rosbag2_bagfile_information"]
+    info["version"] = METADATA_VERSIONS["humble"]
+    for key in _AFTER_V5:
+        info.pop(key, None)
+    for topic in info["topics_with_message_count"]:
+        topic["topic_metadata"].pop("type_description_hash", None)
+    yaml.default_flow_style = False
+    tmp = path.with_suffix(".yaml.tmp")
+    with tmp.open("w", encoding="utf8") as fh:
+        yaml.dump(data, fh)
+    os.replace(tmp, path)

@@ -2,7 +2,9 @@
 
 ``LAYOUTS`` holds each driver's ``sensor_msgs/msg/PointCloud2`` point (field names, byte
 offsets, types and point step, from the driver's own source); ``cloud_points`` turns one
-sweep of simulated ``POINT_DTYPE`` records into those points. ``sensors.bag`` writes
+sweep of simulated ``POINT_DTYPE`` records into those points, and ``organise`` lays a
+revolution's points out in the driver's organised grid (ouster-ros: rings x columns,
+a cell for every pulse). ``sensors.bag`` writes
 them (and re-exports these names); ``GENERIC_DRIVER`` stands in for a sensor file
 without a ``[driver]`` table.
 """
@@ -15,9 +17,12 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from .spec import Driver
+from .errors import PointFileError
+from .physics import intensity_constants
+from .spec import Driver, Physics
 
-__all__ = ["GENERIC_DRIVER", "LAYOUTS", "PointLayout", "cloud_points"]
+__all__ = ["GENERIC_DRIVER", "LAYOUTS", "OUSTER_REFLECTIVITY_MAX", "OUSTER_SIGNAL_MAX",
+           "PointLayout", "cloud_points", "organise", "organised_width", "received_power"]
 
 
 @dataclass(frozen=True)
@@ -51,8 +56,9 @@ LAYOUTS: Final[dict[str, PointLayout]] = {
          ("ring", 16, "u2"), ("time", 18, "f4")), 22),
     # ouster-lidar/ouster-ros, include/ouster_ros/os_point.h (ouster_ros::Point):
     # PCL_ADD_POINT4D pads x y z to 16 bytes, EIGEN_ALIGN16 rounds the struct to 48;
-    # pcl::toROSMsg keeps the C++ offsets. intensity = signal, t: ns after the cloud's
-    # stamp, ring = pixel row, ambient = near-IR, range in mm.
+    # pcl::toROSMsg keeps the C++ offsets. intensity = signal photons, t: ns after the
+    # cloud's stamp, ring = pixel row (uint16 since ouster-ros 20230114, uint8 before),
+    # reflectivity = calibrated reflectivity, ambient = near-IR photons, range in mm.
     "ouster": PointLayout(
         "ouster", "ouster-ros", "ouster-lidar/ouster-ros include/ouster_ros/os_point.h",
         (("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 16, "f4"),
@@ -74,30 +80,125 @@ GENERIC_DRIVER: Final = Driver("tunnelsim", "velodyne", "lidar", "/points", "cha
 
 
 
+#: Largest signal the ouster layout reports: the 16-bit SIGNAL channel of the
+#: RNG19_RFL8_SIG16_NIR16 profile (ouster-ros copies it into the float ``intensity``).
+OUSTER_SIGNAL_MAX: Final = 65535.0
+#: Ouster's calibrated reflectivity is one byte (0-100 Lambertian, 101-255
+#: retro-reflective).
+OUSTER_REFLECTIVITY_MAX: Final = 255.0
+
+
+def received_power(intensity: NDArray[np.floating], physics: Physics
+                   ) -> NDArray[np.float64]:
+    """The received power P (relative units, ``sensors.physics``) of returns of
+    simulated ``intensity`` (n,): the inverse of the intensity formula,
+    P = P_min 10^(intensity log10(P_sat / P_min)). Exact within [P_min, P_sat]; a
+    return detected below P_min (intensity clipped to 0) comes back as P_min."""
+    p_min, log_span = intensity_constants(physics)
+    return p_min * np.power(10.0, np.asarray(intensity, dtype=np.float64) * log_span)
+
+
 def cloud_points(layout: PointLayout, sweep: NDArray[np.void], stamp_s: float,
-                 rings: NDArray[np.uint16], intensity_max: float) -> NDArray[np.void]:
+                 rings: NDArray[np.uint16], intensity_max: float, *,
+                 physics: Physics | None = None, signal_photons_at_threshold: float = 0.0,
+                 time_shift_s: float = 0.0) -> NDArray[np.void]:
     """One sweep's ``POINT_DTYPE`` records (n,) as the layout's points (n,).
 
     x, y, z are the sensor-frame point (sx, sy, sz) as float32; ring = ``rings`` of
-    the channel; intensity-like fields = intensity x ``intensity_max`` (rounded for
-    integer fields); times relative to ``stamp_s`` (s) except robosense's absolute
-    ``timestamp``. ouster's ambient (near-IR) is 0: no ambient light is simulated.
+    the channel; times relative to ``stamp_s`` (s), except robosense's absolute
+    ``timestamp`` (the record's time + ``time_shift_s``: the bag's epoch shift).
+
+    velodyne, robosense: intensity = simulated intensity x ``intensity_max`` (the
+    drivers' 8-bit return strength as float32).
+
+    ouster (``physics`` needed): the received power P is recovered from the simulated
+    intensity (``received_power``); ``intensity`` = signal photons =
+    ``signal_photons_at_threshold`` x P / P_min (ASSUMED: photon counts proportional to
+    the power), capped at ``OUSTER_SIGNAL_MAX``; ``reflectivity`` = Ouster's calibrated
+    reflectivity, 100 x P R^2 = 100 rho cos(incidence) exp(-2 alpha R) (the device
+    corrects the signal for range only; the lidar equation of ``sensors.physics``),
+    rounded, within [0, 255]; ``ambient`` = 0 (near-IR background not modelled);
+    ``range`` in mm; ``t`` in ns.
     """
     out = np.zeros(len(sweep), dtype=layout.dtype)
     for a, b in (("x", "sx"), ("y", "sy"), ("z", "sz")):
         out[a] = sweep[b]
-    level = sweep["intensity"].astype(np.float64) * intensity_max
-    out["intensity"] = level
     out["ring"] = rings[sweep["channel"]]
     dt = sweep["time"] - stamp_s
+    if layout.name == "ouster":
+        if physics is None or not signal_photons_at_threshold > 0:
+            raise PointFileError("Expected `physics` and a positive "
+                             "`signal_photons_at_threshold` for the ouster layout, got "
+                             f"{physics!r} and {signal_photons_at_threshold!r}.")
+        p = received_power(sweep["intensity"], physics)
+        out["intensity"] = np.minimum(signal_photons_at_threshold * p /
+                                      physics.threshold_power, OUSTER_SIGNAL_MAX)
+        r = sweep["range"].astype(np.float64)
+        out["reflectivity"] = np.round(np.clip(100.0 * p * r * r, 0.0,
+                                               OUSTER_REFLECTIVITY_MAX))
+        out["t"] = np.round(dt * 1e9)
+        out["range"] = np.round(r * 1e3)
+        return out
+    out["intensity"] = sweep["intensity"].astype(np.float64) * intensity_max
     if layout.name == "velodyne":
         out["time"] = dt
-    elif layout.name == "ouster":
-        out["t"] = np.round(dt * 1e9)
-        # ASSUMED: the 8-bit calibrated reflectivity carries the same level as the
-        # signal; signal photon counts are not modelled.
-        out["reflectivity"] = np.round(level)
-        out["range"] = np.round(sweep["range"] * 1e3)
     else:
-        out["timestamp"] = sweep["time"]
+        out["timestamp"] = sweep["time"] + time_shift_s
     return out
+
+
+def organised_width(rotation_hz: float, column_period_s: float) -> int:
+    """Columns of one revolution (the organised cloud's width): 1 / (f T), which must
+    be a whole number (1024 for an OS1 in 1024x10)."""
+    w = 1.0 / (rotation_hz * column_period_s)
+    n = int(round(w))
+    if n < 1 or abs(w - n) > 1e-6 * w:
+        raise PointFileError(f"Expected a whole number of columns per revolution for an "
+                         f"organised cloud, got {w:.6g}; use the device's rotation rate.")
+    return n
+
+
+def organise(layout: PointLayout, points: NDArray[np.void], sweep: NDArray[np.void],
+             rings: NDArray[np.uint16], width: int, column_period_s: float,
+             firing_offsets_s: NDArray[np.float64], no_return: str = "zero"
+             ) -> tuple[NDArray[np.void], bool]:
+    """One revolution's layout points (n,) (``cloud_points`` of ``sweep`` (n,)) in the
+    driver's organised grid: (rings x width,) row-major, row = ring, column = the
+    record's ``column``, as ouster-ros's scan_to_cloud_f fills it (index u W + v).
+
+    A cell without a return holds ring = its row, t = its column's firing time after
+    the revolution's start (ns; ouster-ros copies the column timestamp there too) and
+    zeros elsewhere, x, y, z NaN for ``no_return = "nan"``. Returns (grid, is_dense):
+    is_dense is true only when every cell has a return (ROS: no invalid points).
+
+    Raises
+    ------
+    PointFileError
+        For rings that share a row (two beams at one elevation) or a column outside
+        [0, width).
+    """
+    rings = np.asarray(rings)
+    height = len(rings)
+    if len(np.unique(rings)) != height or rings.max(initial=0) >= height:
+        raise PointFileError(f"Expected one ring per channel for an organised cloud, got "
+                         f"{len(np.unique(rings))} distinct rings for {height} channels.")
+    grid = np.zeros(height * width, dtype=layout.dtype)
+    channel_of_row = np.empty(height, dtype=np.int64)
+    channel_of_row[rings] = np.arange(height)
+    row = np.repeat(np.arange(height), width)
+    col = np.tile(np.arange(width), height)
+    grid["ring"] = row
+    if "t" in (layout.dtype.names or ()):
+        t_cell = col * column_period_s + np.asarray(firing_offsets_s)[channel_of_row[row]]
+        grid["t"] = np.round(t_cell * 1e9)
+    if no_return == "nan":
+        for a in ("x", "y", "z"):
+            grid[a] = np.nan
+    column = np.asarray(sweep["column"], dtype=np.int64)
+    if len(column) and (column.min() < 0 or column.max() >= width):
+        raise PointFileError(f"Expected columns within [0, {width}) in a revolution, got "
+                         f"{column.min()} to {column.max()}.")
+    idx = rings[sweep["channel"]].astype(np.int64) * width + column
+    grid[idx] = points
+    dense = len(np.unique(idx)) == len(grid)
+    return grid, dense

@@ -6,6 +6,11 @@ platform) return a ``Run``: iterate it for point chunks (NumPy structured arrays
 ``POINT_DTYPE``), or call ``Run.write(path)`` to stream them into a LAS/LAZ, PLY, NPZ or
 E57 file. Only returns are output (misses and undetected pulses are dropped).
 
+A run simulates once: the chunks of its first complete pass are kept (up to
+``cache_bytes``, ``CACHE_BYTES`` by default) and later passes replay them, so that
+``list(run)`` followed by ``run.write(...)`` casts every ray once. A run whose points
+exceed the bound is simulated again on each pass (same points; a warning says so).
+
 Output fields (SI, radians):
 
 - ``x, y, z``: the measurement in world coordinates, i.e. the reported sensor-frame
@@ -30,7 +35,7 @@ import os
 import time as _time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -53,10 +58,13 @@ from .patterns import CHUNK_PULSES, Pulses, Scan, TLSScan, chunk_size, scan_for
 from .spec import SensorSpec, load_sensor
 from .trajectory import Mount, Trajectory
 
-__all__ = ["RANDOM_BLOCK", "Run", "simulate_drive", "simulate_station"]
+__all__ = ["CACHE_BYTES", "RANDOM_BLOCK", "Run", "simulate_drive", "simulate_station"]
 
 #: Pulses per block of random numbers (see ``_Streams``).
 RANDOM_BLOCK: Final = 1 << 16
+#: Default bound of a run's replay cache (bytes of point records): 1 GiB holds about
+#: 11 million points (97 bytes each), a 10 s drive of any shipped spinning lidar.
+CACHE_BYTES: Final = 1 << 30
 
 #: poses(times (n,)) -> (positions (1 or n, 3), sensor-to-world matrices (1 or n, 3, 3)).
 PoseFn = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
@@ -120,19 +128,25 @@ class Run:
     t0 : float
         Trajectory time of the scan's start (s).
     stats : dict
-        Statistics of the last *complete* pass: ``pulses``, ``points``, ``hit_ratio``,
-        ``seconds``, ``rays_per_s``; empty before one. A pass stopped early leaves it
-        as it was.
+        Statistics of the last *complete* pass that simulated: ``pulses``,
+        ``points``, ``hit_ratio``, ``seconds``, ``rays_per_s``; empty before one. A
+        pass stopped early, or one replayed from the cache, leaves it as it was.
     pass_stats : dict
         The same for the pass under way (or the last one, complete or not), updated
-        after every chunk: ``pulses``, ``points``, ``hit_ratio``, ``seconds``.
+        after every chunk: ``pulses``, ``points``, ``hit_ratio``, ``seconds``, and
+        ``replayed`` (whether the pass came from the cache).
+    cache_bytes : int
+        Bound of the replay cache (see the module notes); 0 switches it off.
+    cached : bool
+        Whether the next pass replays the cache.
     """
 
     def __init__(self, scene: Scene, sensor: SensorSpec, scan: Scan, poses: PoseFn, *,
                  settings: ph.Settings, seed: int, reflectivity: ArrayLike | None,
                  chunk_pulses: int, station: tuple[NDArray[np.float64], Rotation] | None
                  = None, t0: float = 0.0, mount: Mount | None = None,
-                 trajectory: Trajectory | None = None) -> None:
+                 trajectory: Trajectory | None = None, cache_bytes: int = CACHE_BYTES
+                 ) -> None:
         self.scene, self.sensor, self.scan = scene, sensor, scan
         self.mount, self.trajectory = mount, trajectory
         self._poses = poses
@@ -143,6 +157,27 @@ class Run:
         self.t0 = float(t0)
         self.stats: dict[str, float] = {}
         self.pass_stats: dict[str, float] = {}
+        self.cache_bytes = as_whole(cache_bytes, "cache_bytes", SimulationError, lo=0)
+        # Chunks of the last complete pass, (pulses, hits, points) each, and what
+        # they were simulated with; None when there is none to replay.
+        self._cache: list[tuple[int, int, NDArray[np.void]]] | None = None
+        self._cache_key: tuple[object, ...] | None = None
+        self._overflowed = False
+
+    def _key(self) -> tuple[object, ...]:
+        """What a cached pass depends on among the attributes a user may reassign."""
+        return (self.seed, self.settings, self.chunk_pulses, self.t0, id(self.scene),
+                id(self.sensor), id(self.scan), id(self._poses), self._rho_default,
+                id(self._rho_faces))
+
+    @property
+    def cached(self) -> bool:
+        """Whether the next pass replays the chunks of a complete one."""
+        return self._cache is not None and self._cache_key == self._key()
+
+    def clear_cache(self) -> None:
+        """Drop the cached chunks (the next pass simulates again)."""
+        self._cache, self._cache_key = None, None
 
     @property
     def n_pulses(self) -> int:
@@ -167,19 +202,57 @@ class Run:
                 f"seed {self.seed}; {done})")
 
     def __iter__(self) -> Iterator[NDArray[np.void]]:
-        """Point chunks (structured arrays of ``POINT_DTYPE``), in pulse order."""
+        """Point chunks (structured arrays of ``POINT_DTYPE``), in pulse order: simulated
+        on the first complete pass, replayed from the cache after it (each chunk a
+        fresh copy: a consumer may change what it is given)."""
         t_start = _time.perf_counter()
         n_pulses = n_points = n_hits = 0
         self.pass_stats = {}
+        if self.cached:
+            assert self._cache is not None
+            for pulses_n, hits, pts in self._cache:
+                n_pulses += pulses_n
+                n_points += len(pts)
+                n_hits += hits
+                self.pass_stats = {"pulses": n_pulses, "points": n_points,
+                                   "hit_ratio": n_hits / max(n_pulses, 1),
+                                   "seconds": _time.perf_counter() - t_start,
+                                   "replayed": True}
+                yield pts.copy()
+            return
+        self.clear_cache()
+        if self._overflowed:
+            warnings.warn(f"Simulating {self.sensor.name} again: its points exceeded the "
+                          f"replay cache ({self.cache_bytes:,} bytes) on the last pass; "
+                          "consume the run once (e.g. write it and read the file), or "
+                          "raise cache_bytes.", UserWarning, stacklevel=2)
+        # DECISION: a bounded in-memory cache rather than a one-shot iterator: a run
+        # is iterated more than once by callers that exist (list(run) then write, a
+        # preview then the file), and each pass gave the same points; a bound keeps a
+        # long drive (a 2 min OS1 drive is ~6 GB of records) from filling the memory.
+        store: list[tuple[int, int, NDArray[np.void]]] | None = \
+            [] if self.cache_bytes > 0 else None
+        size = 0
         for pulses in self.scan.chunks(self.chunk_pulses):
             pts, hits = self._chunk(n_pulses, pulses)
             n_pulses += len(pulses)
             n_points += len(pts)
             n_hits += hits
+            if store is not None:
+                size += pts.nbytes
+                if size > self.cache_bytes:
+                    store = None
+                else:
+                    store.append((len(pulses), hits, pts.copy()))
             self.pass_stats = {"pulses": n_pulses, "points": n_points,
                                "hit_ratio": n_hits / max(n_pulses, 1),
-                               "seconds": _time.perf_counter() - t_start}
+                               "seconds": _time.perf_counter() - t_start,
+                               "replayed": False}
             yield pts
+        # Only a complete pass is kept (a consumer that stopped early never gets here).
+        self._overflowed = store is None and self.cache_bytes > 0
+        if store is not None:
+            self._cache, self._cache_key = store, self._key()
         s = self.pass_stats.get("seconds", 0.0)
         # DECISION: ``stats`` changes only here, at the end of a complete pass: a
         # consumer that stops early (a preview, a ``break``) must not leave the counts
@@ -195,7 +268,8 @@ class Run:
         the same order, since each pulse's random numbers are keyed by its index
         (``_Streams``), not by the chunk it falls in. Chunks are cut where a whole pass
         cuts them (and at ``start`` and ``stop``); the pattern before ``start`` is
-        generated but not simulated. ``stats`` and ``pass_stats`` are left alone.
+        generated but not simulated. ``stats`` and ``pass_stats`` are left alone, and
+        the replay cache is neither used nor filled.
 
         A drive split into pulse ranges [0, i1), [i1, i2), ... and run anywhere gives,
         concatenated, the points of the whole run (``survey.cluster.windows``)."""
@@ -218,22 +292,30 @@ class Run:
             first += n
 
     def write(self, path, *, fmt: str | None = None, progress=None, fields=None,
-              points: Iterable[NDArray[np.void]] | None = None, crs=None):
+              points: Iterable[NDArray[np.void]] | None = None, crs=None,
+              start_time_ns: int | None = None, ros_distro: str | None = None):
         """Stream every chunk into ``path`` (format from the suffix or ``fmt``:
         las, laz, ply, npz, e57); atomic. ``progress(done_pulses, total)`` is called
         after each chunk; ``fields`` picks the LAS extra bytes (see
         ``sensors.writers``). ``points``: chunks to write instead of the run's own, made
         from them while it runs (e.g. moved into a drifting SLAM frame). ``crs``: the
         coordinate reference system of the scene's coordinates (EPSG:n, WKT or
-        PROJJSON; needs pyproj), stated in the file (``sensors.writers``). Returns
-        ``stats`` plus the path."""
+        PROJJSON; needs pyproj), stated in the file (``sensors.writers``).
+        ``start_time_ns`` and ``ros_distro``: a ROS 2 bag's epoch at the scan's start
+        and metadata layout (``sensors.bag.RosbagStream``); only passed on when given.
+        Returns ``stats`` plus the path."""
         from .writers import open_writer
 
         span = None if self.station is not None else (self.t0, self.t0 + self.duration_s)
+        bag: dict[str, Any] = {}
+        if start_time_ns is not None:
+            bag["start_time_ns"] = start_time_ns
+        if ros_distro is not None:
+            bag["ros_distro"] = ros_distro
         with open_writer(path, sensor=self.sensor, seed=self.seed, pose=self.station,
                          fields=fields, fmt=fmt, expected_points=self.n_pulses,
                          mount=self.mount, trajectory=self.trajectory, span_s=span,
-                         crs=crs) as w:
+                         crs=crs, **bag) as w:
             for chunk in (self if points is None else points):
                 w.write_points(chunk)
                 if progress is not None:
@@ -453,7 +535,8 @@ def simulate_station(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
                      window_rad: ArrayLike | None = None,
                      settings: ph.Settings | None = None, seed: int = 0,
                      reflectivity: ArrayLike | None = None,
-                     chunk_pulses: int = CHUNK_PULSES) -> Run:
+                     chunk_pulses: int = CHUNK_PULSES, cache_bytes: int = CACHE_BYTES
+                     ) -> Run:
     """A TLS station at ``position``, level unless ``attitude`` is given.
 
     Parameters
@@ -482,6 +565,9 @@ def simulate_station(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
         ``settings.reflectivity``.
     chunk_pulses : int >= 1
         Pulses simulated at a time (memory, not results, depends on it).
+    cache_bytes : int >= 0
+        Bound of the run's replay cache (bytes of point records; 0: none): a second
+        pass over a run within it replays the first instead of simulating again.
 
     Returns
     -------
@@ -521,14 +607,15 @@ def simulate_station(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
         return pos[None, :], mat
 
     return Run(scene, spec, scan, poses, settings=st, seed=seed, reflectivity=reflectivity,
-               chunk_pulses=chunk_pulses, station=(pos, rot))
+               chunk_pulses=chunk_pulses, station=(pos, rot), cache_bytes=cache_bytes)
 
 
 def simulate_drive(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
                    trajectory: Trajectory, mount: Mount | None = None, *,
                    settings: ph.Settings | None = None, seed: int = 0,
                    reflectivity: ArrayLike | None = None, chunk_pulses: int = CHUNK_PULSES,
-                   t_start: float | None = None, t_end: float | None = None) -> Run:
+                   t_start: float | None = None, t_end: float | None = None,
+                   cache_bytes: int = CACHE_BYTES) -> Run:
     """Any sensor on a platform following ``trajectory``; each pulse is cast from the
     sensor pose at its own time. A TLS sensor scans one full station pattern.
 
@@ -540,7 +627,7 @@ def simulate_drive(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
         Platform poses; one pose is a static platform (then ``t_end`` is needed).
     mount : Mount, optional
         Lever arm and boresight from the platform to the sensor; none by default.
-    settings, seed, reflectivity, chunk_pulses : keyword-only
+    settings, seed, reflectivity, chunk_pulses, cache_bytes : keyword-only
         As for ``simulate_station``.
     t_start, t_end : float, optional, keyword-only
         The part of the trajectory to scan (s, trajectory time base); the whole of it
@@ -580,4 +667,5 @@ def simulate_drive(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
         return trajectory.sensor_matrices(t, mnt)
 
     return Run(scene, spec, scan, poses, settings=st, seed=seed, reflectivity=reflectivity,
-               chunk_pulses=chunk_pulses, t0=a, mount=mnt, trajectory=trajectory)
+               chunk_pulses=chunk_pulses, t0=a, mount=mnt, trajectory=trajectory,
+               cache_bytes=cache_bytes)

@@ -36,7 +36,8 @@ from numpy.typing import NDArray
 from .errors import SensorSpecError
 # The data types live in ``sensors.spec_types``; they are re-exported here, where
 # users have always imported them from.
-from .spec_types import (KINDS, POINT_LAYOUTS, RING_ORDERS, SATURATION_RANGE_FLOOR_M,
+from .spec_types import (KINDS, NO_RETURN, POINT_LAYOUTS, RING_ORDERS,
+                         SATURATION_RANGE_FLOOR_M,
                          Driver, Pattern, Physics, ProfilerPattern, SensorSpec,
                          SpinningPattern, TLSPattern)
 
@@ -64,7 +65,8 @@ TABLE_KEYS: Final[Mapping[str, tuple[str, ...]]] = {
                  "clockwise"),
     "profiler": ("profile_rate_hz", "points_per_profile", "blind_sector_deg"),
     "driver": ("package", "point_layout", "frame_id", "topic", "ring_order",
-               "intensity_max", "beam_origin_offset_mm"),
+               "intensity_max", "beam_origin_offset_mm", "organized", "no_return",
+               "signal_photons_at_threshold"),
 }
 
 
@@ -287,9 +289,22 @@ def _driver(root: _Table) -> Driver | None:
                     "leading /)", frame)
     if not _ROS_NAME.match(topic):
         raise d.err("topic", "a ROS 2 topic name", topic)
+    # The driver-layout keys are optional: a user's file written before them keeps
+    # its meaning (returns only, velodyne-like intensity).
+    organized = d.flag("organized") if "organized" in d.data else False
+    no_return = d.text("no_return") if "no_return" in d.data else "zero"
+    if no_return not in NO_RETURN:
+        raise d.err("no_return", f"one of {NO_RETURN}", no_return)
+    signal = d.num("signal_photons_at_threshold", positive=True) \
+        if "signal_photons_at_threshold" in d.data else 0.0
+    if layout == "ouster" and signal == 0.0:
+        raise SensorSpecError(f"Expected a field `driver.signal_photons_at_threshold` in "
+                              f"{d.file} for the ouster layout (its intensity is signal "
+                              "photons), got none; add it to the sensor file.")
     return Driver(d.text("package"), layout, frame, topic, order,
                   d.num("intensity_max", positive=True),
-                  d.num("beam_origin_offset_mm", lo=0.0) * 1e-3)
+                  d.num("beam_origin_offset_mm", lo=0.0) * 1e-3, organized, no_return,
+                  signal)
 
 
 def _load(path: Path) -> SensorSpec:

@@ -19,9 +19,9 @@ from numpy.typing import NDArray
 
 from .errors import SensorSpecError
 
-__all__ = ["KINDS", "POINT_LAYOUTS", "RING_ORDERS", "SATURATION_RANGE_FLOOR_M", "Driver",
-           "Pattern", "Physics", "ProfilerPattern", "SensorSpec", "SpinningPattern",
-           "TLSPattern"]
+__all__ = ["KINDS", "NO_RETURN", "POINT_LAYOUTS", "RING_ORDERS", "SATURATION_RANGE_FLOOR_M",
+           "Driver", "Pattern", "Physics", "ProfilerPattern", "SensorSpec",
+           "SpinningPattern", "TLSPattern"]
 
 
 #: Device kinds; each has a pattern table of the same name in its TOML file.
@@ -32,6 +32,9 @@ POINT_LAYOUTS: Final = ("velodyne", "ouster", "robosense")
 #: ``[driver] ring_order``: ring 0 is the lowest beam (ascending), the highest
 #: (descending), or the pattern's channel index.
 RING_ORDERS: Final = ("elevation_ascending", "elevation_descending", "channel")
+#: ``[driver] no_return``: what an organised cloud holds in x, y, z for a cell without a
+#: return (``sensors.pointcloud2.organise``).
+NO_RETURN: Final = ("zero", "nan")
 
 #: Power of a white target at normal incidence at this range, at the least: the
 #: saturation power of the intensity scale for devices with a shorter minimum range.
@@ -230,6 +233,17 @@ class Driver:
     beam_origin_offset_m : float
         Radial distance of the beam origin from the rotation axis in the driver's
         default model (m); documented, not simulated (beams leave the sensor origin).
+    organized : bool
+        The driver publishes the organised grid of a revolution (rows = rings,
+        columns = the revolution's firing columns, a cell for every pulse, returned
+        or not; ``is_dense`` false where a cell has no return) rather than the
+        returns only. Optional in the file (false).
+    no_return : {"zero", "nan"}
+        x, y, z of an organised cell without a return. Optional in the file ("zero").
+    signal_photons_at_threshold : float
+        The ouster layout's ``intensity`` (signal photons) of a return at the
+        detection threshold power; signal is proportional to the received power
+        (``sensors.pointcloud2``). 0 for the other layouts (optional in the file).
     """
 
     package: str
@@ -239,6 +253,9 @@ class Driver:
     ring_order: str
     intensity_max: float
     beam_origin_offset_m: float
+    organized: bool = False
+    no_return: str = "zero"
+    signal_photons_at_threshold: float = 0.0
 
     def rings(self, elevations_rad: NDArray[np.float64]) -> NDArray[np.uint16]:
         """Ring of each channel (channels, firing order): its rank by elevation, ties

@@ -284,16 +284,19 @@ class Detectability:
             pos = axis_stations(self.scenes[0], self.alignment, self.hc,
                                 self.stations(spacing_m), height_m=height_m)
             for k, p in enumerate(pos):
+                # Each run is read once: no replay cache (the runs are kept in a list).
                 runs.append(simulate_station(scene, spec, p, resolution=resolution,
                                              settings=self.settings, seed=seed + k,
-                                             reflectivity=self.reflectivity))
+                                             reflectivity=self.reflectivity,
+                                             cache_bytes=0))
         else:
             s = np.arange(a - self.lead_m, b + self.lead_m + 1e-9, 0.25)
             path = axis_stations(self.scenes[0], self.alignment, self.hc, s,
                                  height_m=height_m)
             traj = Trajectory.along_polyline(path, speed_mps)
             runs.append(simulate_drive(scene, spec, traj, Mount(), settings=self.settings,
-                                       seed=seed, reflectivity=self.reflectivity))
+                                       seed=seed, reflectivity=self.reflectivity,
+                                       cache_bytes=0))
         xyz, tri = [], []
         lo, hi = self.keep_m
         for run in runs:

@@ -376,7 +376,9 @@ def _cloud(msg: Any, topic: str) -> tuple[NDArray[np.float64], NDArray[np.float6
     t = rec[tname].astype(np.float64) * scale
     if relative:
         t = t + msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
-    keep = np.isfinite(xyz).all(axis=1)
+    # ouster-ros publishes an organised grid with all-zero cells where no return came
+    # (sensors.pointcloud2.organise): those are not points at the sensor's origin.
+    keep = np.isfinite(xyz).all(axis=1) & (xyz != 0).any(axis=1)
     return xyz[keep], t[keep]
 
 

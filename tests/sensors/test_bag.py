@@ -108,13 +108,27 @@ def _stamp(msg):
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
-def _points(msg):
-    """The cloud's records, with the dtype its own fields describe."""
+def _grid(msg):
+    """The cloud's records (height x width,), row-major, with the dtype its own fields
+    describe."""
     types = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
     dt = np.dtype({"names": [f.name for f in msg.fields],
                    "formats": ["<" + types[f.datatype] for f in msg.fields],
                    "offsets": [f.offset for f in msg.fields], "itemsize": msg.point_step})
-    return np.frombuffer(np.asarray(msg.data, dtype=np.uint8).tobytes(), dtype=dt)
+    out = np.frombuffer(np.asarray(msg.data, dtype=np.uint8).tobytes(), dtype=dt)
+    assert len(out) == msg.height * msg.width
+    return out
+
+
+def _points(msg):
+    """The cloud's returns: an unorganised cloud as it is; an organised one (rows =
+    rings = the OS1's channels) column by column, without the cells of no return
+    (range 0), i.e. in the simulation's pulse order."""
+    g = _grid(msg)
+    if msg.height == 1:
+        return g
+    g = g.reshape(msg.height, msg.width).T.ravel()
+    return g[g["range"] > 0]
 
 
 # ---------------------------------------------------------------- topics and layouts
@@ -179,9 +193,13 @@ def test_fields_offsets_and_datatypes_follow_the_driver(bags, name):
     for _t, _log, msg in _read(bags[name][0], topic):
         assert [(f.name, f.offset, f.datatype, f.count) for f in msg.fields] == \
             [(n, o, ROS_TYPE[t], 1) for n, o, t in fields]
-        assert msg.point_step == step and msg.height == 1 and not msg.is_bigendian
-        assert msg.row_step == step * msg.width == len(msg.data)
-        assert msg.header.frame_id == frame and msg.is_dense
+        organised = name == "ouster_os1_64"       # ouster-ros organises its clouds
+        assert (msg.height, msg.width) == (64, 1024) if organised else msg.height == 1
+        assert msg.point_step == step and not msg.is_bigendian
+        assert msg.row_step == step * msg.width
+        assert msg.row_step * msg.height == len(msg.data)
+        empty = (_grid(msg)["range"] == 0).sum() if organised else 0
+        assert msg.header.frame_id == frame and msg.is_dense == (empty == 0)
 
 
 @pytest.mark.parametrize("name", SENSORS)
@@ -213,9 +231,16 @@ def test_a_sweep_equals_the_laz_sensor_points(bags, name):
         np.testing.assert_array_equal(cloud[a], np.asarray(las[b])[sel].astype(np.float32))
     stamp = T0 + k * 0.1
     t = np.asarray(las.gps_time)[sel]
-    # LAS intensity: round(i * 65535); the drivers' scale 255
-    np.testing.assert_allclose(cloud["intensity"], np.asarray(las.intensity)[sel] / 65535
-                               * 255, atol=255 / 65535)
+    i_las = np.asarray(las.intensity)[sel] / 65535        # LAS: round(i * 65535)
+    if name != "ouster_os1_64":                           # the drivers' scale 255
+        np.testing.assert_allclose(cloud["intensity"], i_las * 255, atol=255 / 65535)
+    else:
+        # signal photons = S P / P_min = S 10^(i log10(P_sat / P_min)); the LAS
+        # intensity's quantum 1/65535 gives a relative error of ln(10) span / 65535
+        phys = load_sensor(name).physics
+        span = np.log10(phys.saturation_power / phys.threshold_power)
+        np.testing.assert_allclose(cloud["intensity"], np.minimum(
+            10.0 * 10 ** (i_las * span), 65535), rtol=np.log(10) * span / 65535 * 1.01)
     if name == "velodyne_vlp16":
         np.testing.assert_allclose(cloud["time"], t - stamp, atol=1e-7)
     elif name == "ouster_os1_64":
@@ -425,7 +450,7 @@ def test_kiss_icp_reads_every_sweep_with_its_point_times(bags, name):
              "robosense_airy": "timestamp"}[name]
     for i, msg in enumerate(clouds):
         xyz, times = ds[i]
-        ref = _points(msg)
+        ref = _grid(msg)           # an organised cloud's every cell (zeros included)
         assert len(xyz) == len(times) == len(ref) > 1000
         np.testing.assert_array_equal(xyz[:, 0], ref["x"].astype(np.float64))
         np.testing.assert_array_equal(times, ref[field].astype(np.float64))
@@ -556,7 +581,8 @@ def test_cloud_bytes_decode_with_the_drivers_layout(n, seed, name):
     rec["time"] = stamp + g.uniform(0, 0.1, n)
     rings = spec.driver.rings(spec.pattern.elevations_rad)
     layout = LAYOUTS[spec.driver.point_layout]
-    raw = cloud_points(layout, rec, stamp, rings, 255.0).view(np.uint8).tobytes()
+    raw = cloud_points(layout, rec, stamp, rings, 255.0, physics=spec.physics,
+                       signal_photons_at_threshold=10.0).view(np.uint8).tobytes()
     fields, step = LAYOUT[name]
     got = np.frombuffer(raw, dtype=np.dtype({"names": [f[0] for f in fields],
                                              "formats": ["<" + f[2] for f in fields],
@@ -565,11 +591,22 @@ def test_cloud_bytes_decode_with_the_drivers_layout(n, seed, name):
     for a, b in (("x", "sx"), ("y", "sy"), ("z", "sz")):
         np.testing.assert_array_equal(got[a], rec[b].astype(np.float32))
     np.testing.assert_array_equal(got["ring"], rings[rec["channel"]])
-    np.testing.assert_allclose(got["intensity"], rec["intensity"] * 255.0, rtol=1e-6)
     if name == "ouster_os1_64":
+        # signal photons: 10 at P_min, proportional to P = P_min (P_sat/P_min)^i;
+        # calibrated reflectivity 100 P R^2, within a byte
+        ph = spec.physics
+        p = ph.threshold_power * (ph.saturation_power / ph.threshold_power) ** \
+            rec["intensity"].astype(np.float64)
+        np.testing.assert_allclose(got["intensity"], np.minimum(
+            10.0 * p / ph.threshold_power, 65535.0), rtol=1e-6)   # a 16-bit SIGNAL
+        refl = np.clip(100 * p * rec["range"] ** 2, 0, 255)
+        assert np.all(np.abs(got["reflectivity"] - refl) <= 0.5 + 1e-6 * refl)
+        assert not got["ambient"].any()
         assert np.all(np.abs(got["t"] * 1e-9 - (rec["time"] - stamp)) <= 1e-9)
         assert np.all(np.abs(got["range"] - rec["range"] * 1e3) <= 0.5)
-    elif name == "robosense_airy":
-        np.testing.assert_array_equal(got["timestamp"], rec["time"])
     else:
+        np.testing.assert_allclose(got["intensity"], rec["intensity"] * 255.0, rtol=1e-6)
+    if name == "robosense_airy":
+        np.testing.assert_array_equal(got["timestamp"], rec["time"])
+    elif name == "velodyne_vlp16":
         np.testing.assert_allclose(got["time"], rec["time"] - stamp, atol=1e-7)
