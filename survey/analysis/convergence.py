@@ -332,11 +332,17 @@ def radial_change(epoch1: ArrayLike, epoch2: ArrayLike, alignment: Alignment,
 
 def sections_every(alignment: Alignment, step_m: float, *, margin_m: float = 0.0
                    ) -> Floats:
-    """Chainages every ``step_m`` along the alignment, ``margin_m`` inside its ends."""
+    """Chainages (k,) float64 at whole multiples of ``step_m`` (0+010, 0+020, ... as
+    surveyors number sections, whatever chainage the alignment starts at) lying at
+    least ``margin_m`` inside its ends."""
     lo, hi = alignment.chainage_range
     if not (np.isfinite(step_m) and step_m > 0):
         raise CompareError(f"Expected a positive section step, got {step_m!r}.")
-    return np.arange(lo + margin_m, hi - margin_m + 1e-9, step_m)
+    # DECISION: multiples of the step, not lo + k step: a fitted or extended axis
+    # starts anywhere, and sections at 9, 19, 29 m are not the 10 m stations asked.
+    k0 = int(np.ceil((lo + margin_m) / step_m - 1e-9))
+    k1 = int(np.floor((hi - margin_m) / step_m + 1e-9))
+    return np.arange(k0, k1 + 1, dtype=np.float64) * step_m
 
 
 def summarise(changes: Sequence[RadialChange]) -> list[dict[str, Any]]:

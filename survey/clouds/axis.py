@@ -24,9 +24,10 @@ if TYPE_CHECKING:
 
 __all__ = ["AXIS_SAMPLE", "AXIS_SPAN_FACTOR", "EXTENT_SAMPLE", "LINING_FULL_SHARE",
            "LINING_LOW_QUANTILE", "LINING_MIN_COVER", "LINING_REF_M", "LINING_REL_TOL",
-           "LINING_SECTORS", "LINING_SHARE", "PORTAL_BAND_M", "UNROLL_CHUNK",
-           "LiningExtent", "cell_runs", "estimate_axis", "extend_chainage", "fill_gaps",
-           "lining_extent", "tunnel_frame", "unroll", "unroll_extended"]
+           "LINING_SECTORS", "LINING_SHARE", "PORTAL_BAND_M", "PROFILE_SECTORS",
+           "UNROLL_CHUNK", "LiningExtent", "apply_datum", "cell_runs", "estimate_axis",
+           "extend_chainage", "fill_gaps", "fit_profile", "lining_extent", "sample_points", "tunnel_frame", "unroll",
+           "unroll_extended"]
 
 Floats = NDArray[np.float64]
 
@@ -403,3 +404,144 @@ def tunnel_frame(mesh_path: str | Path, scene: Scene | None = None
     al, hc = estimate_axis(v)
     return sc, refl, al, hc
 
+
+
+# ---------------------------------------------------------------------------- chainage
+#: Angular sectors of a profile fitted to a cloud (``fit_profile``, 5 deg each).
+PROFILE_SECTORS = 72
+
+
+def sample_points(path: str | Path, n: int = AXIS_SAMPLE, *, seed: int = 0) -> Floats:
+    """A seeded uniform subset (at most ``n``, 3) float64 of a cloud file's points
+    (streamed: bottom-k sampling, every point a random key, the n smallest kept), or
+    a mesh's vertices (PLY with faces, OBJ, STL, OFF)."""
+    from survey.clouds.cloudio import iter_points, read_reference
+
+    p = Path(path)
+    if p.suffix.lower() in (".ply", ".obj", ".stl", ".off"):
+        return read_reference(p)[0]
+    rng = np.random.default_rng(seed)
+    keep, keys = np.empty((0, 3)), np.empty(0)
+    for chunk in iter_points(p):
+        keep = np.vstack([keep, chunk])
+        keys = np.concatenate([keys, rng.random(len(chunk))])
+        if len(keys) > n:
+            sel = np.argpartition(keys, n - 1)[:n]
+            keep, keys = keep[sel], keys[sel]
+    return keep
+
+
+def apply_datum(alignment: Alignment, points: ArrayLike, *,
+                start_xy: ArrayLike | None = None, chainage_at_m: float = 0.0,
+                reverse: bool = False, reference: Alignment | None = None
+                ) -> tuple[Alignment, dict[str, Any]]:
+    """A fitted axis with the user's chainage: (alignment, datum record for the JSON).
+
+    The axis is first extended straight along its end tangents to cover the points
+    (``extend_chainage``: a fitted axis ends half a slice inside the cloud). Then:
+
+    - ``reference`` (a design alignment): the direction of the reference, and the
+      chainage that best matches it (least squares over the axis every metre, where
+      the axis lies within the reference); the record gives the largest difference.
+    - ``start_xy`` (2,): chainage ``chainage_at_m`` at the axis point nearest to it,
+      increasing away from it towards the farther end of the axis (the axis is
+      extended to reach it when it lies beyond an end).
+    - neither: ``chainage_at_m`` at the end where the axis begins, running towards
+      increasing easting (or northing, for an axis running more north-south).
+
+    ``reverse`` flips the direction of the last two (the chainage at the start point
+    stays ``chainage_at_m``).
+    """
+    p, _ = as_points(points, "points", ReconstructionError)
+    al = alignment
+    c0, c1 = al.chainage_range
+    s_pts = extend_chainage(al, p, al.to_local(p)[0])
+    al = al.extended(max(0.0, c0 - float(s_pts.min())), max(0.0, float(s_pts.max()) - c1))
+    rec: dict[str, Any] = {}
+    if reference is not None:
+        if start_xy is not None or reverse:
+            raise ReconstructionError("Expected a reference alignment or a start point "
+                                      "and direction, got both.")
+        lo, hi = al.chainage_range
+        s_own = np.linspace(lo, hi, max(2, int(hi - lo) + 1))
+        pts = al.point(s_own)
+        s_ref = extend_chainage(reference, pts, reference.to_local(pts)[0])
+        r0, r1 = reference.chainage_range
+        inside = (s_ref > r0) & (s_ref < r1)
+        if inside.sum() < 2:
+            raise ReconstructionError(f"Expected the axis to run along the reference "
+                                      f"alignment (chainage {r0:g} to {r1:g} m), got it "
+                                      "beside its ends; is it the same tunnel and CRS?")
+        slope = np.polyfit(s_own[inside], s_ref[inside], 1)[0]
+        if slope < 0:
+            al = al.reversed()
+            s_own = al.chainage_range[0] + (hi - s_own)
+        shift = float(np.mean(s_ref[inside] - s_own[inside]))
+        al = al.with_start_chainage(al.chainage_range[0] + shift)
+        diff = s_ref[inside] - (s_own[inside] + shift)
+        rec = {"kind": "alignment", "max_difference_m": float(np.abs(diff).max()),
+               "covered_m": [float(s_ref[inside].min()), float(s_ref[inside].max())]}
+        return al, rec
+    if start_xy is not None:
+        xy = np.asarray(start_xy, dtype=np.float64).reshape(2)
+        q = np.array([[xy[0], xy[1], float(np.median(p[:, 2]))]])
+        lo, hi = al.chainage_range
+        s0 = float(extend_chainage(al, q, al.to_local(q)[0])[0])
+        al = al.extended(max(0.0, lo - s0), max(0.0, s0 - hi))
+        lo, hi = al.chainage_range
+        flip = (s0 - lo > hi - s0) != bool(reverse)
+        if flip:
+            al = al.reversed()
+            s0 = lo + (hi - s0)
+        al = al.with_start_chainage(float(chainage_at_m) - (s0 - lo))
+        foot = al.point(float(chainage_at_m))
+        rec = {"kind": "start", "start_xy": xy.tolist(), "chainage_at_m":
+               float(chainage_at_m), "reverse": bool(reverse),
+               "start_offset_m": float(np.hypot(*(foot[:2] - xy)))}
+        return al, rec
+    lo, hi = al.chainage_range
+    a, b = al.point(lo), al.point(hi)
+    d = b - a
+    backwards = (d[0] < 0) if abs(d[0]) >= abs(d[1]) else (d[1] < 0)
+    if backwards != bool(reverse):
+        al = al.reversed()
+    al = al.with_start_chainage(float(chainage_at_m))
+    rec = {"kind": "end", "chainage_at_m": float(chainage_at_m), "reverse": bool(reverse),
+           "start_xy": al.point(float(chainage_at_m))[:2].tolist()}
+    return al, rec
+
+
+def fit_profile(alignment: Alignment, points: ArrayLike, *, kind: str = "sectors",
+                sectors: int = PROFILE_SECTORS) -> Any:
+    """A cross-section ``Profile`` of a cloud about a fitted axis (which runs through
+    the profile centre): ``"sectors"``: the median radius in each of ``sectors``
+    angular sectors over the whole length (sectors without points interpolated
+    around), a star-shaped polygon; ``"circle"``: the median radius, a circle centred
+    on the axis. Points beyond the axis' ends are left out."""
+    from survey.world.profiles import Profile
+
+    p, _ = as_points(points, "points", ReconstructionError)
+    s, off, h = alignment.to_local(p)
+    c0, c1 = alignment.chainage_range
+    m = (s > c0) & (s < c1)
+    if m.sum() < 3 * sectors:
+        raise ReconstructionError(f"Expected at least {3 * sectors} points along the axis "
+                                  f"for a profile, got {int(m.sum())}.")
+    phi, rho = np.arctan2(off[m], h[m]), np.hypot(off[m], h[m])
+    if kind == "circle":
+        rm = float(np.median(rho))
+        return Profile([{"kind": "arc", "centre": (0.0, 0.0), "radius": rm,
+                         "angle_start": 0.0, "angle_sweep": 2 * np.pi}],
+                       name=f"fitted circle r={rm:.3f} m")
+    if kind != "sectors":
+        raise ReconstructionError(f"Expected a profile kind 'sectors' or 'circle', got "
+                                  f"{kind!r}.")
+    step = 2 * np.pi / sectors
+    j = np.mod(np.floor((phi + np.pi) / step).astype(np.int64), sectors)
+    ids, rs, starts, counts = cell_runs(j, rho)
+    r = np.full(sectors, np.nan)
+    r[ids] = 0.5 * (rs[starts + (counts - 1) // 2] + rs[starts + counts // 2])
+    centre = -np.pi + (np.arange(sectors) + 0.5) * step
+    fill_gaps(r[None, :], np.zeros(1))
+    return Profile.from_polyline(np.stack([r * np.sin(centre), r * np.cos(centre)], 1),
+                                 name=f"fitted {sectors} sectors")

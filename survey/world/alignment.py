@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from raytrace.checks import as_points
 from survey.errors import AlignmentError
 
-__all__ = ["Alignment", "Element", "arc", "clothoid", "curve", "straight"]
+__all__ = ["STATION_TOL_M", "Alignment", "Element", "arc", "clothoid", "curve", "straight"]
 
 Floats = NDArray[np.float64]
 
@@ -47,6 +47,10 @@ _GL8_W = 0.5 * _GL8_W
 _SHORT_PANEL_M = 2.5
 #: Longest quadrature panel (m).
 _PANEL_M = 10.0
+#: Largest distance (m) of a station from the curve ``from_stations`` builds through it,
+#: in chainage or offset: design stations are exact to mm; more means the chainage is
+#: not the distance along the curve.
+STATION_TOL_M = 0.01
 
 
 @dataclass(frozen=True)
@@ -230,8 +234,27 @@ class Alignment:
             raise AlignmentError(f"Expected centreline points that cover every knot "
                                  f"interval, got a fit failure ({exc}); pass evenly spaced "
                                  "points or a larger knot_spacing_m.") from exc
-        # Arc length of the smoothed plan curve on a fine parameter grid.
-        t = np.linspace(0.0, chord[-1], max(1000, int(chord[-1] / 0.05)))
+        shape, start, heading, arc_len, t = cls._from_plan_curve(sx, sy, chord[-1],
+                                                                 segment_m)
+        total = shape.length_m
+        n_prof = max(2, int(round(total / profile_step_m)) + 1)
+        s_prof = np.linspace(0.0, total, n_prof)
+        z_prof = sz(np.interp(s_prof, arc_len, t)) + origin[2]
+        return cls(shape.elements, start_xy=start + origin[:2], heading_rad=heading,
+                   profile=np.stack([s_prof + start_chainage_m, z_prof], axis=1),
+                   start_chainage_m=start_chainage_m)
+
+    @classmethod
+    def _from_plan_curve(cls, sx: Any, sy: Any, t_end: float, segment_m: float
+                         ) -> tuple[Alignment, Floats, float, Floats, Floats]:
+        """(element shape at the origin, start (2,), heading, arc length (m,), parameter
+        (m,)) of the plan curve (sx(t), sy(t)), t in [0, t_end] (callables with
+        ``derivative``, e.g. scipy splines): its curvature sampled every ``segment_m``
+        of arc length, clothoid elements in between (curvature continuous), placed by
+        the rigid fit that best matches the curve. The start and heading place the
+        shape; ``arc_len`` maps the parameter grid ``t`` to arc length."""
+        # Arc length of the plan curve on a fine parameter grid.
+        t = np.linspace(0.0, t_end, max(1000, int(t_end / 0.05)))
         dx, dy = sx.derivative()(t), sy.derivative()(t)
         speed = np.hypot(dx, dy)
         arc_len = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1])
@@ -245,9 +268,6 @@ class Alignment:
         seg = total / n_seg
         elements = [Element(seg, float(k_knots[i]), float(k_knots[i + 1]))
                     for i in range(n_seg)]
-        n_prof = max(2, int(round(total / profile_step_m)) + 1)
-        s_prof = np.linspace(0.0, total, n_prof)
-        z_prof = sz(np.interp(s_prof, arc_len, t)) + origin[2]
         # Start pose: not the spline's end derivative (smoothing splines are least
         # certain at their ends, and a heading error there grows along the whole
         # length) but the 2-D rigid transform that best maps the integrated element
@@ -262,10 +282,113 @@ class Alignment:
         heading = float(np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1]))
         rot = np.array([[np.cos(heading), -np.sin(heading)],
                         [np.sin(heading), np.cos(heading)]])
-        start = cb - rot @ ca + origin[:2]
-        return cls(elements, start_xy=start, heading_rad=heading,
-                   profile=np.stack([s_prof + start_chainage_m, z_prof], axis=1),
-                   start_chainage_m=start_chainage_m)
+        return shape, cb - rot @ ca, heading, arc_len, t
+
+    @classmethod
+    def from_stations(cls, chainage_m: ArrayLike, points: ArrayLike, *,
+                      segment_m: float = 1.0) -> Alignment:
+        """The alignment through surveyed centreline stations: chainages (n,) float64
+        (m, strictly increasing) and their points (n, 3) float64 (E, N, H).
+
+        Unlike ``fit`` (a least-squares smoother for measured, noisy centres) this
+        interpolates: E and N are cubic splines of the given chainage (not-a-knot,
+        ``scipy.interpolate.CubicSpline``; two stations give a straight), whose
+        curvature, sampled every ``segment_m`` of arc length, defines clothoid elements
+        (``_from_plan_curve``). The chainage is the given one (the first station's is
+        the start); the elevation is linear between the stations' H. Design stations
+        are points of the design curve, and its chainage is the arc length: a station
+        whose chainage on the result differs from the given one by more than
+        ``STATION_TOL_M`` (a chainage equation, a jump, mixed-up columns) raises
+        ``AlignmentError``.
+        """
+        from scipy.interpolate import CubicSpline
+
+        s = np.asarray(chainage_m, dtype=np.float64).reshape(-1)
+        p = np.asarray(points, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 3 or len(p) != len(s) or len(s) < 2:
+            raise AlignmentError(f"Expected at least 2 stations: chainages (n,) and points "
+                                 f"(n, 3), got shapes {s.shape} and {p.shape}.")
+        if not (np.isfinite(s).all() and np.isfinite(p).all()):
+            raise AlignmentError("Expected finite chainages and coordinates, got NaN or "
+                                 "inf; remove the incomplete rows.")
+        if (np.diff(s) <= 0).any():
+            i = int(np.argmax(np.diff(s) <= 0))
+            raise AlignmentError(f"Expected strictly increasing chainages, got {s[i]:g} "
+                                 f"then {s[i + 1]:g} m; sort the stations and remove "
+                                 "repeated ones.")
+        origin = p[0].copy()       # local frame: UTM numbers would cost precision
+        q = p - origin
+        u = s - s[0]
+        if len(s) == 2:
+            sx = CubicSpline(u, q[:, 0], bc_type="natural")
+            sy = CubicSpline(u, q[:, 1], bc_type="natural")
+        else:
+            sx, sy = CubicSpline(u, q[:, 0]), CubicSpline(u, q[:, 1])
+        shape, start, heading, _, _ = cls._from_plan_curve(sx, sy, u[-1],
+                                                           min(segment_m, u[-1]))
+        al = cls(shape.elements, start_xy=start + origin[:2], heading_rad=heading,
+                 profile=np.stack([s, p[:, 2]], axis=1), start_chainage_m=s[0])
+        got, off, _ = al.to_local(p)
+        bad = np.abs(got - s) + np.abs(off)
+        if bad.max() > STATION_TOL_M:
+            i = int(np.argmax(bad))
+            raise AlignmentError(f"Expected every station on the curve at its chainage "
+                                 f"(within {STATION_TOL_M:g} m), got station {s[i]:g} m at "
+                                 f"chainage {got[i]:.4f} m, offset {off[i]:.4f} m: the "
+                                 "chainage is not the distance along E,N (a chainage "
+                                 "equation, a jump, or columns mixed up).")
+        return al
+
+    # ------------------------------------------------------------------ chainage datum
+    def reversed(self) -> Alignment:
+        """The same centreline run the other way: chainage from this end (the new start
+        chainage is this one's), offsets to the new left."""
+        c0, c1 = self.chainage_range
+        xy, th, _ = self.plan(c1)
+        els = [Element(e.length_m, -e.k_end, -e.k_start) for e in reversed(self.elements)]
+        prof = self._profile[::-1].copy()
+        prof[:, 0] = c0 + (c1 - prof[:, 0])
+        return Alignment(els, start_xy=xy, heading_rad=float(th) + np.pi, profile=prof,
+                         start_chainage_m=c0)
+
+    def with_start_chainage(self, start_chainage_m: float) -> Alignment:
+        """The same centreline with its chainage shifted to start at
+        ``start_chainage_m`` (m)."""
+        d = float(start_chainage_m) - self.start_chainage_m
+        prof = self._profile.copy()
+        prof[:, 0] += d
+        return Alignment(self.elements, start_xy=self._xy0[0], heading_rad=self._th0[0],
+                         profile=prof, start_chainage_m=float(start_chainage_m))
+
+    def extended(self, before_m: float, after_m: float) -> Alignment:
+        """The alignment with straights of ``before_m`` and ``after_m`` (m, >= 0) added
+        along its end tangents; chainages of the existing part are kept, the grade at
+        each end continues."""
+        b, a = float(before_m), float(after_m)
+        if not (np.isfinite(b) and np.isfinite(a) and b >= 0 and a >= 0):
+            raise AlignmentError(f"Expected extensions >= 0 m, got {before_m}, {after_m}.")
+        c0, c1 = self.chainage_range
+        # Extensions below a nanometre are none (a sliver element, a repeated profile
+        # chainage).
+        b = b if b > 1e-9 else 0.0
+        a = a if a > 1e-9 else 0.0
+        els = list(self.elements)
+        start, th0 = self._xy0[0], self._th0[0]
+        prof = self._profile
+        if b > 0:
+            els.insert(0, straight(b))
+            start = start - b * np.array([np.cos(th0), np.sin(th0)])
+            if c0 - b < prof[0, 0] - 1e-9:
+                g = self.grade(c0)
+                prof = np.vstack([[c0 - b, self.elevation(c0) - g * b], prof])
+        if a > 0:
+            els.append(straight(a))
+            if c1 + a > prof[-1, 0] + 1e-9:
+                g = self.grade(np.nextafter(c1, -np.inf))
+                prof = np.vstack([prof, [c1 + a, self.elevation(c1) + g * a]])
+        # Profile points at the old ends keep the elevation there exact.
+        return Alignment(els, start_xy=start, heading_rad=th0, profile=prof,
+                         start_chainage_m=c0 - b)
 
     # ------------------------------------------------------------------ serialisation
     def to_dict(self) -> dict[str, Any]:

@@ -21,7 +21,6 @@ their files. Both files are written atomically.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
@@ -40,6 +39,7 @@ from survey.errors import TunnelError, TunnelFileError, TunnelsimError
 from survey.world import deformation as _deform
 from survey.world.alignment import Alignment
 from survey.world.profiles import Profile
+from survey.world.tunnel_json import read_meta, sidecar, tunnel_crs
 
 __all__ = ["FORMAT", "LABEL", "LABELS", "REFLECTIVITY", "TunnelMesh", "read_axis",
            "read_meta", "read_ply", "read_tunnel", "sidecar", "tunnel_crs", "write_ply",
@@ -267,11 +267,6 @@ def read_ply(path: str | os.PathLike[str]) -> dict[str, Any]:
     return out
 
 
-def sidecar(path: str | Path) -> Path:
-    """The JSON beside a tunnel's PLY (same name, ``.json``)."""
-    return Path(path).with_suffix(".json")
-
-
 def write_tunnel(tunnel: TunnelMesh, path: str | Path) -> tuple[Path, Path]:
     """Write the tunnel's PLY and JSON sidecar (atomically); returns both paths."""
     path = Path(path)
@@ -286,36 +281,6 @@ def write_tunnel(tunnel: TunnelMesh, path: str | Path) -> tuple[Path, Path]:
     meta = dict(tunnel.metadata, format=FORMAT, mesh=path.name)
     write_json(sidecar(path), meta, indent=1)
     return path, sidecar(path)
-
-
-def read_meta(js: str | Path) -> dict[str, Any]:
-    """The JSON object of a tunnel sidecar; ``TunnelFileError`` for a missing, unreadable,
-    undecodable or non-object file."""
-    js = Path(js)
-    if not js.is_file():
-        raise TunnelFileError(f"Expected a tunnel JSON, got '{js}' which does not exist.")
-    try:
-        meta = json.loads(js.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise TunnelFileError(f"Expected a JSON tunnel description in '{js}', got a file "
-                              f"that does not parse ({exc}); rewrite it with "
-                              "'tunnelsim tunnel'.") from None
-    if not isinstance(meta, dict):
-        raise TunnelFileError(f"Expected a JSON object in '{js}', got a "
-                              f"{type(meta).__name__}; rewrite it with 'tunnelsim tunnel'.")
-    return meta
-
-
-def tunnel_crs(meta: Mapping[str, Any]) -> str | None:
-    """The ``crs`` (WKT) of a tunnel's metadata, or None for a local tunnel; a ``crs``
-    that is not a non-empty string is a ``TunnelFileError``."""
-    crs = meta.get("crs")
-    if crs is None:
-        return None
-    if not isinstance(crs, str) or not crs.strip():
-        raise TunnelFileError(f"Expected the tunnel's 'crs' as WKT text, got {crs!r}; "
-                              "rewrite the JSON with 'tunnelsim tunnel --crs'.")
-    return crs
 
 
 def _geometry(meta: dict[str, Any], js: Path) -> tuple[Alignment, Profile]:
@@ -359,10 +324,15 @@ def read_tunnel(path: str | Path) -> TunnelMesh:
                       ply["chainage"], ply["profile_t"], al, prof, meta, disp)
 
 
-def read_axis(json_path: str | Path) -> tuple[Alignment, float]:
-    """(Alignment, profile-centre height in m) from a generated tunnel's JSON."""
-    js = Path(json_path)
-    al, prof = _geometry(read_meta(js), js)
-    return al, float(prof.centroid[1])
+def read_axis(json_path: str | Path, option: str = "--tunnel-json"
+              ) -> tuple[Alignment, float]:
+    """(Alignment, profile-centre height in m) from a tunnel JSON (``tunnelsim tunnel``
+    or ``tunnelsim axis``), a LandXML alignment or a chainage,E,N,H CSV
+    (``survey.world.alignment_io.load_tunnel``; ``option`` names the option in errors).
+    Without a profile (LandXML, CSV) the alignment is the axis: height 0."""
+    from survey.world.alignment_io import load_tunnel
+
+    t = load_tunnel(json_path, option=option)
+    return t.alignment, float(t.centre[1])
 
 

@@ -132,7 +132,7 @@ def test_radial_change_places_a_bulge_at_its_angle(tunnel):
 
 def test_sections_every_and_errors(tunnel):
     al, prof, tun = tunnel
-    np.testing.assert_allclose(sections_every(al, 5.0, margin_m=2.0), [2, 7, 12, 17, 22])
+    np.testing.assert_allclose(sections_every(al, 5.0, margin_m=2.0), [5, 10, 15, 20])
     p = _lining(tun)
     with pytest.raises(CompareError, match=r"within the alignment \[0, 24\]"):
         radial_change(p, p, al, [30.0])

@@ -19,8 +19,10 @@ def _frame_options(c) -> None:
              help="cloud (.las/.laz/.ply/.npz/.csv/.txt/.xyz) or mesh (.ply with faces, "
                   ".obj/.stl/.off)")
     c.option("--tunnel-json", path="in",
-             help="tunnel JSON whose alignment gives chainage and the section frame "
-                  "(default: the .json beside a tunnel .ply)")
+             help="the alignment that gives chainage and the section frame: a tunnel "
+                  "JSON ('tunnelsim tunnel' or 'tunnelsim axis'), a LandXML alignment "
+                  "(.xml/.landxml) or a chainage,E,N,H CSV (default: the .json beside a "
+                  "tunnel .ply)")
     c.option("--design", path="in",
              help="design profile file (CSV/TXT of y,z in the section frame) for the arc "
                   "length (and the deviation); default: the tunnel JSON's profile")
@@ -95,11 +97,10 @@ def register(commands: CommandSet) -> None:
 
 
 def _tunnel(args):
-    """(Alignment, Profile or None, CRS text or None) from --tunnel-json or the JSON
-    beside a tunnel PLY."""
-    from survey.world.alignment import Alignment
-    from survey.world.mesh import read_meta, sidecar, tunnel_crs
-    from survey.world.profiles import Profile
+    """(Alignment, Profile or None, CRS text or None) from --tunnel-json (a tunnel JSON,
+    LandXML or station CSV) or the JSON beside a tunnel PLY."""
+    from survey.world.alignment_io import load_tunnel
+    from survey.world.mesh import sidecar
 
     js = args.tunnel_json
     if js is None and Path(args.input).suffix.lower() == ".ply" and \
@@ -107,13 +108,8 @@ def _tunnel(args):
         js = str(sidecar(args.input))
     if js is None:
         raise TunnelsimCLIError("Expected --tunnel-json T.json (the alignment), got none.")
-    meta = read_meta(js)
-    if not isinstance(meta.get("alignment"), dict):
-        raise TunnelsimCLIError(f"Expected an 'alignment' in '{js}' (a JSON written by "
-                                "'tunnelsim tunnel'), got none.")
-    prof = Profile.from_dict(meta["profile"]) if isinstance(meta.get("profile"), dict) \
-        else None
-    return Alignment.from_dict(meta["alignment"]), prof, tunnel_crs(meta)
+    t = load_tunnel(js, option="--tunnel-json")
+    return t.alignment, t.profile, t.crs
 
 
 def _design(args, prof):
@@ -124,8 +120,8 @@ def _design(args, prof):
             if args.design_shift else (0.0, 0.0)
         return read_design_profile(args.design, order=args.design_order, shift_m=shift)
     if prof is None:
-        raise TunnelsimCLIError("Expected --design FILE (the tunnel JSON has no profile), "
-                                "got none.")
+        raise TunnelsimCLIError("Expected --design FILE (the alignment of --tunnel-json "
+                                "has no profile: a LandXML, a station CSV), got none.")
     return DesignProfile.from_profile(prof)
 
 

@@ -4,12 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from survey.cli.commands.axis import datum_options
 from survey.cli.common import CommandSet, floats, out_dir, pair, say, write_json, write_text
 from survey.errors import TunnelsimCLIError
-
-#: Points of the input used to fit an axis (--fit-axis), a seeded random subset.
-AXIS_POINTS = 200_000
-
 
 def _cut_options(c) -> None:
     """Input, axis, chainages and band options shared by sections and rings."""
@@ -17,11 +14,15 @@ def _cut_options(c) -> None:
              help="cloud (.las/.laz/.ply/.xyz/.txt/.csv/.npz/.e57) or mesh (.ply with "
                   "faces, .obj/.stl/.off)")
     c.option("--tunnel-json", path="in",
-             help="tunnel JSON whose alignment gives chainage and the section frame "
-                  "(default: the .json beside a tunnel .ply)")
+             help="the alignment that gives chainage and the section frame: a tunnel "
+                  "JSON ('tunnelsim tunnel' or 'tunnelsim axis'), a LandXML alignment "
+                  "(.xml/.landxml) or a chainage,E,N,H CSV (default: the .json beside a "
+                  "tunnel .ply)")
     c.option("--fit-axis", action="store_true",
-             help="fit the axis to the input instead (chainage from 0 at one end; the "
-                  "section frame is centred on the profile centre)")
+             help="fit the axis to the input instead (chainage as --start/--chainage-at/"
+                  "--reverse set it, as 'tunnelsim axis' does; the section frame is "
+                  "centred on the profile centre)")
+    datum_options(c, with_alignment=False)
     c.option("--every", type=float, metavar="M",
              help="a section every M metres of chainage (at whole multiples of M)")
     c.option("--at", metavar="C[,C...]", help="sections at these chainages (m)")
@@ -88,10 +89,10 @@ def register(commands: CommandSet) -> None:
 
 def _alignment(args):
     """(Alignment, Profile or None): from --tunnel-json (or the JSON beside a tunnel
-    PLY) or fitted to the input (--fit-axis)."""
-    from survey.world.alignment import Alignment
-    from survey.world.mesh import read_meta, sidecar
-    from survey.world.profiles import Profile
+    PLY; a LandXML or station CSV has no profile) or fitted to the input (--fit-axis,
+    with the chainage datum of --start/--chainage-at/--reverse)."""
+    from survey.world.alignment_io import load_tunnel
+    from survey.world.mesh import sidecar
 
     js = args.tunnel_json
     if js is None and not args.fit_axis and Path(args.input).suffix.lower() == ".ply" \
@@ -102,40 +103,23 @@ def _alignment(args):
     if js is None and not args.fit_axis:
         raise TunnelsimCLIError("Expected --tunnel-json T.json (the alignment) or "
                                 "--fit-axis, got neither.")
+    if not args.fit_axis and (args.start is not None or args.reverse or
+                              args.chainage_at is not None):
+        raise TunnelsimCLIError("Expected --start, --chainage-at and --reverse with "
+                                "--fit-axis (the chainage of a fitted axis), got them "
+                                "with --tunnel-json, whose alignment has its chainage.")
     if js is not None:
-        meta = read_meta(js)
-        if not isinstance(meta.get("alignment"), dict):
-            raise TunnelsimCLIError(f"Expected an 'alignment' in '{js}' (a JSON written by "
-                                    "'tunnelsim tunnel'), got none.")
-        prof = Profile.from_dict(meta["profile"]) if isinstance(meta.get("profile"),
-                                                                dict) else None
-        return Alignment.from_dict(meta["alignment"]), prof
+        t = load_tunnel(js, option="--tunnel-json")
+        return t.alignment, t.profile
     return _fitted_axis(args), None
 
 
 def _fitted_axis(args):
-    """An alignment fitted to a seeded random subset of the input's points."""
-    import numpy as np
+    """An alignment fitted to a seeded random subset of the input's points, with the
+    user's chainage (``survey.cli.commands.axis.fitted_axis``)."""
+    from survey.cli.commands.axis import fitted_axis
 
-    from survey.analysis.sections import MESH_SUFFIXES
-    from survey.clouds.axis import estimate_axis
-    from survey.clouds.cloudio import iter_points, read_reference
-
-    p = Path(args.input)
-    if p.suffix.lower() in MESH_SUFFIXES + (".ply",):
-        v, _ = read_reference(p)
-        pts = v
-    else:
-        rng = np.random.default_rng(args.seed)
-        keep, keys = np.empty((0, 3)), np.empty(0)
-        for chunk in iter_points(p):   # bottom-k: a uniform subset, bounded memory
-            keep = np.vstack([keep, chunk])
-            keys = np.concatenate([keys, rng.random(len(chunk))])
-            if len(keys) > AXIS_POINTS:
-                sel = np.argpartition(keys, AXIS_POINTS - 1)[:AXIS_POINTS]
-                keep, keys = keep[sel], keys[sel]
-        pts = keep
-    al, _ = estimate_axis(pts)
+    al, _, _ = fitted_axis(args, Path(args.input))
     return al
 
 
@@ -162,8 +146,9 @@ def _design(args, prof, fitted):
     elif prof is not None:
         d = DesignProfile.from_profile(prof)
     else:
-        raise TunnelsimCLIError("Expected --design FILE with --fit-axis (there is no "
-                                "tunnel JSON profile), got none.")
+        raise TunnelsimCLIError("Expected --design FILE with --fit-axis or with an "
+                                "alignment without a profile (LandXML, station CSV), "
+                                "got none.")
     if fitted:
         # DECISION: a fitted axis runs through the profile's mid-range centre
         # (survey.clouds.axis.estimate_axis), so the design is centred the same way.
@@ -247,4 +232,4 @@ def cmd_rings(args) -> int:
     return 0
 
 
-__all__ = ["AXIS_POINTS", "cmd_rings", "cmd_sections", "register"]
+__all__ = ["cmd_rings", "cmd_sections", "register"]
