@@ -44,7 +44,11 @@ def test_locate_matches_brute_force_and_point_in_polygon(seed, scale, k):
     from matplotlib.path import Path as MplPath
 
     rng = np.random.default_rng(seed)
-    ang = np.sort(rng.uniform(0, 2 * np.pi, k))
+    # Star-shaped about the origin, hence simple, only if no angular gap reaches pi (a
+    # fan of angles within a half-plane can cross itself: seed 107, k 4 did): one
+    # angle in each of k equal sectors, jittered over half of it, keeps every gap
+    # below 1.5 x 2 pi / k <= pi.
+    ang = (np.arange(k) + rng.uniform(0.0, 0.5, k)) * (2 * np.pi / k)
     rad = scale * rng.uniform(0.5, 1.5, k)
     v = np.stack([rad * np.cos(ang), rad * np.sin(ang)], 1)   # star-shaped: simple
     d = DesignProfile(v, closed=True)
