@@ -7,10 +7,12 @@ Input: the folder of the DARPA SubT tiles (``../shared/data/meshes``, see its RE
 the meshes ``cave_straight_80m.ply`` and ``tunnel_bend_left.ply`` are routed, with
 ``--all`` the straight tiles too, and with ``--big`` a generated 1M-triangle, 300 m
 horseshoe tube (``raytrace.shapes.tunnel_tube``) for the time on a large mesh, and the
-generated ``junction`` preset (90-degree bend, T-junction). Along each route the
-``--platforms`` are driven at 1 m/s (``sensors.platform.platform_trajectory``): the
-smallest clearance of their poses and the largest speed, acceleration, jerk and yaw
-rate of the sensor poses, against the platform's limits.
+generated ``junction`` preset (90-degree bend, T-junction). For each of the
+``--platforms`` a route is found on ground it can cross (``find_route(platform=...)``,
+issue 29) and driven at 1 m/s (``sensors.platform.platform_trajectory``): the
+smallest clearance of its poses, the largest speed, acceleration, jerk and yaw rate of
+the sensor poses against the platform's limits, and the largest roll and pitch of its
+poses against its traversability.
 
 Usage::
 
@@ -76,16 +78,37 @@ def motion(t, p, q):
             np.abs(np.diff(yaw) / dt).max())
 
 
-def drive(scene, route, space, platform):
-    """The platform driven along the route at 1 m/s: duration, smallest pose clearance
-    and the largest motion figures of its poses against the platform's limits."""
+def drive(scene, space, platform):
+    """The platform's own route (on ground it can cross) driven at 1 m/s: duration,
+    smallest pose clearance, the largest motion figures of its poses against the
+    platform's limits, and their largest roll and pitch."""
+    import warnings
+
     from sensors.platform import platform_trajectory
     from sensors.platform_spec import load_platform
+    from sensors.route import find_route
 
     spec = load_platform(platform)
     t0 = time.perf_counter()
-    traj = platform_trajectory(route, spec, 1.0, scene=scene)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            route = find_route(scene, height_m=spec.mast_height_m, space=space,
+                               platform=spec)
+        for w in caught:
+            print(f"  {platform}: warning: {w.message}")
+        found = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        traj = platform_trajectory(route, spec, 1.0, scene=scene)
+    except Exception as exc:                 # a refusal is a result here
+        print(f"  {platform}: {type(exc).__name__}: {exc}")
+        return dict(platform=platform, error=str(exc))
     secs = time.perf_counter() - t0
+    m = traj.rotations.as_matrix()
+    pitch = np.degrees(np.abs(np.arcsin(np.clip(m[:, 2, 0], -1, 1)))).max()
+    roll = np.degrees(np.abs(np.arcsin(np.clip(m[:, 2, 1], -1, 1)))).max()
+    print(f"  {platform}: route {route.length_m:.1f} m found in {found:.2f} s, largest "
+          f"roll {roll:.1f} deg, pitch {pitch:.1f} deg")
     p, q = traj.positions, traj.rotations.as_quat()
     clear = float(space.distance(p[::5]).min())
     v, a, j, w = motion(traj.times, p, q)
@@ -125,7 +148,7 @@ def check(name, scene, height_m, platforms=()):
     print(f"  ends {ends[0]:.2f} m and {ends[1]:.2f} m from the mesh's box in plan "
           f"(its open ends lie on the box)")
     for pf in platforms:
-        drive(scene, route, space, pf)
+        drive(scene, space, pf)
     return dict(name=name, length_m=route.length_m, min_clearance_m=route.min_clearance_m,
                 seconds=seconds)
 

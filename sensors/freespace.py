@@ -263,10 +263,10 @@ def free_space(mesh: Scene | tuple[ArrayLike, ArrayLike], *, voxel_m: float | No
         s = as_number(voxel_m, "voxel_m", RouteError, unit="m", lo=0, lo_open=True)
     shape = (np.ceil(ext / s - 1e-9) + 1).astype(np.int64)
     if np.prod(shape) > max_voxels:
-        raise RouteError(f"Expected at most max_voxels={max_voxels:,} voxels, got "
-                              f"{int(np.prod(shape)):,} of {s:g} m over a box of "
-                              f"{' x '.join(f'{x:.4g}' for x in ext)} m; pass a larger "
-                              "voxel_m or max_voxels.")
+        raise RouteError(f"Expected a grid of at most {max_voxels:,} voxels, got "
+                         f"{int(np.prod(shape)):,} of {s:g} m over a box of "
+                         f"{' x '.join(f'{x:.4g}' for x in ext)} m; pass a larger "
+                         "--voxel.")
     origin = lo + 0.5 * ext - 0.5 * shape * s            # the box in the middle
     sub = _split_triangles(tri, SUB_EDGE_VOX * s)
     marked = np.zeros(tuple(shape), dtype=np.bool_)
@@ -320,9 +320,12 @@ class FloorGraph:
     """The floor voxels of a free space (step 2): all of them (``floor``, flat indices),
     their distance to the nearest foot of a wall (``width``, m), and the drivable ones
     (``nodes``, indices into ``floor``), where a sensor ``height_m`` above them keeps
-    ``clearance_m``, with their graphs (``g_len``: the route's; ``g_sweep``: the ends')."""
+    ``clearance_m``, with their graphs (``g_len``: the route's, joining voxels at most
+    one voxel up or down, or ``step_m`` (a platform's step, rounded up to voxels);
+    ``g_sweep``: the ends')."""
 
-    def __init__(self, space: FreeSpace, height_m: float, clearance_m: float) -> None:
+    def __init__(self, space: FreeSpace, height_m: float, clearance_m: float,
+                 step_m: float | None = None) -> None:
         self.space, self.height_m, self.clearance_m = space, height_m, clearance_m
         s, shape = space.voxel_m, space.free.shape
         nz = shape[2]
@@ -348,8 +351,8 @@ class FloorGraph:
                 f"Expected a passage at least 2 x {clearance_m:g} m wide (plus "
                 f"{CLEARANCE_MARGIN_VOX:g} voxels of {s:.3g} m) and higher than "
                 f"{height_m + clearance_m:g} m, got at most {float(sensor.max()):.3g} m "
-                f"of clearance at {height_m:g} m above the floor; lower clearance_m or "
-                "height_m, or use a smaller voxel_m.")
+                f"of clearance at {height_m:g} m above the floor; pass a smaller "
+                "--clearance or --height, or a smaller --voxel.")
         # The middle of the passage on the floor: the ridge of the distance to the
         # floor's edge at the walls, the floor plan's medial axis. DECISION: not the 3-D
         # clearance, whose ridge is flat across any passage wider than high (a ball
@@ -360,10 +363,11 @@ class FloorGraph:
                       if len(wall) else np.ones(len(self.floor)))
         self.nodes = np.flatnonzero(good)
         m = len(self.floor)
+        up_len = 1 if step_m is None else max(1, int(np.ceil(step_m / s - 1e-9)))
         self.g_len, self.g_sweep = (
             sparse.csr_matrix((ln, (i, j)), shape=(m, m))[self.nodes][:, self.nodes]
             for i, j, ln in (self._edges(self.nodes, up) for up in (
-                1, max(1, round(SWEEP_STEP_M / s)))))
+                up_len, max(up_len, round(SWEEP_STEP_M / s)))))
         self._tree: cKDTree | None = None
 
     def _lookup(self, ijk: NDArray[np.int64]) -> NDArray[np.int64]:

@@ -28,7 +28,12 @@ parameterization algorithm", IEEE T-RO 30(6)). The distance travelled is then av
 over ``2 max_accel / max_jerk`` seconds (a boxcar), which keeps every bound and limits
 the jerk to 2 a / T. The sampled motion is checked against every limit by finite
 differences; where the boxcar's shift along the path breaks one, the profile is planned
-again with smaller shares.
+again with smaller shares, and then (issue 29: re-timing, not refusal) from the first
+shares again with the path slowed down near each place that broke a limit, each cap
+held over the distance the boxcar averages at that speed, as a driver slows through a
+rough spot; what is left after ``_TRIES`` plans is removed by stretching time. The
+path's parameter at a distance along it, u(s), is a cubic spline: a linear u(s) made
+the speed jump at every sample of a sharply bent path, a jerk no profile removes.
 
 >>> spec = load_platform("ground_robot")
 >>> spec
@@ -72,7 +77,10 @@ DS_M = 0.02
 #: turns on the spot (ASSUMED; a route's vertices turn by a few degrees, one that turns
 #: back from a waypoint by ~180).
 SHARP_TURN_DEG = 60.0
-_FIRST_SHARE, _SHRINK, _TRIES = 0.9, 0.8, 8
+_FIRST_SHARE, _SHRINK, _TRIES = 0.9, 0.8, 40
+#: Rounds that shrink the shares everywhere before slowing down locally, and the factor
+#: on v^2 of each local slow-down (issue 29: re-timing instead of refusing).
+_GLOBAL_TRIES, _SLOW = 8, 0.5
 #: ASSUMED: the base's suspension, tyres and inertia smooth the floor under the wheels
 #: over this time (Gaussian sigma, s): a step in a triangulated floor is not a jolt.
 #: DECISION: 0.3 s, the smallest of those tried that keeps the mast top's motion within
@@ -200,7 +208,7 @@ def _drive(pts: NDArray[np.float64], speed: float, lim: Limits, rate_hz: float
     for leg in _legs(pts):
         curve = _Curve(leg)
         t, s = _timed(curve, speed, lim, rate_hz)
-        u = np.interp(s, curve.s, curve.u)
+        u = curve.u_at(s)
         q, d1 = curve.spline(u), curve.spline(u, 1)
         psi = np.unwrap(np.arctan2(d1[:, 1], d1[:, 0]))
         grade = d1[:, 2] / np.maximum(np.linalg.norm(d1[:, :2], axis=1), 1e-12)
@@ -264,35 +272,111 @@ class _Curve:
         psi = np.unwrap(np.arctan2(d1[:, 1], d1[:, 0]))
         self.kappa = np.gradient(psi, self.s)
         self.dkappa = np.gradient(self.kappa, self.s)
+        # DECISION: u(s) by a cubic spline, not linear interpolation: a piecewise
+        # linear u(s) makes the speed along the path jump at every DS_M sample where
+        # the chord parameter runs off the arc length (a sharp bend), and the poses'
+        # jerk by finite differences then shows spikes no profile can remove (issue 29).
+        self._u_of_s = CubicSpline(self.s, self.u)
+
+    def u_at(self, s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The spline's parameter (k,) at plan distances s (k,) along it."""
+        return np.asarray(self._u_of_s(np.clip(s, 0.0, self.s[-1])), dtype=np.float64)
 
 
 def _timed(curve: _Curve, speed: float, lim: Limits, rate_hz: float
            ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Times (k,) from 0 at ``rate_hz`` and the distance along the path at each (k,),
-    from rest to rest within ``lim``: planned, averaged, checked (module docstring)."""
+    from rest to rest within ``lim``: planned, averaged, checked (module docstring).
+
+    Re-timing, not refusal (issue 29): where the check finds a limit broken, the path
+    within the boxcar's reach of that place is driven slower (its speed cap lowered by
+    ``_SLOW``), and the profile planned again, as a driver slows through a rough spot;
+    after ``_TRIES`` rounds whatever is left is removed by stretching time (speed
+    scales by 1/k, acceleration 1/k^2, jerk 1/k^3)."""
     share = _FIRST_SHARE
     width_s = 2.0 * lim.max_accel_mps2 / (SHARES["jerk_boxcar"] * lim.max_jerk_mps3) if \
         math.isfinite(lim.max_jerk_mps3) else 0.0
     w = max(1, int(round(width_s * rate_hz)) | 1)
-    worst = ""
-    for _ in range(_TRIES):
-        t, s = _profile(curve, speed, lim, share, rate_hz)
+    slow = np.ones(len(curve.s))
+    reach = speed * (w / rate_hz) + 2 * DS_M      # the boxcar's reach along the path
+    t = s = first_bad = np.zeros(0)
+    for k in range(_TRIES):
+        t, s = _profile(curve, speed, lim, share, rate_hz, slow,
+                        w / rate_hz if k >= _GLOBAL_TRIES else 0.0)
         pad = w // 2 + 1
         s = np.concatenate([np.zeros(pad), s, np.full(pad, s[-1])])
         s = ndimage.uniform_filter1d(s, w, mode="nearest")
         t = np.arange(len(s)) / rate_hz
-        worst = _violation(curve, t, s, speed, lim)
-        if not worst:
+        bad = _violation(curve, t, s, speed, lim)
+        if not bad.any():
             return t, s
-        share *= _SHRINK
-    raise PlatformError(f"Expected a motion within the platform's limits, got {worst} "
-                        f"after {_TRIES} plans; smooth the path or lower the speed.")
+        # DECISION: the first rounds shrink the shares everywhere, as before issue 29
+        # (a smooth path that needed it keeps its timing); then, from the first plan's
+        # shares again, the path slows down only near the places that broke a limit.
+        if k == 0:
+            first_bad = s[bad]
+        if k < _GLOBAL_TRIES - 1:
+            share *= _SHRINK
+            continue
+        if k == _GLOBAL_TRIES - 1:
+            share, s_bad = _FIRST_SHARE, first_bad
+        else:
+            s_bad = s[bad]
+        # The boxcar mixes the speeds of its width around each sample: slow down the
+        # path that it reaches at the speed driven there now.
+        v = np.abs(np.gradient(s, t))
+        near = np.zeros(len(curve.s), dtype=np.bool_)
+        for lo, hi in _runs(s_bad):
+            here = (s >= lo - reach) & (s <= hi + reach)
+            r = float(v[here].max()) * (w / rate_hz) + 2 * DS_M
+            near |= (curve.s >= lo - r) & (curve.s <= hi + r)
+        slow[near] *= _SLOW
+    return _stretched(curve, t, s, speed, lim, rate_hz)
 
 
-def _profile(curve: _Curve, speed: float, lim: Limits, c: float, rate_hz: float
+def _runs(x: NDArray[np.float64]) -> list[tuple[float, float]]:
+    """Sorted values x grouped into runs (lo, hi) with gaps under ``4 DS_M``."""
+    x = np.sort(x)
+    cut = np.flatnonzero(np.diff(x) > 4 * DS_M) + 1
+    return [(float(g[0]), float(g[-1])) for g in np.split(x, cut) if len(g)]
+
+
+def _stretched(curve: _Curve, t: NDArray[np.float64], s: NDArray[np.float64],
+               speed: float, lim: Limits, rate_hz: float
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The motion s(t) slowed down uniformly, s(t / k) with the smallest k (a few
+    tries) that brings every limit within bounds: speed scales by 1/k, acceleration
+    and yaw acceleration by 1/k^2, jerk by 1/k^3."""
+    u = curve.u_at(s)
+    p, d1 = curve.spline(u)[:, :2], curve.spline(u, 1)
+    psi = np.unwrap(np.arctan2(d1[:, 1], d1[:, 0]))
+    v, a, j, wr, wa = _rates(t, p, psi)
+    k = max(1.0, v / speed, math.sqrt(a / lim.max_accel_mps2),
+            (j / lim.max_jerk_mps3) ** (1 / 3), wr / lim.max_yaw_rate_radps,
+            math.sqrt(wa / lim.max_yaw_accel_radps2))
+    for _ in range(_TRIES):
+        k *= 1.02
+        tk = np.arange(int(np.ceil(t[-1] * k * rate_hz)) + 1) / rate_hz
+        sk = np.interp(tk / k, t, s)
+        sk[-1] = s[-1]
+        bad = _violation(curve, tk, sk, speed, lim)
+        if not bad.any():
+            return tk, sk
+    i = int(np.flatnonzero(bad)[0])
+    where = curve.spline(curve.u_at(sk[i:i + 1]))[0]
+    raise PlatformError(f"Expected a motion within the platform's limits, got none at "
+                        f"({where[0]:.6g}, {where[1]:.6g}) even {k:.3g} times slower; "
+                        "the path turns too sharply there: pass --waypoints to avoid it.")
+
+
+def _profile(curve: _Curve, speed: float, lim: Limits, c: float, rate_hz: float,
+             slow: NDArray[np.float64] | None = None, hold_s: float = 0.0
              ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The fastest x = v^2 under the caps (``SHARES`` x ``c`` of the limits), sampled
-    at ``rate_hz``: times and distances (constant acceleration between path samples)."""
+    """The fastest x = v^2 under the caps (``SHARES`` x ``c`` of the limits, times
+    ``slow`` (per path sample) where the motion must slow down), sampled at
+    ``rate_hz``: times and distances (constant acceleration between path samples).
+    With ``hold_s``, each cap holds over the distance driven at its speed in
+    ``hold_s`` either side (``_hold``)."""
     k, dk, s = np.abs(curve.kappa), np.abs(curve.dkappa), curve.s
     a_max, yaw_acc = lim.max_accel_mps2 * c, lim.max_yaw_accel_radps2 * c
     jerk = lim.max_jerk_mps3 * c
@@ -304,7 +388,11 @@ def _profile(curve: _Curve, speed: float, lim: Limits, c: float, rate_hz: float
             (SHARES["jerk_bend"] * jerk / dk) ** (2 / 3)])
         a_cap = np.minimum(SHARES["along"] * a_max, SHARES["yaw_turn"] * yaw_acc / k)
         a_jerk = SHARES["jerk_accel"] * jerk / (3.0 * k)         # / v: 3 v a kappa
+    if slow is not None:
+        x_cap = x_cap * slow
     x_cap = np.maximum(x_cap, _X_FLOOR)
+    if hold_s > 0:
+        x_cap = _hold(x_cap, s, hold_s, speed ** 2)
     x_cap[[0, -1]] = 0.0
     a_seg = np.minimum(a_cap[:-1], a_cap[1:])
     aj_seg = np.minimum(a_jerk[:-1], a_jerk[1:])
@@ -334,6 +422,23 @@ def _profile(curve: _Curve, speed: float, lim: Limits, c: float, rate_hz: float
     return t, np.maximum.accumulate(out)
 
 
+def _hold(x_cap: NDArray[np.float64], s: NDArray[np.float64], hold_s: float,
+          top: float) -> NDArray[np.float64]:
+    """Caps x_cap (n,) on v^2 at path samples s (n,) each held over s_i +- v_i hold_s
+    (v_i = sqrt(x_cap_i)): where the boxcar of ``hold_s`` seconds averages the
+    distance driven, the speed is then constant across a sharp bend, and the averaged
+    motion passes it at the capped speed (a constant-speed motion is its own boxcar
+    average). Lowest caps first; caps at ``top`` (the cruise) need no hold."""
+    out = x_cap.copy()
+    for i in np.argsort(x_cap):
+        if x_cap[i] >= top:
+            break
+        r = math.sqrt(x_cap[i]) * hold_s + DS_M
+        a, b = np.searchsorted(s, [s[i] - r, s[i] + r])
+        np.minimum(out[a:b + 1], x_cap[i], out=out[a:b + 1])
+    return out
+
+
 def _step_with_jerk(x0: float, b: float) -> float:
     """The largest x1 >= x0 with x1 - x0 <= b / sqrt(x1) (a step's speed-up bounded by
     3 v a kappa): x1 is the root of sqrt(x1) (x1 - x0) = b, by Newton's method from
@@ -349,22 +454,39 @@ def _step_with_jerk(x0: float, b: float) -> float:
 
 
 def _violation(curve: _Curve, t: NDArray[np.float64], s: NDArray[np.float64],
-               speed: float, lim: Limits) -> str:
-    """The first limit the sampled motion breaks ('' if none), by finite differences
-    of the plan position and heading, as a user differentiating the poses would."""
-    u = np.interp(s, curve.s, curve.u)
+               speed: float, lim: Limits) -> NDArray[np.bool_]:
+    """The samples (k,) bool near which the sampled motion breaks a limit, by finite
+    differences of the plan position and heading, as a user differentiating the poses
+    would (each difference marks the samples it spans)."""
+    u = curve.u_at(s)
     p, d1 = curve.spline(u)[:, :2], curve.spline(u, 1)
     psi = np.unwrap(np.arctan2(d1[:, 1], d1[:, 0]))
-    checks = _rates(t, p, psi)
+    bad = np.zeros(len(t), dtype=np.bool_)
+    if len(t) < 4:
+        return bad
     tol = 1 + 1e-4      # the spline's chord parameter vs its arc length
-    for name, got, top in (("speed", checks[0], speed),
-                           ("acceleration", checks[1], lim.max_accel_mps2),
-                           ("jerk", checks[2], lim.max_jerk_mps3),
-                           ("yaw rate", checks[3], lim.max_yaw_rate_radps),
-                           ("yaw acceleration", checks[4], lim.max_yaw_accel_radps2)):
-        if got > top * tol:
-            return f"a {name} of {got:.4g} above {top:.4g}"
-    return ""
+    for order, x, top in _differences(t, p, psi, speed, lim):
+        over = np.flatnonzero(x > top * tol)
+        for d in range(order + 1):
+            bad[over + d] = True
+    return bad
+
+
+def _differences(t: NDArray[np.float64], p: NDArray[np.float64], psi: NDArray[np.float64],
+                 speed: float, lim: Limits
+                 ) -> list[tuple[int, NDArray[np.float64], float]]:
+    """(order, magnitude per difference, limit) of the speed, acceleration, jerk, yaw
+    rate and yaw acceleration by differences of the samples (``_rates``' formulas)."""
+    dt = np.diff(t)
+    v = np.diff(p, axis=0) / dt[:, None]
+    a = np.diff(v, axis=0) / (0.5 * (dt[1:] + dt[:-1]))[:, None]
+    j = np.diff(a, axis=0) / dt[1:-1, None]
+    w = np.diff(psi) / dt
+    al = np.diff(w) / (0.5 * (dt[1:] + dt[:-1]))
+    n = np.linalg.norm
+    return [(1, n(v, axis=1), speed), (2, n(a, axis=1), lim.max_accel_mps2),
+            (3, n(j, axis=1), lim.max_jerk_mps3), (1, np.abs(w), lim.max_yaw_rate_radps),
+            (2, np.abs(al), lim.max_yaw_accel_radps2)]
 
 
 def _rates(t: NDArray[np.float64], p: NDArray[np.float64], psi: NDArray[np.float64]

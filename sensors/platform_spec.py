@@ -23,7 +23,7 @@ from typing import Any, Final
 from .errors import PlatformError
 
 __all__ = ["MOTIONS", "PLATFORM_DIR", "TABLE_KEYS", "Gait", "Limits", "PlatformSpec",
-           "list_platforms", "load_platform"]
+           "Traversability", "list_platforms", "load_platform"]
 
 PLATFORM_DIR: Final = Path(__file__).resolve().parent / "platforms"
 MOTIONS: Final = ("wheeled", "walking", "rail", "static")
@@ -31,13 +31,16 @@ _LIMIT_KEYS = ("max_speed_mps", "max_accel_mps2", "max_jerk_mps3", "max_yaw_rate
                "max_yaw_accel_dps2")
 _GAIT_KEYS = ("step_hz", "bob_m", "sway_m", "roll_deg", "pitch_deg")
 _PLATFORM_KEYS = ("name", "description", "motion", "sources")
+_TRAVERSE_KEYS = ("max_slope_deg", "max_roll_deg", "max_step_m", "ground_clearance_m",
+                  "footprint_width_m", "footprint_length_m")
 #: Tables and keys of a platform file, by motion: all required, nothing else allowed.
 TABLE_KEYS: Final[Mapping[str, Mapping[str, tuple[str, ...]]]] = {
     "wheeled": {"platform": _PLATFORM_KEYS,
                 "body": ("mast_height_m", "wheelbase_m", "track_m"),
-                "limits": _LIMIT_KEYS},
+                "limits": _LIMIT_KEYS, "traversability": _TRAVERSE_KEYS},
     "walking": {"platform": _PLATFORM_KEYS, "body": ("mast_height_m",),
-                "limits": _LIMIT_KEYS, "gait": _GAIT_KEYS},
+                "limits": _LIMIT_KEYS, "gait": _GAIT_KEYS,
+                "traversability": _TRAVERSE_KEYS},
     "rail": {"platform": _PLATFORM_KEYS, "body": ("mast_height_m",),
              "limits": ("max_speed_mps",)},
     "static": {"platform": _PLATFORM_KEYS, "body": ("mast_height_m",)},
@@ -52,6 +55,23 @@ class Limits:
     max_jerk_mps3: float = math.inf
     max_yaw_rate_radps: float = math.inf
     max_yaw_accel_radps2: float = math.inf
+
+
+@dataclass(frozen=True)
+class Traversability:
+    """What ground a platform can cross and what room it needs (SI units, radians):
+    the steepest floor it climbs along its heading (``max_slope_rad``) and across it
+    (``max_roll_rad``, tip-over), the highest step between two points of the floor
+    under it (``max_step_m``), the belly's height above the plane of its contacts
+    (``ground_clearance_m``) and its footprint (``footprint_width_m`` across,
+    ``footprint_length_m`` along: what must fit between the walls)."""
+
+    max_slope_rad: float
+    max_roll_rad: float
+    max_step_m: float
+    ground_clearance_m: float
+    footprint_width_m: float
+    footprint_length_m: float
 
 
 @dataclass(frozen=True)
@@ -85,6 +105,8 @@ class PlatformSpec:
         None for a static platform.
     gait : Gait or None
         A walker's.
+    traversability : Traversability or None
+        The ground it crosses and the room it needs (wheeled, walking; else None).
     path : str
         The file it was read from.
     """
@@ -99,6 +121,7 @@ class PlatformSpec:
     limits: Limits | None
     gait: Gait | None
     path: str
+    traversability: Traversability | None = None
 
     def __repr__(self) -> str:
         out = f"PlatformSpec({self.name}: {self.motion}, mast {self.mast_height_m:g} m"
@@ -190,10 +213,22 @@ def _load(path: Path) -> PlatformSpec:
                     g.num("sway_m", positive=False),
                     math.radians(g.num("roll_deg", positive=False)),
                     math.radians(g.num("pitch_deg", positive=False)))
+    trav = None
+    if "traversability" in t:
+        tv = t["traversability"]
+        slope, roll = (tv.num(k) for k in ("max_slope_deg", "max_roll_deg"))
+        for key, deg_v in (("max_slope_deg", slope), ("max_roll_deg", roll)):
+            if deg_v >= 90.0:
+                raise PlatformError(f"Expected `traversability.{key}` in {f} below 90, "
+                                    f"got {deg_v:g}; fix the platform file.")
+        trav = Traversability(math.radians(slope), math.radians(roll),
+                              tv.num("max_step_m"), tv.num("ground_clearance_m"),
+                              tv.num("footprint_width_m"), tv.num("footprint_length_m"))
     return PlatformSpec(t["platform"].text("name"), t["platform"].text("description"),
                         motion, tuple(src), body.num("mast_height_m"),
                         body.num("wheelbase_m") if wheeled else 0.0,
-                        body.num("track_m") if wheeled else 0.0, limits, gait, str(path))
+                        body.num("track_m") if wheeled else 0.0, limits, gait, str(path),
+                        trav)
 
 
 def _registry() -> dict[str, str]:

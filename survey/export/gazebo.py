@@ -60,6 +60,7 @@ merge to their mean, degenerate triangles are dropped.
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import tempfile
 import warnings
@@ -85,7 +86,8 @@ if TYPE_CHECKING:
     from survey.world.alignment import Alignment
 
 __all__ = ["BASE", "COLLISION_MAX_TRIANGLES", "FLAVOURS", "LASER_RETRO_SCALE",
-           "MAX_METRIC_EXTENT_M", "RANGE_RESOLUTION_M", "ROUTE_HEIGHT_M", "decimate",
+           "MAX_METRIC_EXTENT_M", "RANGE_RESOLUTION_M", "ROUTE_CLEARANCE_M", "ROUTE_HEIGHT_M",
+           "decimate",
            "export_gazebo", "laser_retro", "lidar_sdf", "unit_warnings", "write_obj"]
 
 Floats = NDArray[np.float64]
@@ -100,6 +102,9 @@ LASER_RETRO_SCALE = 100.0
 #: Height of the route above the floor (m) where the mesh has no JSON: the default of
 #: ``tunnelsim drive --height``, so that the robot starts where that drive does.
 ROUTE_HEIGHT_M = 0.5
+#: Distance the route keeps from the mesh where it can (m): drive's ``--clearance``
+#: default.
+ROUTE_CLEARANCE_M = 0.2
 #: Distance along the route (m) over which the robot's start heading is taken.
 HEADING_BASE_M = 0.5
 
@@ -243,7 +248,8 @@ def _has_axis_json(mesh_path: str | Path) -> bool:
 
 
 def _placement(mesh_path: str | Path, scene: Scene, chainage_m: float | None,
-               waypoints: ArrayLike | None, route_height_m: float, spacing_m: float
+               waypoints: ArrayLike | None, route_height_m: float, spacing_m: float,
+               route_clearance_m: float | None = None, voxel_m: float | None = None
                ) -> tuple[Floats, float, Floats, Any]:
     """(robot floor point (3,) world, yaw rad, lamp positions (k, 3) world, the Route or
     None): on the tunnel axis where the JSON gives one and no waypoints are asked,
@@ -252,6 +258,12 @@ def _placement(mesh_path: str | Path, scene: Scene, chainage_m: float | None,
         from survey.analysis.planning import axis_stations
         from survey.clouds.axis import tunnel_frame
 
+        if route_clearance_m is not None or voxel_m is not None:
+            raise GazeboExportError("Expected a route clearance or voxel only where a "
+                                    "route is found (a mesh without its tunnel JSON, or "
+                                    "with waypoints), got one for a generated tunnel's "
+                                    "axis; leave --clearance and --voxel out or pass "
+                                    "--waypoints.")
         _, _, al, hc = tunnel_frame(mesh_path, scene)
         s0 = al.chainage_range[0] + 1.0 if chainage_m is None else float(chainage_m)
         floor = np.asarray(axis_stations(scene, al, hc, [s0], height_m=0.0)[0],
@@ -263,9 +275,20 @@ def _placement(mesh_path: str | Path, scene: Scene, chainage_m: float | None,
         raise GazeboExportError(f"Expected a start chainage only for a generated tunnel's "
                                 f"axis, got one with {why}; the robot starts at the "
                                 "route's first point: leave the chainage out.")
+    from sensors.errors import RouteError
+    from sensors.platform_spec import load_platform
     from sensors.route import find_route
 
-    route = find_route(scene, waypoints=waypoints, height_m=route_height_m)
+    # DECISION: the route is the ground robot's (the world's robot is LIMO-sized, as
+    # the ground_robot platform is): it keeps to ground that robot can cross.
+    try:
+        route = find_route(scene, waypoints=waypoints, height_m=route_height_m,
+                           clearance_m=ROUTE_CLEARANCE_M if route_clearance_m is None
+                           else route_clearance_m, voxel_m=voxel_m,
+                           platform=load_platform("ground_robot"))
+    except RouteError as exc:       # the world's robot is fixed: no --platform here
+        raise RouteError(re.sub(r"pass --platform [^;]*?, or --waypoints",
+                                "pass --waypoints", str(exc))) from None
     d, p = route.distance_m, route.points
     k = min(int(np.searchsorted(d, HEADING_BASE_M)), len(p) - 1)
     step = p[k] - p[0]
@@ -307,7 +330,8 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
                   chainage_m: float | None = None, light_spacing_m: float = 25.0,
                   flavour: str = "harmonic", waypoints: ArrayLike | None = None,
                   route_height_m: float = ROUTE_HEIGHT_M, imu: ImuModel | None = None,
-                  reflectivity: float = 0.5) -> dict[str, Any]:
+                  reflectivity: float = 0.5, route_clearance_m: float | None = None,
+                  voxel_m: float | None = None) -> dict[str, Any]:
     """Write the world folder (see module doc).
 
     Parameters
@@ -328,6 +352,11 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
         The IMU's noise (default ``sensors.bag.DEFAULT_IMU``).
     reflectivity : float
         Reflectivity for ``laser_retro`` where the mesh has none per face (0-1).
+    route_clearance_m, voxel_m : float, optional
+        The route's clearance where the passage allows (default ``ROUTE_CLEARANCE_M``)
+        and the voxel it is sought on (``find_route``'s ``clearance_m`` and
+        ``voxel_m``; drive's ``--clearance`` and ``--voxel``); refused for a generated
+        tunnel's axis.
 
     Returns
     -------
@@ -369,7 +398,8 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
                                    pose=_sensor_pose(sensor, mount))
     origin = np.floor(v.min(axis=0))
     floor, yaw, lamps, route = _placement(mesh_path, scene, chainage_m, waypoints,
-                                          route_height_m, light_spacing_m)
+                                          route_height_m, light_spacing_m,
+                                          route_clearance_m, voxel_m)
     floor = floor - origin
     retro = laser_retro(refl if refl is not None and len(refl) == len(f) else None, v, f,
                         default=reflectivity)

@@ -265,9 +265,9 @@ def test_bad_input():
         find_route((v, f), voxel_m=VOXEL, waypoints=[[1.0, 0.0], [9.0, 4.0]])
     with pytest.raises(TrajectoryError, match="waypoint 2 .* inside the passage"):
         find_route((v, f), voxel_m=VOXEL, waypoints=[[1.0, 0.0, 0.5], [9.0, 0.0, 10.0]])
-    with pytest.raises(TrajectoryError, match="height_m above clearance_m"):
+    with pytest.raises(TrajectoryError, match="sensor height above the clearance"):
         find_route((v, f), voxel_m=VOXEL, height_m=0.1)
-    with pytest.raises(TrajectoryError, match="at most max_voxels"):
+    with pytest.raises(TrajectoryError, match="at most 2,000,000 voxels"):
         find_route((v, f), voxel_m=0.01)
     with pytest.raises(TrajectoryError, match="at least 2 waypoints"):
         find_route((v, f), voxel_m=VOXEL, waypoints=[[1.0, 0.0]])

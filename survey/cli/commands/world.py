@@ -94,6 +94,12 @@ def register(commands: CommandSet) -> None:
     c.option("--waypoints", path="in", metavar="CSV",
              help="x,y[,z] rows the route passes through in order, as drive's; the robot "
                   "starts at the first")
+    c.option("--clearance", type=float, metavar="M",
+             help="distance the route keeps from the mesh where it can, as drive's "
+                  "(default 0.2)")
+    c.option("--voxel", type=float, metavar="M",
+             help="voxel edge of the grid the route is sought on, as drive's (default: "
+                  "the finest within 2 million voxels)")
     c.option("-o", "--output", required=True, path="out", help="output world folder (new)")
     c.option("--force", action="store_true", help="replace an existing folder")
     c.option("--quiet", action="store_true", help="print nothing on success")
@@ -219,12 +225,17 @@ def cmd_gazebo(args) -> int:
 
     spec = load_sensor(args.sensor)
     wp = read_waypoints(args.waypoints) if args.waypoints else None
+    for flag, value in (("--clearance", args.clearance), ("--voxel", args.voxel)):
+        if value is not None and not (value > 0 and value < float("inf")):
+            raise TunnelsimCLIError(f"Expected a positive {flag} in metres, got {value:g}.")
+    route_kw = {k: v for k, v in (("route_clearance_m", args.clearance),
+                                  ("voxel_m", args.voxel)) if v is not None}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
             info = export_gazebo(args.mesh, spec, args.output, force=args.force,
                                  mount=args.mount, chainage_m=args.chainage,
-                                 flavour=args.flavour, waypoints=wp)
+                                 flavour=args.flavour, waypoints=wp, **route_kw)
         finally:   # unit warnings first: they often explain a later failure
             for w in caught:
                 print(f"tunnelsim: warning: {w.message}", file=sys.stderr)
