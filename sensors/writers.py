@@ -391,7 +391,8 @@ class _BagPoints(PointWriter):
     """A ROS 2 bag: the chunks go to ``sensors.bag.RosbagStream``."""
 
     def __init__(self, path, *, spec: SensorSpec, single_file: bool,
-                 trajectory: Trajectory | None, span_s, **kw) -> None:
+                 trajectory: Trajectory | None, span_s, start_time_ns: int | None = None,
+                 ros_distro: str | None = None, **kw) -> None:
         super().__init__(path, **kw)
         if self.position is not None:
             raise PointFileError("Expected a moving platform for a ROS 2 bag, got a TLS "
@@ -399,7 +400,8 @@ class _BagPoints(PointWriter):
         info = self.info() if self.crs is None else dict(self.info(), crs=self.crs)
         self._w = RosbagStream(path, spec, single_file=single_file, seed=self.seed,
                                mount=self.mount, trajectory=trajectory, span_s=span_s,
-                               info=info)
+                               info=info, start_time_ns=start_time_ns,
+                               ros_distro=ros_distro or "jazzy")
 
     def _write(self, c):
         self._w.write_points(c)
@@ -416,7 +418,8 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
                 expected_points: int | None = None, mount: Any = None,
                 trajectory: Trajectory | None = None,
                 span_s: tuple[float, float] | None = None, crs: Any = None,
-                thread: bool = True) -> PointWriter:
+                thread: bool = True, start_time_ns: int | None = None,
+                ros_distro: str | None = None) -> PointWriter:
     """A ``PointWriter`` for ``path`` (format from the suffix or ``fmt``: las, laz,
     ply, npz, e57, mcap; no suffix: a rosbag2 folder).
 
@@ -455,6 +458,11 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
         (``sensors.stream.Background``; default), so that the caller simulates the
         next chunk while this one is compressed and written; the file's bytes are the
         same either way. The caller must then not change a chunk it has handed over.
+    start_time_ns : int, optional
+        A ROS 2 bag's ROS time at the scan's start (``span_s[0]``), ns since 1970
+        (``sensors.bag.RosbagStream``); other formats refuse it.
+    ros_distro : {"jazzy", "humble"}, optional
+        A ROS 2 bag folder's metadata layout (default jazzy); other formats refuse it.
     """
     path = Path(path)
     f = format_of(path, fmt)
@@ -465,7 +473,10 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
         spec = sensor if isinstance(sensor, SensorSpec) else load_sensor(sensor)
         return _BagPoints(path, spec=spec, single_file=f == "mcap", trajectory=trajectory,
                           span_s=span_s, sensor=spec, seed=seed, pose=pose, mount=mount,
-                          crs=crs)
+                          crs=crs, start_time_ns=start_time_ns, ros_distro=ros_distro)
+    if start_time_ns is not None or ros_distro is not None:
+        raise PointFileError(f"Expected --start-time and --ros-distro only with a ROS 2 "
+                             f"bag (-o NAME.mcap or a folder), got them for '{path}' ({f}).")
     if fields is None:
         fields = "compact" if pose is not None else "full"
     if fields not in ("full", "compact"):

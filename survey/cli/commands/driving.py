@@ -126,8 +126,34 @@ def register(commands: CommandSet) -> None:
                   "and true trajectories (_trajectory.txt, _true_trajectory.txt) and the "
                   "control points (_cp_world.csv, _cp_observed.csv) for 'tunnelsim "
                   "correct'")
+    c.option("--start-time", metavar="TIME",
+             help="with a ROS 2 bag output (-o NAME.mcap or a folder): the ROS time of the "
+                  "scan's start, seconds since 1970 or ISO 8601 with its offset "
+                  "(2024-05-01T12:00:00Z), so that the bag merges with recorded data "
+                  "(default: the trajectory's own times)")
+    c.option("--ros-distro", choices=["humble", "jazzy"],
+             help="with a ROS 2 bag folder: the rosbag2 metadata layout, humble "
+                  "(version 5) or jazzy (version 9; the default)")
     crs_option(c)
     physics_options(c)
+
+
+def _bag_options(args) -> dict:
+    """--start-time and --ros-distro for the bag writer (checked before simulating)."""
+    if args.start_time is None and args.ros_distro is None:
+        return {}
+    from sensors.bag import parse_start_time
+    from sensors.writers import format_of
+
+    if format_of(args.output) not in ("mcap", "rosbag2"):
+        raise TunnelsimCLIError(f"Expected --start-time and --ros-distro with a ROS 2 bag "
+                                f"(-o NAME.mcap or a folder), got -o {args.output}.")
+    out: dict = {}
+    if args.start_time is not None:
+        out["start_time_ns"] = parse_start_time(args.start_time)
+    if args.ros_distro is not None:
+        out["ros_distro"] = args.ros_distro
+    return out
 
 
 def _tunnel_meta(mesh) -> dict:
@@ -206,6 +232,7 @@ def cmd_drive(args) -> int:
         raise TunnelsimCLIError(f"Expected a mesh file, got '{args.mesh}' which does not "
                                 "exist.")
     crs = output_crs(args)      # before the simulation: a bad --crs fails at once
+    bag = _bag_options(args)
     meta = scene = refl = None
     if args.trajectory:
         traj = Trajectory.read(args.trajectory)
@@ -259,7 +286,7 @@ def cmd_drive(args) -> int:
                                min_return=0.0 if args.allow_outside else MIN_DRIVE_RETURN)
     return finish_run(args, run, label,
                        min_return=0.0 if args.allow_outside else MIN_DRIVE_RETURN,
-                       where=where, crs=crs)
+                       where=where, crs=crs, bag=bag)
 
 
 def _finish_windows(args, run, label, reflectivity, *, crs, min_return: float) -> int:

@@ -50,7 +50,7 @@ def run_settings(args):
 
 
 def finish_run(args, run, label, *, min_return: float = 0.0, where: str = "",
-                crs=None) -> int:
+                crs=None, bag=None) -> int:
     """Write the run and print its summary; refuse (the output removed by
     ``run_command``) a run that returned no point, or fewer than ``min_return`` of its
     pulses (``where`` says what the caller knows: the poses, the mesh's box)."""
@@ -58,7 +58,7 @@ def finish_run(args, run, label, *, min_return: float = 0.0, where: str = "",
     try:
         # A drifted run (--slam-drift) states no CRS, and its write takes none.
         stats = run.write(args.output, progress=prog, fields=args.fields,
-                          **({} if crs is None else {"crs": crs}))
+                          **({} if crs is None else {"crs": crs}), **(bag or {}))
     finally:
         prog.close()
     pulses, points = int(stats["pulses"]), int(stats["points"])
