@@ -1,16 +1,22 @@
-"""Control-point files: CSV with a header naming at least ``id, x, y, z`` and optionally
-``sigma`` (one standard deviation for all three coordinates, m) or ``sx, sy, sz`` and
-``time`` (s, when the point was observed in a moving system). Matching two files by id
-gives the common points of a Helmert adjustment; ids found in one file only are left
-out, silently, with a warning or as an error (``match(..., unmatched_ids=...)``)."""
+"""Control-point files: delimited text tables with a header naming at least the id and
+the three coordinates (``id,x,y,z``, ``Name,E,N,H``, ``Punkt;Rechtswert;Hochwert;Höhe``
+with decimal commas, ...; ``ALIASES``) or without a header (``id, E, N, H`` in that
+order), optionally ``sigma`` (one standard deviation for all three coordinates, m) or
+``sx, sy, sz`` and ``time`` (s, when the point was observed in a moving system). The
+dialect (encoding, delimiter, decimal mark, header) is sniffed by ``sensors.tables``;
+``--columns`` maps the columns of any other header. Axis convention: x = Easting,
+y = Northing, z = height.
+
+Matching two files by id gives the common points of a Helmert adjustment; ids found in
+one file only are left out, silently, with a warning or as an error
+(``match(..., unmatched_ids=...)``)."""
 
 from __future__ import annotations
 
-import csv
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,18 +24,24 @@ from numpy.typing import NDArray
 from raytrace.fileio import atomic_writer
 from survey.errors import ControlPointError
 
-__all__ = ["ControlPoints", "match", "read_control_points", "unmatched", "unmatched_message"]
+if TYPE_CHECKING:
+    from sensors.tables import Dialect
+
+__all__ = ["ALIASES", "COLUMN_FIELDS", "ControlPoints", "match", "parse_column_option",
+           "read_control_points", "unmatched", "unmatched_message"]
 
 
 @dataclass(repr=False)
 class ControlPoints:
-    """Named points: ids (n,) str; xyz (n, 3) float64, m; sigma (n, 3) float64 (m) or
-    None; time (n,) float64 (s) or None."""
+    """Named points: ids (n,) str; xyz (n, 3) float64, m (Easting, Northing, height);
+    sigma (n, 3) float64 (m) or None; time (n,) float64 (s) or None; dialect: how the
+    file was written (``sensors.tables.Dialect``) when read from one, else None."""
 
     ids: list[str]
     xyz: NDArray[np.float64]
     sigma: NDArray[np.float64] | None = None
     time: NDArray[np.float64] | None = None
+    dialect: Dialect | None = field(default=None, compare=False)
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -58,45 +70,133 @@ class ControlPoints:
         return path
 
 
-def read_control_points(path: str | Path) -> ControlPoints:
-    """Read a control-point CSV (see the module doc)."""
-    path = Path(path)
-    if not path.is_file():
-        raise ControlPointError(f"Expected a control-point CSV, got '{path}' which does not "
-                                "exist.")
+#: The header names each field may go by (compared after
+#: ``sensors.tables.normalise_name``: case, spaces, '_', '-', '.' and a unit in brackets
+#: ignored). Axis convention: x = Easting, y = Northing, z = height.
+#: DECISION: German "Rechtswert" is the easting and "Hochwert" the northing. German
+#: geodesy also calls the easting Y and the northing X (Gauss-Krüger); a header with
+#: German names (Punkt, Höhe, ...) and bare X/Y columns is therefore refused as
+#: ambiguous (``--columns`` says which is which) instead of guessed.
+ALIASES: dict[str, tuple[str, ...]] = {
+    "id": ("id", "name", "point", "pointid", "pointname", "punkt", "pkt", "pt", "nr",
+           "no", "number", "punktnummer", "punktnr", "pktnr", "pnr"),
+    "x": ("x", "e", "easting", "east", "rechtswert", "rw", "ost", "ostwert"),
+    "y": ("y", "n", "northing", "north", "hochwert", "hw", "nord", "nordwert"),
+    "z": ("z", "h", "height", "elevation", "elev", "höhe", "hoehe", "hohe", "alt",
+          "altitude"),
+    "sigma": ("sigma", "sd", "std", "stddev", "σ"),
+    "sx": ("sx", "sigmax", "se"), "sy": ("sy", "sigmay", "sn"), "sz": ("sz", "sigmaz", "sh"),
+    "time": ("time", "t", "timestamp", "zeit")}
+#: ``--columns`` fields in their positional order (id, E, N, H, ...): the user's names.
+COLUMN_FIELDS = ("id", "e", "n", "h", "sigma")
+_FIELD_OF = {"id": "id", "e": "x", "n": "y", "h": "z", "x": "x", "y": "y", "z": "z",
+             "sigma": "sigma", "sx": "sx", "sy": "sy", "sz": "sz", "time": "time"}
+_GERMAN = {"punkt", "pkt", "punktnummer", "punktnr", "pktnr", "höhe", "hoehe", "hohe",
+           "rechtswert", "hochwert", "nr", "pnr"}
+
+
+def parse_column_option(text: str | None, flag: str = "--columns") -> dict[str, str] | None:
+    """A ``--columns`` value as {field: column}, fields "id", "x", "y", "z" (and
+    "sigma", "sx", "sy", "sz", "time"); None for None.
+
+    Positional: ``1,3,2,4`` or ``Punkt,Y,X,Höhe`` give the columns of id, E, N, H
+    (and sigma) in that order; named: ``id=Punkt,e=Y,n=X,h=Höhe`` (also ``x=``,
+    ``y=``, ``z=``, ``sx=`` ... ``time=``). A column is a 1-based number or a header
+    name."""
+    from sensors.tables import TableError, parse_columns
+
+    if text is None:
+        return None
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
-            rows = list(csv.reader(line for line in fh if line.strip() and
-                                   not line.lstrip().startswith("#")))
-    except (UnicodeDecodeError, csv.Error) as exc:
-        raise ControlPointError(f"Expected a UTF-8 text CSV in '{path}', got a file that "
-                                f"does not decode ({exc}); save it as CSV text.") from None
-    if not rows:
-        raise ControlPointError(f"Expected a header 'id,x,y,z[,sigma|sx,sy,sz][,time]' in "
-                                f"'{path}', got an empty file.")
-    head = [h.strip().lower() for h in rows[0]]
-    for need in ("id", "x", "y", "z"):
-        if need not in head:
-            raise ControlPointError(f"Expected a column '{need}' in '{path}', got columns "
-                                    f"{head}.")
-    col = {h: i for i, h in enumerate(head)}
+        raw = parse_columns(text, tuple(_FIELD_OF) if "=" in text else COLUMN_FIELDS,
+                            flag=flag)
+    except TableError as exc:
+        raise ControlPointError(str(exc)) from None
+    return {_FIELD_OF[k]: v for k, v in raw.items()}
+
+
+def read_control_points(path: str | Path, *, columns: dict[str, str] | str | None = None,
+                        flag: str = "--columns") -> ControlPoints:
+    """Read a control-point table in any of the dialects surveyors' software writes.
+
+    Parameters
+    ----------
+    path : str or Path
+        Delimited text (comma, semicolon, tab, '|' or white space; decimal point, or
+        decimal comma with a delimiter other than the comma; UTF-8, UTF-16 with BOM,
+        Windows-1252 or Latin-1), sniffed by ``sensors.tables``. A header names the
+        columns (``ALIASES``: ``id,x,y,z``, ``Name,E,N,H``,
+        ``Punkt;Rechtswert;Hochwert;Höhe``, optionally ``sigma`` or ``sx,sy,sz`` in
+        metres and ``time`` in seconds); a file without a header is ``id, E, N, H`` in
+        that order. Axis convention: x = Easting, y = Northing, z = height.
+    columns : dict or str, optional
+        The column of each field, for headers the aliases do not cover
+        (``parse_column_option``; a str is parsed as ``--columns``).
+    flag : str
+        The option named in messages.
+
+    Returns
+    -------
+    ControlPoints, with ``dialect`` (``sensors.tables.Dialect``) telling what was read.
+
+    Raises
+    ------
+    ControlPointError
+        A missing file, no consistent delimiter, a field that cannot be mapped or is not
+        a number, repeated ids, sigmas not positive. The message names the dialect found
+        and the option (``--columns``).
+    """
+    from sensors.tables import map_columns, normalise_name, read_table
+
+    path = Path(path)
+    what = "control-point file"
+    table = read_table(path, what=what, error=ControlPointError)
+    cols = parse_column_option(columns, flag) if isinstance(columns, str) else columns
+    if table.names is not None and not cols:
+        normed = {normalise_name(n) for n in table.names}
+        if normed & _GERMAN and ({"x", "y"} & normed) and not (
+                {"rechtswert", "hochwert", "e", "n", "easting", "northing"} & normed):
+            raise ControlPointError(
+                f"Expected easting and northing columns named unambiguously in '{path}', "
+                f"got X/Y in a German header ({', '.join(repr(n) for n in table.names)}): "
+                "in German geodesy X is the northing (Hochwert) and Y the easting "
+                f"(Rechtswert), the opposite of x = Easting here; pass {flag} id,e,n,h "
+                f"naming them (e.g. {flag} id=Punkt,e=Y,n=X,h=Höhe).")
+    col = map_columns(table, ALIASES, ("id", "x", "y", "z"), columns=cols,
+                      headerless=("id", "x", "y", "z"), what=what, flag=flag,
+                      error=ControlPointError, labels={"x": "e", "y": "n", "z": "h"})
+    found = table.dialect.describe()
     ids: list[str] = []
     rows_xyz: list[list[float]] = []
     sig: list[list[float]] = []
     tim: list[float] = []
-    for k, r in enumerate(rows[1:], start=2):
-        try:
-            ids.append(r[col["id"]].strip())
-            rows_xyz.append([float(r[col[c]]) for c in "xyz"])
-            if "sigma" in col:
-                sig.append([float(r[col["sigma"]])] * 3)
-            elif "sx" in col:
-                sig.append([float(r[col[c]]) for c in ("sx", "sy", "sz")])
-            if "time" in col:
-                tim.append(float(r[col["time"]]))
-        except (IndexError, ValueError) as exc:
-            raise ControlPointError(f"Expected numbers in every column of line {k} of "
-                                    f"'{path}', got {r!r}.") from exc
+    name_of = (lambda f: repr(table.names[col[f]]) if table.names else
+               f"column {col[f] + 1}")
+    for r, k in zip(table.rows, table.lines):
+        ids.append(r[col["id"]].strip().strip('"'))
+        fields = ["x", "y", "z"] + (["sigma"] if "sigma" in col else
+                                    ["sx", "sy", "sz"] if "sx" in col else []) + (
+            ["time"] if "time" in col else [])
+        vals = {}
+        for f in fields:
+            try:
+                vals[f] = table.number(r[col[f]])
+            except ValueError:
+                axis = {"x": " (easting)", "y": " (northing)", "z": " (height)"}.get(f, "")
+                raise ControlPointError(
+                    f"Expected a number in {name_of(f)}{axis} on line {k} of '{path}', "
+                    f"got {r[col[f]]!r}; found {found}; pass {flag} to map the columns "
+                    f"(e.g. {flag} 1,2,3,4 for id,E,N,H).") from None
+        rows_xyz.append([vals["x"], vals["y"], vals["z"]])
+        if "sigma" in vals:
+            sig.append([vals["sigma"]] * 3)
+        elif "sx" in vals:
+            sig.append([vals["sx"], vals["sy"], vals["sz"]])
+        if "time" in vals:
+            tim.append(vals["time"])
+    if not ids:
+        raise ControlPointError(f"Expected control points below the header of '{path}', "
+                                f"got none; found {found}.")
     seen = set()
     for i in ids:
         if i in seen:
@@ -107,7 +207,9 @@ def read_control_points(path: str | Path) -> ControlPoints:
     sigma = np.array(sig, dtype=np.float64) if sig else None
     if sigma is not None and (sigma <= 0).any():
         raise ControlPointError(f"Expected positive sigmas in '{path}'.")
-    return ControlPoints(ids, xyz, sigma, np.array(tim) if tim else None)
+    out = ControlPoints(ids, xyz, sigma, np.array(tim) if tim else None)
+    out.dialect = table.dialect
+    return out
 
 
 def _some(ids: list[str], k: int = 5) -> str:

@@ -331,8 +331,10 @@ class HelmertResult:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict with every field (the CLI's ``--json``), the formula
-        (``form``), the PROJ string (``proj``), rotations in degrees and gon and the
-        points above the critical value (``outlier_tests``, largest first)."""
+        (``form``), the PROJ string (``proj``), rotations in degrees and gon, the
+        points above the critical value (``outlier_tests``, largest first), the unit of
+        ``sigma0`` (``sigma0_unit``: "m" with unit weights, "1" with given standard
+        deviations) and the ``variance_factor`` sigma0² (given deviations only)."""
         out = {k: _nan_to_none(v) for k, v in self.__dict__.items() if k != "extra"}
         out["convention"] = "position_vector"
         out["form"] = self.formula
@@ -344,6 +346,11 @@ class HelmertResult:
         out["rotation_gon"] = _nan_to_none(self.rotation_gon)
         out["rotation_sigma_gon"] = _nan_to_none(sd * ARCSEC_GON)
         out["outlier_tests"] = self.outlier_tests
+        # sigma0 is metres with unit weights, a unitless ratio with given sigmas
+        # (``survey.report.adjustment.sigma0_lines``); the variance factor only then.
+        known = self.test == "w"
+        out["sigma0_unit"] = None if self.test == "none" else ("1" if known else "m")
+        out["variance_factor"] = _nan_to_none(self.sigma0 ** 2) if known else None
         return out
 
     @classmethod

@@ -22,7 +22,7 @@ from scipy import stats
 
 from survey.errors import HelmertError
 
-__all__ = ["ALPHA", "ARCSEC", "DELTA0", "MAX_SCALE_PPM", "MIRROR_RATIO", "MODELS",
+__all__ = ["ALPHA", "ARCSEC", "DELTA0", "MAX_SCALE_PPM", "MIRROR_RATIO", "MODELS", "POWER",
            "RANK_DEFICIENT", "RHO_WARN", "STEP_TOL", "STEP_TOL_M", "THIN", "W_CRITICAL",
            "ClosedForm", "SimilarityModel", "Statistics", "angles_of", "closed_form",
            "converged", "correlation_warnings", "gauss_newton", "geometry_reason",
@@ -36,7 +36,10 @@ ALPHA = 0.001
 #: Baarda's critical value for alpha0 = 0.001, two-sided standard normal:
 #: Phi^-1(1 - 0.001 / 2) = 3.2905, tabulated as 3.29 (Baarda 1968).
 W_CRITICAL = 3.29
-#: Non-centrality for alpha0 = 0.001 and power 0.80 (Baarda 1968), for the MDB.
+#: Power (1 - beta) of the w-test at which the MDB is detected (Baarda 1968: beta0 = 0.20).
+POWER = 0.80
+#: Non-centrality for alpha0 = 0.001 and power 0.80 (Baarda 1968), for the MDB:
+#: Phi^-1(1 - alpha0 / 2) + Phi^-1(POWER) = 3.2905 + 0.8416 = 4.132, tabulated as 4.13.
 DELTA0 = 4.13
 #: Model name -> number of parameters.
 MODELS = {"7": 7, "6": 6, "9": 9}

@@ -490,7 +490,7 @@ __all__ = ["EXIT_INTERRUPTED", "EXIT_USAGE", "NUMBER_LIST", "RADIAN_TOL", "Comma
            "warn_radian_like",
            "Option", "Parser", "Progress", "UsageError", "floats", "numbers", "out_dir", "pair",
            "parse_window", "physics_options", "removed_on_failure", "run_command", "say",
-           "version", "write_json", "write_text", "xyz"]
+           "version", "write_json", "write_text", "xyz", "report_header", "report_options"]
 
 
 def cluster_options(c: Command, needs: tuple[str, ...] = ()) -> None:
@@ -518,3 +518,26 @@ def open_cluster(args: argparse.Namespace) -> Any:
     if ex.kind != "in-process" and not args.quiet:
         print(f"cluster: {ex.describe()}")
     return ex
+
+
+def report_options(c: Command) -> None:
+    """--project and --instrument: the user's words the report header states
+    (``survey.report.header``)."""
+    c.option("--project", metavar="TEXT",
+             help="project name the report header states (e.g. 'Gotthard lot 3')")
+    c.option("--instrument", metavar="TEXT",
+             help="instrument the report header states (e.g. 'Leica TS16 SN 123456')")
+
+
+def report_header(args: argparse.Namespace, inputs: list[tuple[str, Any, str]],
+                  crs: str | None = None, settings: list[tuple[str, str]] | None = None
+                  ) -> Any:
+    """The ``ReportHeader`` of a command's report: ``inputs`` as (role, path, how it was
+    read), the CRS in words, the settings the results depend on, --project and
+    --instrument."""
+    from survey.report.header import ReportHeader, ReportInput
+
+    return ReportHeader(inputs=[ReportInput.of(r, p, note) for r, p, note in inputs],
+                        crs=crs, project=getattr(args, "project", None),
+                        instrument=getattr(args, "instrument", None),
+                        settings=settings or [])

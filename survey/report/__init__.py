@@ -13,6 +13,8 @@ from .developed import (clearance_markdown, plot_developed, regions_csv, violati
                         write_developed)
 from .detectability import (detect_csv, detect_markdown, detect_summary, plot_detectability,
                             targets_csv)
+from .header import ReportHeader, ReportInput, file_sha256, header_lines, with_header
+from .html import markdown_to_html, write_report
 from .epochs import (chords_csv, convergence_markdown, m3c2_markdown, plot_m3c2_histogram,
                      plot_radial, radial_csv)
 
@@ -26,4 +28,5 @@ __all__ = ["cloud_c2m_rms", "plan_summary", "drift_report", "helmert_report", "p
            "clearance_markdown", "plot_developed", "regions_csv", "violations_csv",
            "write_developed",
            "detect_csv", "detect_markdown", "detect_summary", "plot_detectability",
-           "targets_csv"]
+           "targets_csv", "ReportHeader", "ReportInput", "file_sha256", "header_lines",
+           "with_header", "markdown_to_html", "write_report"]

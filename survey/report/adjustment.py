@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from survey.errors import DriftError, HelmertError
+from survey.report.header import ReportHeader, header_lines
 
 if TYPE_CHECKING:  # annotations only: the report module stays light to import
     from sensors.trajectory import Trajectory
@@ -18,7 +19,7 @@ if TYPE_CHECKING:  # annotations only: the report module stays light to import
     from survey.adjust.helmert import HelmertResult
     from survey.adjust.snooping import Snooping
 
-__all__ = ["ANGLE_UNITS", "drift_report", "helmert_report"]
+__all__ = ["ANGLE_UNITS", "drift_report", "helmert_report", "sigma0_lines"]
 
 
 #: Angle units of the report's rotation table besides arcseconds.
@@ -28,7 +29,7 @@ _MODEL_NAMES = {"7": "similarity", "6": "rigid", "9": "scale per source axis"}
 
 def helmert_report(res: HelmertResult, *, title: str = "Helmert adjustment",
                    angles: str = "deg", snooping: Snooping | None = None,
-                   notes: Sequence[str] = ()) -> str:
+                   notes: Sequence[str] = (), header: ReportHeader | None = None) -> str:
     """Markdown report of a ``HelmertResult``.
 
     Parameters
@@ -41,14 +42,20 @@ def helmert_report(res: HelmertResult, *, title: str = "Helmert adjustment",
         (``survey.adjust.snooping.data_snooping``); ``res`` is then its ``result``.
     notes : sequence of str
         Lines shown near the top (warnings about the input, e.g. unmatched ids).
+    header : ReportHeader, optional
+        Inputs with checksums, CRS, software, date, project and instrument, written
+        below the title (``survey.report.header``).
     """
     if angles not in ANGLE_UNITS:
         raise HelmertError(f"Expected angles 'deg' or 'gon', got {angles!r}.")
     basis = res.sigma_basis
     why = ("from the given standard deviations of the points, σ0 = 1"
-           if basis == "a priori" else f"scaled by the estimated σ0 = {res.sigma0:.4g}")
-    lines = [f"# {title}", "",
-             f"Model: {res.model}-parameter ({_MODEL_NAMES[res.model]}): `{res.formula}` "
+           if basis == "a priori" else f"scaled by the estimated σ0 = {_sigma0_text(res)}")
+    lines = [f"# {title}", ""]
+    if header is not None:
+        lines += header_lines(header)
+    lines += ["Axes: x = Easting, y = Northing, z = height (m).", "",
+              f"Model: {res.model}-parameter ({_MODEL_NAMES[res.model]}): `{res.formula}` "
              "(position-vector convention, EPSG 1033, exact rotations).", "",
              f"Points: {len(res.ids)}, redundancy {res.dof}, iterations {res.iterations}.", ""]
     lines += [f"- **Note:** {n}" for n in notes] + ([""] if notes else [])
@@ -77,8 +84,21 @@ def helmert_report(res: HelmertResult, *, title: str = "Helmert adjustment",
     lines += _tests(res)
     if snooping is not None:
         lines += _snooping(snooping)
+    from survey.adjust.helmert_stats import ALPHA, DELTA0, POWER
+
     lines += ["## Residuals", "",
-              "| point | vx (mm) | vy (mm) | vz (mm) | redundancy | test | MDB (mm) |",
+              f"Residuals v = target − transformed source (mm). Redundancy number: the "
+              f"share of an error the residual shows (unitless, 0 to 1). Test: "
+              f"{'Baarda w' if res.test == 'w' else 'Pope τ'} (unitless). MDB: Baarda's "
+              f"minimal detectable bias (Baarda 1968), the smallest error in one "
+              f"coordinate of the point that the test finds with power "
+              f"{100 * POWER:.0f} % at α0 = {100 * ALPHA:g} % (δ0 = {DELTA0}), largest "
+              f"of x, y, z, in mm"
+              + (", from the given standard deviations." if res.test == "w" else
+                 ", from the estimated σ0."), "",
+              f"| point | vx (mm) | vy (mm) | vz (mm) | redundancy (unitless) | "
+              f"{'w' if res.test == 'w' else 'τ'} (unitless) | MDB (mm, power "
+              f"{100 * POWER:.0f} %, α0 {100 * ALPHA:g} %) |",
               "|---|---:|---:|---:|---:|---:|---:|"]
     rank = {k: i + 1 for i, k in enumerate(res.outliers)}
     for i, pid in enumerate(res.ids):
@@ -93,7 +113,7 @@ def helmert_report(res: HelmertResult, *, title: str = "Helmert adjustment",
 def _correlations(res: HelmertResult) -> list[str]:
     """The correlation matrix and the warnings above |rho| = 0.95."""
     names = res.parameter_names
-    lines = ["## Correlations of the parameters", "",
+    lines = ["## Correlations of the parameters (unitless)", "",
              "Translations at the centroid of the points (the PROJ translation at the "
              "origin is always correlated with the rotations).", "",
              "| | " + " | ".join(names) + " |", "|---|" + "---:|" * len(names)]
@@ -105,15 +125,43 @@ def _correlations(res: HelmertResult) -> list[str]:
     return lines + ([""] if res.correlation_warnings else [])
 
 
+def _sigma0_text(res: HelmertResult) -> str:
+    """σ0 with its unit: metres with unit weights, a unitless ratio with given sigmas."""
+    if res.test == "w":
+        return f"{res.sigma0:.4g} (unitless)"
+    return f"{res.sigma0 * 1000:.2f} mm"
+
+
+def sigma0_lines(res: HelmertResult) -> list[str]:
+    """σ0 under a label that says what it is.
+
+    DECISION: with unit weights (no standard deviations given) the weight matrix is
+    I in 1/m², so σ0 = sqrt(vᵀv / r) is a length: the a-posteriori standard deviation
+    of one coordinate, in metres (shown in mm). With given standard deviations, σ0 is
+    the unitless ratio of the actual to the stated precision (a priori σ0 = 1) and its
+    square is the variance factor; the two are never printed under one label
+    (Niemeier, "Ausgleichungsrechnung", 2008, 4.3; Ghilani 2010, 16.5)."""
+    if res.test == "w":
+        return ["- σ0 a priori: 1 (unitless; the given standard deviations).",
+                f"- σ0 a posteriori (ratio of actual to stated precision): "
+                f"{res.sigma0:.4f} (unitless).",
+                f"- Variance factor σ0² (a posteriori / a priori): {res.sigma0 ** 2:.4f} "
+                "(unitless).", ""]
+    return [f"- σ0 a posteriori, the standard deviation of one coordinate (unit weights, "
+            f"so in metres): {res.sigma0:.6f} m = {res.sigma0 * 1000:.2f} mm.",
+            "- Variance factor: not defined (no a-priori standard deviations given; pass "
+            "sigma or sx,sy,sz columns to test the stated precision).", ""]
+
+
 def _tests(res: HelmertResult) -> list[str]:
     """sigma0, the global test and every point above the critical value."""
-    lines = ["## Tests", "", f"σ0 a posteriori: {res.sigma0:.4f}"]
+    lines = ["## Tests", ""] + sigma0_lines(res)
     g = res.global_test
     if g.get("interval"):
         lo, hi = g["interval"]
         verdict = "passed" if g["passed"] else "REJECTED"
-        lines.append(f"Global test: vᵀPv = {g['statistic']:.3f}, χ²({g['dof']}) 95 % "
-                     f"interval [{lo:.3f}, {hi:.3f}]: {verdict}.")
+        lines.append(f"Global test: vᵀPv = {g['statistic']:.3f} (unitless), "
+                     f"χ²({g['dof']}) 95 % interval [{lo:.3f}, {hi:.3f}]: {verdict}.")
     else:
         lines.append("Global test: not applicable (no a priori standard deviations; σ0 "
                      "estimated, τ-tests used).")
@@ -139,6 +187,11 @@ def _tests(res: HelmertResult) -> list[str]:
     return lines + [""]
 
 
+def _s0(value: float, test: str) -> str:
+    """σ0 in a table whose header gives the unit (unitless ratio, or mm)."""
+    return f"{value:.4f}" if test == "w" else f"{value * 1000:.2f}"
+
+
 def _snooping(sn: Snooping) -> list[str]:
     """Points excluded by hand and every step of data snooping."""
     lines = []
@@ -151,14 +204,15 @@ def _snooping(sn: Snooping) -> list[str]:
               "Iterative: the point with the largest test above the critical value (w: "
               "3.29 for α0 = 0.001, two-sided standard normal; τ when σ0 is estimated) is "
               "removed and the network adjusted again, until no test exceeds it.", "",
-              "| step | removed | test | critical | σ0 after | points left | still above |",
+              f"| step | removed | test (unitless) | critical (unitless) | σ0 after "
+              f"({'unitless' if first.test == 'w' else 'mm'}) | points left | still above |",
               "|---:|---|---:|---:|---:|---:|---:|",
-              f"| 0 | – | – | {first.critical:.2f} | {first.sigma0:.4f} | {len(first.ids)} | "
-              f"{len(first.outliers)} |"]
+              f"| 0 | – | – | {first.critical:.2f} | {_s0(first.sigma0, first.test)} | "
+              f"{len(first.ids)} | {len(first.outliers)} |"]
     for k, st in enumerate(sn.steps, start=1):
         sym = "w" if st.test == "w" else "τ"
         lines.append(f"| {k} | {st.removed} | {sym} = {st.statistic:.2f} | "
-                     f"{st.critical:.2f} | {st.sigma0_after:.4f} | {st.points_left} | "
+                     f"{st.critical:.2f} | {_s0(st.sigma0_after, st.test)} | {st.points_left} | "
                      f"{st.above_after} |")
     gone = ", ".join(sn.removed) if sn.steps else "none"
     lines += ["", f"Removed: {gone}. Ended: {sn.stopped}.", ""]
@@ -167,17 +221,19 @@ def _snooping(sn: Snooping) -> list[str]:
 
 def drift_report(corr: DriftCorrection, loo: NDArray[np.float64], *,
                  traj: Trajectory | None = None, plot_path: Path | None = None,
-                 title: str = "MLS drift correction") -> str:
+                 title: str = "MLS drift correction",
+                 header: ReportHeader | None = None) -> str:
     """Markdown report of a ``DriftCorrection``: fit residuals and leave-one-out
     check-point residuals per control point, and (with the MLS trajectory) the
-    correction magnitude along the distance travelled, plotted to ``plot_path``."""
+    correction magnitude along the distance travelled, plotted to ``plot_path``;
+    ``header`` (inputs, CRS, ...) below the title."""
     fit = corr.residuals
     if fit is None:
         raise DriftError("Expected a fitted DriftCorrection (from fit_drift), got one "
                          "without residuals.")
     rms_fit = float(np.sqrt(np.mean(np.sum(fit ** 2, axis=1))))
     rms_loo = float(np.sqrt(np.mean(np.sum(loo ** 2, axis=1))))
-    lines = [f"# {title}", "",
+    lines = [f"# {title}", ""] + (header_lines(header) if header is not None else []) + [
              f"Model: {corr.model}" + (f" ({corr.interpolation} blending, "
                                        f"{len(corr.times)} control sections)"
                                        if corr.model == "piecewise" else ""), "",

@@ -11,6 +11,7 @@ import numpy as np
 
 from survey.analysis.convergence import Chords, RadialChange, summarise
 from survey.analysis.m3c2 import M3C2Params
+from survey.report.header import ReportHeader, header_lines
 
 __all__ = ["chords_csv", "convergence_markdown", "m3c2_markdown", "m3c2_summary",
            "plot_m3c2_histogram", "plot_radial", "radial_csv"]
@@ -36,11 +37,13 @@ def m3c2_summary(distance: np.ndarray, lod: np.ndarray, significant: np.ndarray,
             "parameters": params.to_dict(), **extra}
 
 
-def m3c2_markdown(summary: Mapping[str, Any], *, title: str = "M3C2") -> str:
-    """The summary as a Markdown report (millimetres)."""
+def m3c2_markdown(summary: Mapping[str, Any], *, title: str = "M3C2",
+                  header: ReportHeader | None = None, figure: str | None = None) -> str:
+    """The summary as a Markdown report (millimetres); ``header`` (inputs, CRS, ...)
+    below the title; ``figure``: the histogram's file name, shown at the end."""
     p = summary["parameters"]
     mm = 1000.0
-    lines = [f"# {title}", "",
+    lines = [f"# {title}", ""] + (header_lines(header) if header is not None else []) + [
              "Lague, Brodu & Leroux (2013); py4dgeo's parameters and LoD95 = 1.96 "
              "(sqrt(s1²/n1 + s2²/n2) + registration error). Positive: along the normal "
              "(towards the axis when oriented so: convergence).", "",
@@ -60,6 +63,8 @@ def m3c2_markdown(summary: Mapping[str, Any], *, title: str = "M3C2") -> str:
              f"| normal radii (m) | {', '.join(f'{r:g}' for r in p['normal_radii_m']) or 'given'} |",
              f"| registration error (m) | {p['registration_error_m']:g} |",
              f"| statistic | {'median / IQR' if p['robust'] else 'mean / std'} |"]
+    if figure:
+        lines += ["", f"![M3C2 distances (mm)]({figure})"]
     return "\n".join(lines) + "\n"
 
 
@@ -110,11 +115,32 @@ def radial_csv(changes: Sequence[RadialChange]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def convergence_markdown(ch: Chords | None, changes: Sequence[RadialChange]) -> str:
-    """Chord and section tables in millimetres."""
-    out = ["# Convergence between epochs", "",
-           "Positive: the section closes (chords shorten, the lining moves towards the "
-           "axis)."]
+def convergence_markdown(ch: Chords | None, changes: Sequence[RadialChange], *,
+                         header: ReportHeader | None = None,
+                         epochs: Sequence[str] = (), band_m: float | None = None,
+                         angle_step_deg: float | None = None,
+                         figure: str | None = None) -> str:
+    """Chord and section tables in millimetres.
+
+    Parameters
+    ----------
+    ch : Chords or None; changes : radial change per section
+    header : ReportHeader, optional (inputs with checksums, CRS, date, ...)
+    epochs : the names of the earlier and the later epoch (files), stated in the text
+    band_m : half-width of a section along the axis (m); angle_step_deg : bin (deg)
+    figure : the polar plot's file name (beside the report), shown below the table
+    """
+    out = ["# Convergence between epochs", ""]
+    if header is not None:
+        out += header_lines(header)
+    if epochs:
+        out += [f"Epochs: earlier {epochs[0]}, later {epochs[1]}." if len(epochs) == 2
+                else f"Epochs: {', '.join(epochs)}.", ""]
+    if changes and band_m is not None and angle_step_deg is not None:
+        out += [f"Sections: points within ±{band_m:g} m of each chainage along the axis; "
+                f"radii in bins of {angle_step_deg:g}° about the section centre.", ""]
+    out += ["Positive: the section closes (chords shorten, the lining moves towards the "
+            "axis)."]
     if ch is not None and len(ch):
         out += ["", "## Chords", "",
                 "| chord | chainage (m) | L1 (m) | L2 (m) | convergence (mm) | "
@@ -132,6 +158,8 @@ def convergence_markdown(ch: Chords | None, changes: Sequence[RadialChange]) -> 
             out.append(f"| {r['chainage_m']:.2f} | {r['bins']} | "
                        f"{1000 * r['median_m']:+.2f} | {1000 * r['min_m']:+.2f} | "
                        f"{1000 * r['max_m']:+.2f} | {r['significant']} |")
+        if figure:
+            out += ["", f"![radial change by angle (mm)]({figure})"]
     return "\n".join(out) + "\n"
 
 

@@ -173,7 +173,7 @@ def test_control_point_files(tmp_path):
     with pytest.raises(ControlPointError, match="unique"):
         read_control_points(tmp_path / "dup.csv")
     (tmp_path / "bad.csv").write_text("id,x,y\nA,1,2\n")
-    with pytest.raises(ControlPointError, match="column 'z'"):
+    with pytest.raises(ControlPointError, match="column for h .*--columns"):
         read_control_points(tmp_path / "bad.csv")
     with pytest.raises(ControlPointError, match="at least 3"):
         match(a, ControlPoints(["A", "B"], _pts(2)))

@@ -12,7 +12,12 @@ transform's source, and drops an input's CRS it cannot replace (with a warning);
 
 from __future__ import annotations
 
-from survey.cli.common import CommandSet, write_json, write_text
+from survey.cli.common import (
+    CommandSet,
+    report_header,
+    report_options,
+    write_json,
+)
 from survey.errors import TunnelsimCLIError
 
 
@@ -21,15 +26,32 @@ def register(commands: CommandSet) -> None:
     c = commands.add(
         "adjust", cmd_adjust, help="Helmert adjustment between two control-point files",
         description="Least-squares Helmert transformation (PROJ form, position-vector "
-                    "convention) between two CSV files of control points (id,x,y,z"
-                    "[,sigma|sx,sy,sz]) matched by id, with residuals, sigma0, global test, "
+                    "convention) between two files of control points (id,x,y,z"
+                    "[,sigma|sx,sy,sz]; x = Easting, y = Northing, z = height) matched by "
+                    "id, with residuals, sigma0, global test, "
                     "every w/tau-test above its critical value, correlations and the PROJ "
                     "string. Refused unless meant: mirror images (swapped axes), a scale "
-                    "beyond 1,000 ppm (different units), no convergence.",
+                    "beyond 1,000 ppm (different units), no convergence. Files are read "
+                    "as office software and total stations write them: comma, "
+                    "semicolon, tab or white space between fields, decimal comma, UTF-8 "
+                    "or Latin-1, headers in English or German (Name,E,N,H; Punkt;"
+                    "Rechtswert;Hochwert;Höhe) or none (id,E,N,H in that order); "
+                    "--columns maps any other header. --report writes Markdown and a "
+                    "self-contained HTML beside it.",
         epilog="Example: tunnelsim adjust mls_cp.csv total_station.csv --model 7 --snoop "
-               "--report adjust.md --json helmert.json")
-    c.option("source", path="in", help="control points in the source system (CSV)")
-    c.option("target", path="in", help="control points in the target system (CSV)")
+               "--report adjust.md --json helmert.json --project 'Lot 3' --instrument "
+               "'TS16'")
+    c.option("source", path="in", help="control points in the source system (CSV/text)")
+    c.option("target", path="in", help="control points in the target system (CSV/text)")
+    c.option("--columns", metavar="ID,E,N,H",
+             help="the columns of id, easting, northing, height (and sigma) in both files, "
+                  "as 1-based numbers or header names (e.g. 1,3,2,4 or Punkt,Y,X,Höhe), "
+                  "or as id=...,e=...,n=...,h=...[,sigma=...|sx=...,sy=...,sz=...]; "
+                  "default: found from the header")
+    c.option("--source-columns", metavar="ID,E,N,H",
+             help="like --columns, for the source file only")
+    c.option("--target-columns", metavar="ID,E,N,H",
+             help="like --columns, for the target file only")
     c.option("--model", choices=["7", "6", "9"], default="7",
              help="7 similarity (default), 6 rigid, 9 scale per axis")
     c.option("--exclude", metavar="ID,...", help="leave these control points out")
@@ -49,8 +71,11 @@ def register(commands: CommandSet) -> None:
                   "datum transformation estimated on purpose")
     c.option("--max-iter", type=int, default=50, metavar="N",
              help="Gauss-Newton iterations at most (default 50)")
-    c.option("--report", path="out", help="write the Markdown report here")
+    c.option("--report", path="out",
+             help="write the Markdown report here, and the same as self-contained HTML "
+                  "beside it (.html)")
     c.option("--json", path="out", help="write the result (parameters and statistics) here")
+    report_options(c)
     c.option("--quiet", action="store_true", help="do not print the report")
 
     c = commands.add(
@@ -94,16 +119,34 @@ def register(commands: CommandSet) -> None:
     c.option("-o", "--output", required=True, path="out", help="corrected cloud")
     c.option("--json", path="out", help="also write the key figures (check-point RMS, "
                                         "largest correction) as JSON")
+    c.option("--columns", metavar="ID,E,N,H",
+             help="the columns of id, easting, northing, height in --control and "
+                  "--observed (as for 'adjust --columns'; time=NAME for the time column)")
+    report_options(c)
     c.option("--quiet", action="store_true", help="print nothing on success")
 
 
+def _read_as(points) -> str:
+    """How a control-point file was read (its dialect in words)."""
+    return "" if points.dialect is None else points.dialect.describe()
+
+
+def _read_points(path, columns: str | None, flag: str):
+    from survey.adjust.controlpoints import read_control_points
+
+    return read_control_points(path, columns=columns, flag=flag)
+
+
 def cmd_adjust(args) -> int:
-    from survey.adjust.controlpoints import match, read_control_points, unmatched_message
+    from survey.adjust.controlpoints import match, unmatched_message
     from survey.adjust.snooping import data_snooping
     from survey.report.adjustment import helmert_report
+    from survey.report.html import write_report
 
-    a = read_control_points(args.source)
-    b = read_control_points(args.target)
+    a = _read_points(args.source, args.source_columns or args.columns,
+                     "--source-columns" if args.source_columns else "--columns")
+    b = _read_points(args.target, args.target_columns or args.columns,
+                     "--target-columns" if args.target_columns else "--columns")
     names = (str(args.source), str(args.target))
     crs_a, crs_b = _control_crs(args)
     ia, ib = match(a, b, unmatched_ids="error" if args.strict else "warn", names=names)
@@ -120,13 +163,24 @@ def cmd_adjust(args) -> int:
     if crs_a is not None or crs_b is not None:
         notes.append(f"coordinate reference systems: source {_label(crs_a)}, target "
                      f"{_label(crs_b)}.")
-    text = helmert_report(res, angles=args.angles, snooping=sn, notes=notes)
+    crs_text = (f"source {_label(crs_a)}, target {_label(crs_b)}"
+                if crs_a is not None or crs_b is not None else None)
+    head = report_header(args, [("source", args.source, _read_as(a)),
+                                ("target", args.target, _read_as(b))],
+                         crs=crs_text, settings=[("model", f"{args.model} parameters"),
+                                                 ("data snooping", "yes" if args.snoop
+                                                  else "no")])
+    text = helmert_report(res, angles=args.angles, snooping=sn, notes=notes, header=head)
     if args.report:
-        write_text(args.report, text)
+        write_report(args.report, text)
     if args.json:
         write_json(args.json, {**res.to_dict(), **sn.to_dict(),
                                "unmatched_ids": lost or None,
-                               "source_crs": _wkt(crs_a), "target_crs": _wkt(crs_b)})
+                               "source_crs": _wkt(crs_a), "target_crs": _wkt(crs_b),
+                               "inputs": [{"role": i.role, "path": i.path,
+                                           "sha256": i.sha256, "read_as": i.note}
+                                          for i in head.inputs],
+                               "project": args.project, "instrument": args.instrument})
     if not args.quiet:
         print(text, end="")
     return 0
@@ -268,10 +322,10 @@ def cmd_correct(args) -> int:
     from survey.clouds.cloudio import KEEP_CRS
 
     traj = Trajectory.read(args.trajectory)
-    world = read_control_points(args.control)
+    world = read_control_points(args.control, columns=args.columns)
     # The corrected cloud lies in the control points' system: it states their CRS.
     world_crs = text_file_crs(args.control)
-    seen = read_control_points(args.observed)
+    seen = read_control_points(args.observed, columns=args.columns)
     if seen.time is None:
         raise ControlPointError(f"Expected a 'time' column in '{args.observed}' (when each "
                                 "control point was observed by the MLS), got none.")
@@ -302,8 +356,17 @@ def cmd_correct(args) -> int:
     traj_out = out.with_name(out.stem + "_trajectory.txt")
     fixed.write(traj_out)
     report = out.with_name(out.stem + "_report.md")
-    write_text(report, drift_report(corr, loo, traj=traj,
-                                    plot_path=out.with_name(out.stem + "_correction.png")))
+    head = report_header(
+        args, [("trajectory", args.trajectory, ""), ("cloud", args.cloud, ""),
+               ("control points (world)", args.control, _read_as(world)),
+               ("control points (MLS frame, timed)", args.observed,
+                _read_as(seen))],
+        crs=None if world_crs is None else _label(world_crs),
+        settings=[("model", args.model)])
+    from survey.report.html import write_report
+
+    write_report(report, drift_report(corr, loo, traj=traj, header=head,
+                                      plot_path=out.with_name(out.stem + "_correction.png")))
     rms = float(np.sqrt(np.mean(np.sum(loo ** 2, axis=1))))
     if args.json:
         write_json(args.json, {

@@ -12,6 +12,8 @@ from survey.cli.common import (
     numbers,
     open_cluster,
     out_dir,
+    report_header,
+    report_options,
     say,
     write_json,
     write_text,
@@ -59,7 +61,10 @@ def register(commands: CommandSet) -> None:
     c.option("--orient", default="z", metavar="z|axis|X,Y,Z",
              help="normal orientation: +Z (default, py4dgeo's), towards the tunnel axis "
                   "(needs --tunnel; positive distance = convergence), or a vector")
-    c.option("--tunnel", path="in", help="tunnel JSON (alignment and profile) for --orient axis")
+    c.option("--tunnel", path="in",
+             help="alignment for --orient axis: a tunnel JSON ('tunnelsim tunnel' or "
+                  "'tunnelsim axis'; the axis through the profile centre), a LandXML "
+                  "(.xml/.landxml) or a chainage,E,N,H CSV (the alignment is the axis)")
     c.option("--allow-crs-mismatch", action="store_true",
              help="compare epochs that state different CRSs (refused by default)")
     c.option("--tile-m", type=float, metavar="M",
@@ -67,6 +72,7 @@ def register(commands: CommandSet) -> None:
                   "--workers or --scheduler): memory set by the tile, not by the epochs; "
                   "the same results; epochs as clouds, spilled into tiles beside -o")
     cluster_options(c, needs=("tile-m",))
+    report_options(c)
 
     c = commands.add(
         "convergence", cmd_convergence,
@@ -84,7 +90,9 @@ def register(commands: CommandSet) -> None:
              help="two clouds (earlier, later) for the radial change; none for chords only")
     c.option("-o", "--output", required=True, path="out", help="output folder")
     c.option("--tunnel", required=True, path="in",
-             help="tunnel JSON: the alignment and the profile's centre")
+             help="the alignment and the profile's centre: a tunnel JSON ('tunnelsim "
+                  "tunnel' or 'tunnelsim axis'), a LandXML (.xml/.landxml) or a "
+                  "chainage,E,N,H CSV (no profile: the alignment is the centre)")
     c.option("--control1", path="in", help="points of epoch 1 (tunnel JSON or CSV)")
     c.option("--control2", path="in", help="points of epoch 2 (tunnel JSON or CSV)")
     c.option("--sigma-mm", type=float, metavar="MM",
@@ -99,6 +107,7 @@ def register(commands: CommandSet) -> None:
     c.option("--allow-crs-mismatch", action="store_true",
              help="compare epochs that state different CRSs (refused by default)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
+    report_options(c)
 
 
 # ---------------------------------------------------------------------------- shared
@@ -120,17 +129,13 @@ def _check_crs(args, paths) -> str | None:
 
 
 def _tunnel(path):
-    """(Alignment, profile centre (2,)) of a tunnel JSON."""
-    from survey.errors import TunnelFileError
-    from survey.world.alignment import Alignment
-    from survey.world.mesh import read_meta
-    from survey.world.profiles import Profile
+    """(Alignment, profile centre (2,)) of --tunnel: a tunnel JSON, a LandXML alignment
+    or a station CSV (``load_tunnel``); without a profile the alignment is the axis,
+    centre (0, 0)."""
+    from survey.world.alignment_io import load_tunnel
 
-    meta = read_meta(path)
-    if "alignment" not in meta or "profile" not in meta:
-        raise TunnelFileError(f"Expected 'alignment' and 'profile' in '{path}' (a JSON "
-                              "written by 'tunnelsim tunnel'), got neither.")
-    return Alignment.from_dict(meta["alignment"]), Profile.from_dict(meta["profile"]).centroid
+    t = load_tunnel(path, option="--tunnel")
+    return t.alignment, t.centre
 
 
 def _epoch_points(path):
@@ -256,18 +261,42 @@ def _m3c2_tiled(args, out: Path, prm, orient: str, vector, axis, crs) -> int:
     return 0
 
 
+def _crs_words(paths) -> str | None:
+    """The CRS the files state, in words ("none stated" is left to the header)."""
+    from sensors.crs import crs_label, parse_crs, text_file_crs
+    from survey.clouds.cloudio import cloud_crs_text
+
+    for p in paths:
+        if p is None:
+            continue
+        text = (text_file_crs(p) if Path(p).suffix.lower() in (".csv", ".txt")
+                else cloud_crs_text(p) if Path(p).suffix.lower() != ".json" else None)
+        if text is not None:
+            return crs_label(parse_crs(text, metric=False))
+    return None
+
+
 def _m3c2_reports(args, out: Path, prm, orient: str, distance, lod, significant) -> None:
-    """The summary (.json, _report.md), the histogram (.png) and the closing line."""
+    """The summary (.json, _report.md/.html), the histogram (.png) and the closing
+    line."""
     from survey.report.epochs import m3c2_markdown, m3c2_summary, plot_m3c2_histogram
+    from survey.report.html import write_report
 
     summ = m3c2_summary(distance, lod, significant, prm,
                         epoch1=str(args.epoch1), epoch2=str(args.epoch2),
                         orientation=orient)
     write_json(out.with_name(out.stem + ".json"), summ)
-    write_text(out.with_name(out.stem + "_report.md"),
-               m3c2_markdown(summ, title=f"M3C2 {Path(args.epoch1).name} -> "
-                                         f"{Path(args.epoch2).name}"))
-    plot_m3c2_histogram(distance, significant, out.with_name(out.stem + ".png"))
+    png = out.with_name(out.stem + ".png")
+    plot_m3c2_histogram(distance, significant, png)
+    inputs = [("epoch 1 (earlier)", args.epoch1, ""), ("epoch 2 (later)", args.epoch2, "")]
+    if args.core:
+        inputs.append(("core points", args.core, ""))
+    head = report_header(args, inputs, crs=_crs_words([args.epoch1, args.epoch2]),
+                         settings=[("normal orientation", orient)])
+    write_report(out.with_name(out.stem + "_report.md"),
+                 m3c2_markdown(summ, title=f"M3C2 {Path(args.epoch1).name} -> "
+                                           f"{Path(args.epoch2).name}", header=head,
+                               figure=png.name))
     say(args, f"M3C2: {summ['with_distance']:,} of {summ['core_points']:,} core points, "
               f"median {1000 * summ['median_m']:.2f} mm, {summ['significant']:,} "
               f"significant (median LoD95 {1000 * summ['median_lod_m']:.2f} mm) -> "
@@ -350,10 +379,10 @@ def cmd_convergence(args) -> int:
                                         "or a smaller --every.")
         changes = radial_change(e1, e2, al, at, centre=centre, band_m=args.band,
                                 angle_step_rad=np.deg2rad(args.angle_step))
+    from survey.report.html import write_report
+
     out = out_dir(args.output, args.force)
-    md = convergence_markdown(ch, changes)
-    write_text(out / "convergence.md", md)
-    said = ["convergence.md", "convergence.json"]
+    said = ["convergence.md", "convergence.html", "convergence.json"]
     summary: dict = {"chords": [] if ch is None else ch.rows(), "sections": []}
     if ch is not None:
         write_text(out / "chords.csv", chords_csv(ch))
@@ -365,6 +394,32 @@ def cmd_convergence(args) -> int:
         write_text(out / "radial.csv", radial_csv(changes))
         plot_radial(changes, out / "radial.png")
         said += ["radial.csv", "radial.png"]
+    inputs = [(f"epoch {k + 1} ({'earlier' if k == 0 else 'later'})", p, "")
+              for k, p in enumerate(args.epochs)]
+    inputs += [(f"points of epoch {k}", p, "") for k, p in
+               ((1, args.control1), (2, args.control2)) if p]
+    inputs.append(("tunnel (alignment, profile)", args.tunnel, ""))
+    settings = [("sections", (f"at {args.at} m" if args.at else f"every {args.every:g} m")
+                 if args.epochs else "none (chords only)")]
+    if args.epochs:
+        settings += [("band (half-width along the axis)", f"{args.band:g} m"),
+                     ("angle step", f"{args.angle_step:g}°")]
+    if args.sigma_mm is not None:
+        settings.append(("point precision (per coordinate)", f"{args.sigma_mm:g} mm"))
+    head = report_header(args, inputs, settings=settings, crs=_crs_words(
+        list(args.epochs) + [args.control1, args.control2]))
+    epochs = ([Path(p).name for p in args.epochs] if args.epochs else
+              [Path(args.control1).name, Path(args.control2).name])
+    md = convergence_markdown(ch, changes, header=head, epochs=epochs,
+                              band_m=args.band if changes else None,
+                              angle_step_deg=args.angle_step if changes else None,
+                              figure="radial.png" if changes else None)
+    write_report(out / "convergence.md", md)
+    summary.update({"epochs": [str(p) for p in args.epochs],
+                    "control": [str(p) for p in (args.control1, args.control2) if p],
+                    "band_m": args.band, "angle_step_deg": args.angle_step,
+                    "inputs": [{"role": i.role, "path": i.path, "sha256": i.sha256}
+                               for i in head.inputs]})
     write_json(out / "convergence.json", summary)
     say(args, md.rstrip() + f"\n-> {out}/ ({', '.join(said)})")
     return 0
