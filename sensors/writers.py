@@ -11,7 +11,10 @@ written under a temporary name renamed into place on a clean close: an interrupt
 (an exception, Ctrl-C) leaves no file that looks complete.
 
 - **LAS 1.4 / LAZ** (``sensors.las``): point format 6 with GPS time (the pulse time),
-  intensity (``intensity`` x 65535), return 1 of 1, scan angle (the beam's elevation in
+  intensity (``intensity`` x 65535), return 1 of 1 (or the chunk's
+  ``return_number``/``number_of_returns`` where it has them: multiple returns,
+  ``sensors.waveform``, whose ``echo_width``/``echo_amplitude`` then go into extra
+  bytes too), scan angle (the beam's elevation in
   the sensor frame, in the format's 0.006 deg units), user data (channel mod 256),
   point source ID (frame mod 65536) and classification 7 (noise) for particle returns,
   else 0. The other fields go into extra bytes: all of them (``fields="full"``:
@@ -220,6 +223,15 @@ class PointWriter(Stream):
         raise NotImplementedError
 
 
+#: Echo fields of multiple returns (``sensors.waveform.RETURN_FIELDS``) stored as LAS
+#: extra bytes where a chunk has them: (name, POINT field, type, description).
+LAS_ECHO_EXTRA: tuple[tuple[str, str, str, str], ...] = (
+    ("echo_width", "echo_width", "f4", "echo Gaussian sigma [m]"),
+    ("echo_amplitude", "echo_amplitude", "f4", "echo peak [relative power]"))
+#: The return-number fields a chunk of multiple returns has (``RETURN_FIELDS``).
+_RETURN_BITS = ("return_number", "number_of_returns")
+
+
 class _LasPoints(PointWriter):
     def __init__(self, path, *, compress: bool, fields: str, copc: bool = False,
                  **kw) -> None:
@@ -228,6 +240,8 @@ class _LasPoints(PointWriter):
         self._copc = copc
         self._extra = LAS_EXTRA if fields == "full" else \
             tuple(e for e in LAS_EXTRA if e[0] in LAS_COMPACT)
+        self._echo: tuple[tuple[str, str, str, str], ...] = ()
+        self._returns = False
         self._w: LasWriter | CopcWriter | None = None
         self._records: LasRecords | None = None
 
@@ -239,6 +253,10 @@ class _LasPoints(PointWriter):
         header.offsets = offsets_near(first_xyz)
         # Each extra dimension described with its unit (sensors.fields.FILE_FIELDS).
         header.add_extra_dims(extra_params({n: np.dtype(t) for n, _, t in self._extra}))
+        if self._echo:   # multiple returns: the echo's width and amplitude
+            header.add_extra_dims([laspy.ExtraBytesParams(name=n, type=np.dtype(t),
+                                                          description=txt)
+                                   for n, _, t, txt in self._echo])
         header.system_identifier = f"tunnelsim {self.sensor}"[:32]
         header.generating_software = "tunnelsim"
         header.vlrs.append(laspy.VLR(user_id="tunnelsim", record_id=1,
@@ -253,6 +271,11 @@ class _LasPoints(PointWriter):
             if not len(c):
                 return
             first = np.array([c["x"][0], c["y"][0], c["z"][0]], dtype=np.float64)
+            # Chunks of multiple returns (sensors.waveform) carry return numbers and
+            # echo fields; the file's layout follows its first chunk.
+            names = c.dtype.names or ()
+            self._returns = all(n in names for n in _RETURN_BITS)
+            self._echo = tuple(e for e in LAS_ECHO_EXTRA if e[1] in names)
             self._w = self._open_file(self._header(first))
             self._records = LasRecords(self._w.header)
         assert self._records is not None
@@ -264,9 +287,13 @@ class _LasPoints(PointWriter):
                   "scan_angle": np.round(np.rad2deg(c["elevation"]) / 0.006),
                   "user_data": c["channel"] % 256, "point_source_id": c["frame"] % 65536,
                   "classification": np.where(c["flag"] == 2, 7, 0)}
+        copies = {name: field for name, field, _ in self._extra}
+        if self._returns:   # LAS 1.4 R15 table 21: return number bits 0-3, count 4-7
+            fields["bit_fields"] = (c["return_number"].astype(np.uint8) & 0x0F) | \
+                (c["number_of_returns"].astype(np.uint8) << 4)
+        copies.update({name: field for name, field, _, _ in self._echo})
         self._w.write_points(self._records.fill(
-            (c["x"], c["y"], c["z"]), fields, records=c,
-            copies={name: field for name, field, _ in self._extra}))
+            (c["x"], c["y"], c["z"]), fields, records=c, copies=copies))
 
     def _finish(self):
         if self._w is None:   # an empty run still gives a valid, empty file
