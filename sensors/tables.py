@@ -336,7 +336,8 @@ def map_columns(table: Table, aliases: Mapping[str, Sequence[str]],
         it wins over the aliases.
     headerless : fields in column order for a table without a header (and no mapping):
         the table must then have exactly that many columns.
-    what, flag : for messages: what the file is, and the option giving the mapping.
+    what, flag : for messages: what the file is, and the option giving the mapping
+        ("": a reader without such an option; messages then ask for a header).
     error : exception class raised.
     labels : {field: name}, optional
         How messages and ``flag`` name a field (default: the field itself).
@@ -373,8 +374,10 @@ def map_columns(table: Table, aliases: Mapping[str, Sequence[str]],
         if len(headerless) != width:
             raise error(f"Expected {len(headerless)} columns "
                         f"({','.join(headerless)}, in that order) in the headerless "
-                        f"{what} '{table.path}', got {width}; {found}; add a header row "
-                        f"or pass {flag} (e.g. {flag} {','.join(str(i + 1) for i in range(len(required)))}).")
+                        f"{what} '{table.path}', got {width}; {found}; add a header row"
+                        + (f" or pass {flag} (e.g. {flag} "
+                           f"{','.join(str(i + 1) for i in range(len(required)))})."
+                           if flag else " naming the columns."))
         out = {f: i for i, f in enumerate(headerless)}
     elif table.names is not None:
         normed = [normalise_name(n) for n in table.names]
@@ -387,7 +390,8 @@ def map_columns(table: Table, aliases: Mapping[str, Sequence[str]],
             if len(hits) > 1:
                 raise error(f"Expected one column for {field} in '{table.path}', got "
                             f"{' and '.join(repr(table.names[i]) for i in hits)}; {found}; "
-                            f"pass {flag} to say which.")
+                            + (f"pass {flag} to say which." if flag
+                               else "rename one of them."))
             if hits:
                 out[field] = hits[0]
         known = {normalise_name(a) for names in aliases.values() for a in names}
@@ -396,14 +400,14 @@ def map_columns(table: Table, aliases: Mapping[str, Sequence[str]],
             raise error(f"Expected only the columns {', '.join(aliases)} in the {what} "
                         f"'{table.path}', got unknown "
                         f"{', '.join(repr(n) for n in strange)}; {found}; rename or "
-                        f"remove those columns, or pass {flag}.")
+                        f"remove those columns" + (f", or pass {flag}." if flag else "."))
     missing = [(labels or {}).get(f, f) for f in required if f not in out]
     if missing:
         raise error(f"Expected a column for {', '.join(missing)} in the {what} "
-                    f"'{table.path}', got none that maps ({found}); rename the header "
-                    f"or pass {flag} (e.g. {flag} "
-                    f"{','.join(str(i + 1) for i in range(len(required)))} or "
-                    f"{','.join(f'{f}=NAME' for f in missing)}).")
+                    f"'{table.path}', got none that maps ({found}); rename the header"
+                    + (f" or pass {flag} (e.g. {flag} "
+                       f"{','.join(str(i + 1) for i in range(len(required)))} or "
+                       f"{','.join(f'{f}=NAME' for f in missing)})." if flag else "."))
     return out
 
 
@@ -423,6 +427,6 @@ def numeric_columns(table: Table, columns: Mapping[str, int], fields: Sequence[s
                 name = repr(table.names[c]) if table.names else f"column {c + 1}"
                 raise error(f"Expected a number in {name} ({f}) on line {k} of the {what} "
                             f"'{table.path}', got {r[c]!r}; found "
-                            f"{table.dialect.describe()}; fix the line or pass "
-                            f"{flag}.") from None
+                            f"{table.dialect.describe()}; fix the line"
+                            + (f" or pass {flag}." if flag else ".")) from None
     return out

@@ -463,32 +463,22 @@ def csv_column_order(header: list[str]) -> list[int]:
 
 
 def _read_csv(path: Path) -> NDArray[np.float64]:
-    """(n, 8) float64 rows in TUM order from a CSV trajectory (``CSV_COLUMNS``)."""
-    lines = path.read_text().splitlines()
-    # Blank lines and comments without a comma (a title line) are skipped; the first
-    # line left is the header, or the first pose when it is all numbers.
-    body = [ln for ln in lines
-            if ln.strip() and not (ln.lstrip().startswith("#") and "," not in ln)]
-    if not body:
-        raise TrajectoryError(f"Expected poses in the CSV trajectory '{path}', got none.")
-    first = [f.strip() for f in body[0].split(",")]
-    if all(_is_number(f) for f in first):
-        if len(first) != 8:
-            raise TrajectoryError(f"Expected a header, or 8 numbers t,x,y,z,qx,qy,qz,qw a "
-                                  f"row, in the CSV trajectory '{path}', got a first line "
-                                  f"of {len(first)} numbers and no header; add a header "
-                                  "naming the columns.")
-        order = list(range(8))
-    else:
-        order = csv_column_order(first)
-        body = body[1:]
-        if not body:
-            raise TrajectoryError(f"Expected poses below the header of '{path}', got none.")
-    data = np.loadtxt(body, delimiter=",", comments="#", ndmin=2)
-    if data.shape[1] != len(first):
-        raise TrajectoryError(f"Expected {len(first)} numbers a row in '{path}', as its "
-                              f"first line has, got {data.shape[1]}.")
-    return data[:, order]
+    """(n, 8) float64 rows in TUM order from a CSV trajectory (``CSV_COLUMNS``), its
+    dialect sniffed as for control points (``sensors.tables``: delimiter, decimal comma,
+    encoding; a '#' header as EuRoC writes it). A header names the 8 columns and nothing
+    else; a headerless file is 8 numbers a row in TUM order."""
+    from sensors.tables import map_columns, numeric_columns, read_table
+
+    fields = tuple(CSV_COLUMNS)
+    tab = read_table(path, what="CSV trajectory", error=TrajectoryError, hash_header=True)
+    if not tab.rows:
+        raise TrajectoryError(f"Expected poses in the CSV trajectory '{path}'"
+                              + (" below its header" if tab.names else "")
+                              + ", got none.")
+    col = map_columns(tab, CSV_COLUMNS, fields, headerless=fields, unknown="error",
+                      what="CSV trajectory", flag="", error=TrajectoryError)
+    return numeric_columns(tab, col, fields, what="CSV trajectory", flag="",
+                           error=TrajectoryError)
 
 
 #: Stamps read as seconds must stay within these (ASSUMED, generous): a trajectory of a
