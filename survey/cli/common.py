@@ -414,6 +414,10 @@ def physics_options(cmd: Command) -> None:
       help="rate of airborne-particle returns per metre (default 0)")
     p("--reflectivity", type=float, default=0.5,
       help="reflectivity where the mesh has none (default 0.5)")
+    p("--returns", choices=["strongest", "last", "first", "dual", "all"],
+      help="multiple returns: simulate each pulse's waveform and write the echoes this "
+           "return mode reports (one of the sensor's [returns] modes; LAS return "
+           "numbers, echo_width and echo_amplitude); default: one return per pulse")
     p("--seed", type=int, default=0, help="random seed (default 0)")
     p("--threads", type=int, help="Numba threads (default: all cores)")
     p("--quiet", action="store_true", help="no progress bar or summary")
@@ -527,6 +531,37 @@ def report_options(c: Command) -> None:
              help="project name the report header states (e.g. 'Gotthard lot 3')")
     c.option("--instrument", metavar="TEXT",
              help="instrument the report header states (e.g. 'Leica TS16 SN 123456')")
+
+
+def crs_words(paths) -> str | None:
+    """The CRS the first of ``paths`` that states one states, in words (None: none
+    stated; the header says so)."""
+    from sensors.crs import crs_label, parse_crs, text_file_crs
+    from survey.clouds.cloudio import cloud_crs_text
+
+    for p in paths:
+        if p is None:
+            continue
+        suffix = Path(p).suffix.lower()
+        if suffix == ".json":
+            continue
+        text = text_file_crs(p) if suffix in (".csv", ".txt") else cloud_crs_text(p)
+        if text is not None:
+            return crs_label(parse_crs(text, metric=False))
+    return None
+
+
+def write_headed_report(args: argparse.Namespace, path: Path, text: str,
+                        inputs: list[tuple[str, Any, str]], *, crs_from=(),
+                        settings: list[tuple[str, str]] | None = None) -> None:
+    """Write a report's Markdown and its self-contained HTML (``path`` .md and .html)
+    with the header block (``report_header``; the CRS read from the files
+    ``crs_from``) below its title. Figures it links must exist already."""
+    from survey.report.header import with_header
+    from survey.report.html import write_report
+
+    head = report_header(args, inputs, crs=crs_words(crs_from), settings=settings)
+    write_report(path, with_header(text, head))
 
 
 def report_header(args: argparse.Namespace, inputs: list[tuple[str, Any, str]],

@@ -172,3 +172,38 @@ def test_with_header_puts_the_block_below_the_title(tmp_path):
     assert hashlib.sha256(b"abc").hexdigest() in text
     assert text.index("SHA-256") < text.index("| a | b |")
     assert with_header("x\n", None) == "x\n"
+
+
+def test_compare_report_states_inputs_crs_units_and_embeds_its_histogram(tmp_path):
+    # compare's stats.md/.html (wired through survey.cli.common.write_headed_report):
+    # both inputs with their SHA-256, the CRS the clouds state, every statistic in mm,
+    # and the HTML carries the histogram's own bytes.
+    pytest.importorskip("pyproj")
+    import laspy
+
+    from sensors.las import set_las_crs
+
+    rng = np.random.default_rng(5)
+    paths = []
+    for name, dz in (("cmp.las", 0.004), ("ref.las", 0.0)):
+        xyz = UTM + rng.uniform([0, 0, 0], [20, 20, 0.001], (3000, 3)) + [0, 0, dz]
+        h = laspy.LasHeader(point_format=6, version="1.4")
+        h.offsets, h.scales = UTM, [1e-4] * 3
+        set_las_crs(h, "EPSG:2056")
+        las = laspy.LasData(h)
+        las.x, las.y, las.z = xyz.T
+        las.write(tmp_path / name)
+        paths.append(tmp_path / name)
+    out = tmp_path / "cmp"
+    assert main(["compare", *map(str, paths), "-o", str(out), "--quiet",
+                 "--project", "Lot 7"]) == 0
+    md = (out / "stats.md").read_text(encoding="utf-8")
+    for p in paths:
+        assert _sha(p) in md
+    assert "Lot 7" in md and "2056" in md
+    head = next(ln for ln in md.splitlines() if ln.startswith("| C2C"))
+    assert all(col.strip().endswith("(mm)") for col in head.strip("|").split("|")[2:])
+    html = (out / "stats.html").read_text(encoding="utf-8")
+    assert not re.search(r"""(src|href)=["']https?:""", html)
+    embedded = re.findall(r"data:image/png;base64,([A-Za-z0-9+/=]+)", html)
+    assert base64.b64decode(embedded[0]) == (out / "histogram.png").read_bytes()

@@ -14,7 +14,9 @@ from survey.cli.common import (
     out_dir,
     open_cluster,
     pair,
+    report_options,
     say,
+    write_headed_report,
     write_json,
     write_text,
 )
@@ -60,6 +62,7 @@ def register(commands: CommandSet) -> None:
     c.option("--threads", type=int, help="Numba threads (default: all cores)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
     c.option("--quiet", action="store_true", help="no progress bar or summary")
+    report_options(c)
 
     c = commands.add(
         "plan", cmd_plan,
@@ -113,6 +116,7 @@ def register(commands: CommandSet) -> None:
     c.option("--threads", type=int, help="Numba threads (default: all cores)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
     c.option("--quiet", action="store_true", help="print nothing on success")
+    report_options(c)
 
     c = commands.add(
         "study", cmd_study, seeded=True, help="MLS speed x scan-rate x mounting study",
@@ -152,6 +156,7 @@ def register(commands: CommandSet) -> None:
     c.option("--threads", type=int, help="Numba threads (default: all cores)")
     c.option("--force", action="store_true", help="write into a non-empty folder")
     c.option("--quiet", action="store_true", help="print nothing on success")
+    report_options(c)
 
 
 def _route_options(c, who: str) -> None:
@@ -281,12 +286,22 @@ def _compare_outputs(args, ref_path, kind, out, rows, hist) -> int:
     title = "C2M (signed)" if kind == "mesh" else "C2C"
     write_text(out / "stats.csv", stats_csv(rows))
     md = stats_markdown(rows, title=title)
-    write_text(out / "stats.md", f"# {title} distances to {Path(ref_path).name}\n\n" + md +
-               ("" if args.max_dist is None else
-                f"\nDistances beyond {args.max_dist} m are clamped to it.\n"))
     plot_histogram(hist, out / "histogram.png",
                    xlabel=f"{title} distance to {Path(ref_path).name} (mm)")
-    say(args, md.rstrip() + f"\n-> {out}/ (stats.csv, stats.md, histogram.png, "
+    compared = [c for c in args.clouds if c != ref_path]
+    write_headed_report(
+        args, out / "stats.md",
+        f"# {title} distances to {Path(ref_path).name}\n\n" + md +
+        ("" if args.max_dist is None else
+         f"\nDistances beyond {args.max_dist} m are clamped to it.\n") +
+        "\n![histogram](histogram.png)\n",
+        [*[("compared", c, "") for c in compared],
+         ("reference", ref_path, "mesh" if kind == "mesh" else "cloud")],
+        crs_from=[*compared, ref_path],
+        settings=[("distance", title), ("max distance (m)",
+                                        "none" if args.max_dist is None
+                                        else f"{args.max_dist:g}")])
+    say(args, md.rstrip() + f"\n-> {out}/ (stats.csv, stats.md/.html, histogram.png, "
                             "*_distance.laz with scalar field 'distance')")
     return 0
 
@@ -465,8 +480,9 @@ def cmd_plan(args) -> int:
         plan_csv(p, pl) if i == 0 else plan_csv(p, pl).split("\n", 1)[1]
         for i, p in enumerate(plans)))
     md = plan_markdown(plans, pl, info)
-    write_text(out / "plan.md", md)
     plot_coverage(plans, pl, out / "coverage.png")
+    write_headed_report(args, out / "plan.md", md, [("mesh", args.mesh, "")],
+                        crs_from=[args.mesh])
     write_json(out / "plan.json", plan_summary(plans, pl, info))
     files = "plan.csv, plan.md, plan.json, coverage.png"
     if isinstance(pl, RoutePlanner):
@@ -552,9 +568,10 @@ def cmd_study(args) -> int:
         sys.stderr.write("\n")
     write_text(out / "study.csv", study_csv(rows))
     md = study_markdown(rows, spec.name, st.strip_m, st.lead_m, route=route)
-    write_text(out / "study.md", md)
     plot_study(st, rows, out / "study.png", rings_mount="down" if "down" in mounts else None,
                rings_rate=rates[0])
+    write_headed_report(args, out / "study.md", md, [("mesh", args.mesh, "")],
+                        crs_from=[args.mesh], settings=[("sensor", spec.name)])
     files = "study.csv, study.md, study.png"
     if route is not None:
         route.write_csv(out / "route.csv")

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import sys
 
-from survey.cli.common import CommandSet, floats, out_dir, say, write_json, write_text
+from survey.cli.common import (CommandSet, floats, out_dir, report_options, say,
+                               write_headed_report, write_json, write_text)
 from survey.errors import TunnelsimCLIError
 
 __all__ = ["FULL", "QUICK", "cmd_detect", "register"]
@@ -86,6 +87,7 @@ def register(commands: CommandSet) -> None:
              help="a small study (about a minute): the tests' and the demo's")
     c.option("-o", "--output", required=True, path="out", help="output folder")
     c.option("--force", action="store_true", help="write into a non-empty folder")
+    report_options(c)
 
 
 def _get(args, name: str):
@@ -153,8 +155,13 @@ def cmd_detect(args) -> int:
     write_text(out / "detect.csv", detect_csv(rows))
     write_text(out / "targets.csv", targets_csv(rows))
     md = detect_markdown(study, rows)
-    write_text(out / "detect.md", md)
     plot_detectability(rows, out / "detect.png")
+    write_headed_report(args, out / "detect.md", md,
+                        [("mesh", args.mesh, "")] if args.mesh else [],
+                        crs_from=[args.mesh] if args.mesh else [],
+                        settings=[("sensors", args.sensor),
+                                  ("tunnel", "the mesh" if args.mesh
+                                   else f"preset {args.preset or _get(args, 'preset')}")])
     say(args, md.rstrip() + f"\n-> {out}/ (detect.json, detect.csv, targets.csv, "
                             "detect.md, detect.png)")
     return 0

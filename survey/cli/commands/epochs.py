@@ -12,6 +12,7 @@ from survey.cli.common import (
     numbers,
     open_cluster,
     out_dir,
+    crs_words,
     report_header,
     report_options,
     say,
@@ -261,21 +262,6 @@ def _m3c2_tiled(args, out: Path, prm, orient: str, vector, axis, crs) -> int:
     return 0
 
 
-def _crs_words(paths) -> str | None:
-    """The CRS the files state, in words ("none stated" is left to the header)."""
-    from sensors.crs import crs_label, parse_crs, text_file_crs
-    from survey.clouds.cloudio import cloud_crs_text
-
-    for p in paths:
-        if p is None:
-            continue
-        text = (text_file_crs(p) if Path(p).suffix.lower() in (".csv", ".txt")
-                else cloud_crs_text(p) if Path(p).suffix.lower() != ".json" else None)
-        if text is not None:
-            return crs_label(parse_crs(text, metric=False))
-    return None
-
-
 def _m3c2_reports(args, out: Path, prm, orient: str, distance, lod, significant) -> None:
     """The summary (.json, _report.md/.html), the histogram (.png) and the closing
     line."""
@@ -291,7 +277,7 @@ def _m3c2_reports(args, out: Path, prm, orient: str, distance, lod, significant)
     inputs = [("epoch 1 (earlier)", args.epoch1, ""), ("epoch 2 (later)", args.epoch2, "")]
     if args.core:
         inputs.append(("core points", args.core, ""))
-    head = report_header(args, inputs, crs=_crs_words([args.epoch1, args.epoch2]),
+    head = report_header(args, inputs, crs=crs_words([args.epoch1, args.epoch2]),
                          settings=[("normal orientation", orient)])
     write_report(out.with_name(out.stem + "_report.md"),
                  m3c2_markdown(summ, title=f"M3C2 {Path(args.epoch1).name} -> "
@@ -406,7 +392,7 @@ def cmd_convergence(args) -> int:
                      ("angle step", f"{args.angle_step:g}°")]
     if args.sigma_mm is not None:
         settings.append(("point precision (per coordinate)", f"{args.sigma_mm:g} mm"))
-    head = report_header(args, inputs, settings=settings, crs=_crs_words(
+    head = report_header(args, inputs, settings=settings, crs=crs_words(
         list(args.epochs) + [args.control1, args.control2]))
     epochs = ([Path(p).name for p in args.epochs] if args.epochs else
               [Path(args.control1).name, Path(args.control2).name])

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from survey.cli.common import CommandSet, write_json, write_text
+from survey.cli.common import CommandSet, report_options, write_headed_report, write_json
 from survey.errors import TunnelsimCLIError
 
 #: Trajectory suffixes ``slam -o`` writes (TUM text, or CSV).
@@ -48,6 +48,7 @@ def register(commands: CommandSet) -> None:
              help="odometry map voxel in m (default 0.5 for KISS-ICP, 0.3 for GenZ-ICP)")
     c.option("--max-range", type=float, default=100.0, metavar="M",
              help="ignore points farther than this (default 100)")
+    report_options(c)
 
 
 def _check_args(args):
@@ -148,8 +149,10 @@ def _evaluate(args, est, truth, out, run: dict) -> dict:
     err = trajectory_errors(est, truth)
     png = out.with_name(out.stem + ".png")
     plot_slam(est, truth, err, png)
-    write_text(out.with_name(out.stem + "_report.md"),
-               slam_report(err, odometry=args.odometry, plot_path=png))
+    write_headed_report(args, out.with_name(out.stem + "_report.md"),
+                        slam_report(err, odometry=args.odometry, plot_path=png),
+                        [("drive", args.drive, ""), ("truth", args.truth, "")],
+                        settings=[("odometry", str(args.odometry))])
     d = err.to_dict()
     write_json(out.with_name(out.stem + ".json"), dict(d, **run))
     return {k: d[k] for k in ("final_error_m", "final_error_pct", "path_length_m",
