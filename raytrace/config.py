@@ -195,11 +195,12 @@ SAH_BINS = 16
 #: (0.64 vs 0.89 s) but raises the SAH cost 11 % and casts 5-20 % slower; a scene is
 #: built once and cast many times, so all axes is the default.
 SAH_ALL_AXES = True
-#: Cost of one traversal step relative to C_ISECT. One step here reads a 64-byte record
-#: and runs two slab tests; the triangle test is float64 Möller–Trumbore. Measured on the
-#: 1M-triangle benchmark tunnel (benchmarks/bench_raycast.py): C_trav 1 -> 3 with leaves
-#: up to 16 gives mean leaves of ~4.8 instead of ~2, builds 25 % faster, halves the node
-#: memory and casts as fast or faster (within this machine's ~30 % timing noise).
+#: Cost of one traversal step relative to C_ISECT; the triangle test is float64
+#: Möller–Trumbore. Measured on the 1M-triangle benchmark tunnel
+#: (benchmarks/bench_raycast.py) with the earlier 4-wide records: C_trav 1 -> 3 with
+#: leaves up to 16 gives mean leaves of ~4.8 instead of ~2, builds 25 % faster, halves
+#: the node memory and casts as fast or faster (within this machine's ~30 % timing
+#: noise). Not re-tuned for the 8-wide records (one packed 8-box test a step, issue 33).
 SAH_C_TRAV = 3.0
 #: Cost of one ray-triangle test.
 SAH_C_ISECT = 1.0

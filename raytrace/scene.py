@@ -33,11 +33,12 @@ from numpy.typing import ArrayLike, NDArray
 from . import config
 from .checks import first_rows, prepare_rays, validate_mesh
 from ._kernels.build import build_bvh, slot_triangles, triangle_setup
-from ._kernels.collapse import to_quad_layout
+from ._kernels.collapse import to_wide_layout
 from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
 from ._kernels.order import counting_sort, is_coherent, morton_keys, origin_runs
 from ._kernels.rays import input_triangles
-from ._kernels.traverse import any_hit, closest_hit
+from ._kernels.simd import LANES
+from ._kernels.traverse import CHILD, RECORD, any_hit, closest_hit
 from .errors import ConfigError, MeshError, RayError, SceneFileError
 from .fileio import atomic_writer, npz_memmap
 from .hits import Hits
@@ -48,7 +49,8 @@ _NO_ORDER = np.empty(0, dtype=np.int64)
 
 #: Version of the ``Scene.save`` file layout; ``Scene.load`` refuses other versions.
 #: 5: the input vertices and faces are stored too (``Scene.vertices``, ``Scene.faces``).
-FILE_FORMAT = 5
+#: 6: 8-wide node records (256 bytes) instead of 4-wide ones.
+FILE_FORMAT = 6
 
 Method = Literal["auto", "bvh", "cubemap"]
 
@@ -165,8 +167,8 @@ class Scene:
                 build["c_isect"], build["max_leaf_size"], int(config.MAX_LEAF_SIZE_FORCED),
                 int(stop))
         del prim
-        quad_box, quad_link, (n_nodes, n_leaves, max_depth, in_leaves, cost, depth4) = \
-            to_quad_layout(node_box, node_meta, build["c_trav"], build["c_isect"])
+        wide_box, wide_link, (n_nodes, n_leaves, max_depth, in_leaves, cost, depth_w) = \
+            to_wide_layout(node_box, node_meta, build["c_trav"], build["c_isect"], LANES)
         del node_box, node_meta
         # DECISION: per slot v0, e1, e2 in float64 (72 B a triangle, a leaf is one
         # contiguous run) rather than shared vertices + indices (~24 B): with shared
@@ -177,10 +179,10 @@ class Scene:
         slot_triangles(local, f, keep, self._tris)
         del local
         self._ids = keep.astype(np.int32)
-        self._nodes = _pack_nodes(quad_box, quad_link, hi - lo)
+        self._nodes = _pack_nodes(wide_box, wide_link, hi - lo)
         self._max_depth = int(max_depth)
-        # A visit pushes at most 3 records: 3 per 4-wide level, plus slack.
-        self._stack_size = 3 * int(depth4) + 4
+        # A visit pushes at most 7 records: 7 per 8-wide level, plus slack.
+        self._stack_size = (LANES - 1) * int(depth_w) + LANES
         self._n_input_faces = int(m)
         self._build = build
         self._view_cache: tuple[bytes, Any] | None = None
@@ -499,7 +501,7 @@ class Scene:
     def bounds(self) -> NDArray[np.float64]:
         """(2, 3) float64: world-coordinate box of the mesh, (min, max) rows, padded
         outward by the BVH's float32 rounding (~1e-6 of the extent)."""
-        b = self._nodes[0, :24].astype(np.float64).reshape(6, 4)  # SoA lanes
+        b = self._nodes[0, :6 * LANES].astype(np.float64).reshape(6, LANES)  # SoA lanes
         lo = b[:3].min(axis=1)
         hi = b[3:].max(axis=1)
         return np.stack([lo, hi]) + self.origin_offset
@@ -558,21 +560,25 @@ def _release_freed_memory():
 _MALLOC_TRIM = None
 
 
-def _pack_nodes(quad_box, quad_link, extent):
-    """Pack the 4-wide layout into one (n4, 32) float32 array (128-byte records).
+def _pack_nodes(wide_box, wide_link, extent):
+    """Pack the 8-wide layout into one (n8, 64) float32 array (256-byte records, the
+    layout ``_kernels/traverse.py`` documents).
 
-    Boxes (columns 0:12 minima, 12:24 maxima) are rounded outward to float32 and padded
-    by ``config.BOX_PAD_REL`` times the scene extent; links are stored as int32 bits in
-    columns 24-31.
+    Boxes (columns 0:24 minima, 24:48 maxima) are padded by ``config.BOX_PAD_REL`` times
+    the scene extent and rounded outward to float32 (minima down, maxima up, then one
+    more float32 step): a float32 box must contain the float64 box of its triangles, or
+    a ray grazing a triangle's extreme vertex or edge could miss the box and the triangle
+    with it (the watertight guarantee). Links are stored as int32 bits in columns 48:64.
     """
     pad = config.BOX_PAD_REL * float(max(np.max(extent), 1e-12))
-    nodes = np.empty((quad_box.shape[0], 32), dtype=np.float32)
+    half = 3 * LANES
+    nodes = np.empty((wide_box.shape[0], RECORD), dtype=np.float32)
     with np.errstate(invalid="ignore", over="ignore"):
-        lo = (quad_box[:, :12].astype(np.float64) - pad).astype(np.float32)
-        hi = (quad_box[:, 12:24].astype(np.float64) + pad).astype(np.float32)
-    nodes[:, :12] = np.nextafter(lo, np.float32(-np.inf))
-    nodes[:, 12:24] = np.nextafter(hi, np.float32(np.inf))
-    if quad_link.max() >= 2 ** 31:
+        lo = (wide_box[:, :half].astype(np.float64) - pad).astype(np.float32)
+        hi = (wide_box[:, half:2 * half].astype(np.float64) + pad).astype(np.float32)
+    nodes[:, :half] = np.nextafter(lo, np.float32(-np.inf))
+    nodes[:, half:2 * half] = np.nextafter(hi, np.float32(np.inf))
+    if wide_link.max() >= 2 ** 31:
         raise MeshError("Expected fewer than 2**31 triangles, got more; split the mesh.")
-    nodes.view(np.int32)[:, 24:32] = quad_link.astype(np.int32)
+    nodes.view(np.int32)[:, CHILD:RECORD] = wide_link.astype(np.int32)
     return nodes

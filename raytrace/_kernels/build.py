@@ -21,7 +21,7 @@ Steps:
    its subtree). Below, partitions are in place (Hoare-style swaps). The tree does not
    depend on the thread count (fixed chunks; counts, min and max are order-free).
    Work O(n log n); no Python loop over triangles.
-3. ``collapse.to_quad_layout`` (its own module): collapses the binary tree into 4-wide
+3. ``collapse.to_wide_layout`` (its own module): collapses the binary tree into 8-wide
    records (the traversal layout, see ``traverse.py``) and collects the tree statistics.
 
 Build arrays (explicit child pointers; node order is irrelevant, only the walk matters)::

@@ -43,7 +43,7 @@ from numba import njit, prange
 
 from ..config import CACHE, CUBEMAP_PAD, ERROR_MODEL
 from .intersect import closer, moller_trumbore
-from .traverse import trace_closest
+from .traverse import new_scratch, trace_closest
 
 #: Chunk of triangles per parallel task in the footprint pass.
 _CHUNK = 4096
@@ -317,10 +317,7 @@ def _view_block(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs
     """Rays r0..r1 of ``closest_hit_view``, sequentially: a serial function called from
     the prange loop, as ``traverse._closest_block`` is (measured here: as fast as the
     loop inlined into the prange body, within this VM's noise)."""
-    st_node = np.empty(stack_size, dtype=np.int64)
-    st_dist = np.empty(stack_size)
-    sd = np.empty(4)
-    si = np.empty(4, dtype=np.int64)
+    st_node, st_dist, sd, cn, cd = new_scratch(stack_size)
     one_t = tmin.shape[0] == 1
     ox = org[0, 0]
     oy = org[0, 1]
@@ -355,7 +352,7 @@ def _view_block(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs
         if counts[cell] > hot:
             bt, bid, bslot, bu, bv = trace_closest(nodes, links, tris, ids, ox, oy, oz,
                                                    dx, dy, dz, t0, t1, -1,
-                                                   st_node, st_dist, sd, si)
+                                                   st_node, st_dist, sd, cn, cd)
         else:
             bt = t1
             bid = -1

@@ -15,6 +15,7 @@ import pytest
 
 import raytrace
 from raytrace import ConfigError, Hits, MeshError, RayError, Scene, SceneFileError
+from raytrace.scene import FILE_FORMAT
 from raytrace.shapes import icosphere
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -184,10 +185,13 @@ def test_old_scene_files_are_refused(tmp_path):
     path = scene.save(tmp_path / "s.npz")
     with np.load(path) as z:
         arrays = {k: z[k] for k in z.files if k not in ("vertices", "faces")}
-    info = bytes(arrays["info"]).replace(b'"format": 5', b'"format": 4')
+    # The previous format (5: 4-wide node records) must not be read as the current one.
+    new, old = FILE_FORMAT, FILE_FORMAT - 1
+    info = bytes(arrays["info"]).replace(f'"format": {new}'.encode(), f'"format": {old}'.encode())
     arrays["info"] = np.frombuffer(info, dtype=np.uint8)
     np.savez(tmp_path / "old.npz", **arrays)
-    with pytest.raises(SceneFileError, match="format 5, got 4 .*rebuild it from the mesh"):
+    with pytest.raises(SceneFileError,
+                       match=f"format {new}, got {old} .*rebuild it from the mesh"):
         Scene.load(tmp_path / "old.npz")
 
 
