@@ -15,6 +15,12 @@ triangle):
 
 Acceptance (issue 18): median <= 5 mm and 95 % <= 30 mm in both directions.
 
+Issue 29: ``--judge`` also runs the tunnel mesher on the same voxels, prints what
+``tunnelsim mesh --method auto`` would decide (``survey.clouds.meshchoice``) and the
+tunnel mesh's own distances to the truth; ``--max-triangles`` / ``--max-error``
+decimate the solid mesh (``survey.clouds.decimate``), print the error measured after
+decimation, and the acceptance is then checked on the decimated mesh.
+
 Memory: one station chunk (1 M pulses) plus the voxel grid plus Poisson's octree; the
 peak resident size is printed (``resource.getrusage``).
 
@@ -102,6 +108,10 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", help="npz of the voxel-gridded scan (read if present, "
                                     "else written)")
     ap.add_argument("--output", help="write the reconstruction (.ply)")
+    ap.add_argument("--judge", action="store_true",
+                    help="also judge the tunnel mesher's result as mesh --method auto does")
+    ap.add_argument("--max-triangles", type=int, help="decimate to this many triangles")
+    ap.add_argument("--max-error", type=float, help="decimate within this error (m)")
     args = ap.parse_args(argv)
 
     from sensors import find_route, load_mesh
@@ -115,6 +125,7 @@ def main(argv=None) -> int:
     if args.cache and Path(args.cache).is_file():
         d = np.load(args.cache)
         pts, scanners, stations = d["points"], d["scanners"], d["stations"]
+        counts = d["counts"] if "counts" in d else None
         print(f"{name}: {len(stations)} stations, {len(pts):,} voxels (from {args.cache})")
     else:
         route = find_route(scene, height_m=args.height)
@@ -123,10 +134,32 @@ def main(argv=None) -> int:
               f"{len(stations)} stations every {args.spacing:g} m at {args.height:g} m",
               flush=True)
         grid = scan(scene, refl, stations, args.voxel, args.resolution, args.seed)
-        pts, scanners, _ = grid.result()
+        pts, scanners, counts = grid.result()
         print(f"  {grid.n_points:,} points -> {len(pts):,} voxels of {args.voxel:g} m")
         if args.cache:
-            np.savez(args.cache, points=pts, scanners=scanners, stations=stations)
+            np.savez(args.cache, points=pts, scanners=scanners, stations=stations,
+                     counts=counts)
+    rng = np.random.default_rng(args.seed)
+    truth = sample_surface(tv, tf, 1.0 / args.sample ** 2, rng)
+    if args.judge:
+        from survey.clouds.meshchoice import judge_tunnel_fit
+        from survey.clouds.reconstruct import reconstruct_tunnel
+        from survey.errors import ReconstructionError
+
+        try:
+            tun = reconstruct_tunnel(pts, counts=counts)
+        except ReconstructionError as exc:
+            print(f"  auto: no tunnel route ({exc}) -> solid")
+        else:
+            j = judge_tunnel_fit(pts, tun.vertices, tun.faces, tun.support, counts=counts)
+            print(f"  auto: {j.reason} -> {'tunnel' if j.good else 'solid'}")
+            for label, d in (("tunnel mesh -> truth",
+                              cloud_to_mesh(tun.vertices, tv, tf).distance),
+                             ("truth -> tunnel mesh",
+                              cloud_to_mesh(truth, tun.vertices, tun.faces).distance)):
+                st = stats(d)
+                print(f"  {label}: median {st['median'] * 1000:.1f} mm, 95 % "
+                      f"{st['p95'] * 1000:.1f} mm, max {st['max'] * 1000:.0f} mm")
     t1 = time.perf_counter()
     rec = reconstruct_solid(pts, scanners=scanners, cell_m=args.cell or args.voxel,
                             trim_m=args.trim)
@@ -138,10 +171,24 @@ def main(argv=None) -> int:
           f"{rec.trim_m * 1000:.0f} mm: {len(rec.vertices):,} vertices, "
           f"{len(rec.faces):,} triangles, support 0 on {100 * rec.unsupported_share:.2f} % "
           f"of the vertices, {q['trimmed_vertices']:,} trimmed; {t2 - t1:.1f} s")
-    rng = np.random.default_rng(args.seed)
-    truth = sample_surface(tv, tf, 1.0 / args.sample ** 2, rng)
-    d_rt = cloud_to_mesh(rec.vertices, tv, tf).distance
-    d_tr = cloud_to_mesh(truth, rec.vertices, rec.faces).distance
+    mv, mf = rec.vertices, rec.faces
+    if args.max_triangles or args.max_error:
+        from survey.clouds.decimate import decimate_mesh
+
+        t3 = time.perf_counter()
+        dec = decimate_mesh(mv, mf, max_triangles=args.max_triangles,
+                            max_error_m=args.max_error)
+        e = dec.quality["error"]
+        a, b = e["original_to_decimated"], e["decimated_to_original"]
+        print(f"  decimated {len(mf):,} -> {len(dec.faces):,} triangles "
+              f"({dec.quality['tries']} tries, {time.perf_counter() - t3:.1f} s): "
+              f"undecimated -> decimated median {a['median_m'] * 1000:.2f} mm, 95 % "
+              f"{a['p95_m'] * 1000:.2f} mm, max {a['max_m'] * 1000:.1f} mm; back median "
+              f"{b['median_m'] * 1000:.2f} mm, 95 % {b['p95_m'] * 1000:.2f} mm, max "
+              f"{b['max_m'] * 1000:.1f} mm")
+        mv, mf = dec.vertices, dec.faces
+    d_rt = cloud_to_mesh(mv, tv, tf).distance
+    d_tr = cloud_to_mesh(truth, mv, mf).distance
     rows = [("reconstruction -> truth", stats(d_rt)), ("truth -> reconstruction",
                                                         stats(d_tr))]
     print("\n| mesh | direction | points | mean mm | median mm | 95 % mm | max mm |")

@@ -50,16 +50,23 @@ def register(commands: CommandSet) -> None:
                     "scanner of each point (a station's pose from its LAS/PLY/E57 file, "
                     "the trajectory at each point's time, or the "
                     "nearest of --scanners), trimmed where no point lies within --trim, "
-                    "support 0 where it filled a hole. --method auto (default): tunnel "
-                    "when --tunnel-json is given or a tunnel axis is found, else solid.",
+                    "support 0 where it filled a hole. --method auto (default): the "
+                    "tunnel mesher when --tunnel-json is given or a tunnel axis is found, "
+                    "judged on its result (extrapolated share, points off the tube, "
+                    "surface far from the points) and replaced by solid when the fit is "
+                    "poor (a branching mine); else solid. --max-triangles and "
+                    "--max-error compact the mesh of any method by quadric decimation "
+                    "(Open3D), the error measured after.",
         epilog="Example: tunnelsim mesh clean.laz -o tunnel.ply --cell 0.1,2 (or "
                "tunnelsim mesh st01.laz st02.laz st03.laz -o cave.ply --method solid; "
-               "tunnelsim mesh drive.laz -o mine.ply --trajectory drive_true_trajectory.txt)")
+               "tunnelsim mesh drive.laz -o mine.ply --trajectory drive_true_trajectory.txt; "
+               "tunnelsim mesh st*.laz -o mine.ply --max-triangles 200000 --max-error 0.02)")
     c.option("cloud", nargs="+", metavar="CLOUD", path="in",
              help=f"input cloud(s) ({CLOUD_INPUTS}); several: e.g. one file per station")
     c.option("-o", "--output", required=True, path="out", help="output mesh (.ply)")
     c.option("--method", choices=["auto", "tunnel", "poisson", "solid"], default="auto",
-             help="auto (default): tunnel if an axis is given or found, else solid; "
+             help="auto (default): tunnel if an axis is given or found and the tunnel "
+                  "fit is good, else solid (the JSON says which and why); "
                   "tunnel: tunnel-aware mesher; poisson: Open3D Poisson oriented by the "
                   "tunnel axis; solid: Poisson oriented by the scanners (any space)")
     c.option("--cell", default="0.1,2", metavar="M,DEG",
@@ -71,6 +78,14 @@ def register(commands: CommandSet) -> None:
              help="poisson: octree depth (default 10)")
     c.option("--triangles", type=int, metavar="N",
              help="tunnel: triangle budget: coarsen the cells until the mesh fits")
+    c.option("--max-triangles", type=int, metavar="N",
+             help="any method: quadric decimation (Garland & Heckbert, Open3D) to at "
+                  "most N triangles; the error to the undecimated mesh is measured and "
+                  "reported")
+    c.option("--max-error", type=float, metavar="M",
+             help="any method: the fewest triangles (within --max-triangles if given) "
+                  "whose measured error to the undecimated mesh (symmetric, at vertices "
+                  "and face centres) is at most M metres")
     c.option("--min-points", type=int, default=3,
              help="tunnel: cells with fewer points are interpolated (default 3)")
     c.option("--tunnel-json", path="in", help="use the alignment of a generated tunnel's JSON")
@@ -178,21 +193,86 @@ def _check_method_options(args, method: str) -> None:
                              f"{method}{how}; pass --method {m}.")
 
 
-def _mesh_method(args, pts) -> str:
-    """The method --method auto resolves to: tunnel when --tunnel-json is given or the
-    cloud has a tunnel axis (``estimate_axis`` succeeds), else solid."""
+def _mesh_method(args, pts) -> tuple[str, str]:
+    """(method, reason): the method --method auto first tries: tunnel when --tunnel-json
+    is given or the cloud has a tunnel axis (``estimate_axis`` succeeds), else solid;
+    the tunnel mesh is judged afterwards (``cmd_mesh``)."""
     if args.method != "auto":
-        return args.method
+        return args.method, f"--method {args.method} asked"
     if args.tunnel_json:
-        return "tunnel"
+        return "tunnel", "--tunnel-json gives the axis"
     from survey.clouds.axis import estimate_axis
     from survey.errors import ReconstructionError
 
     try:
         estimate_axis(pts)
-    except ReconstructionError:
-        return "solid"
-    return "tunnel"
+    except ReconstructionError as exc:
+        return "solid", f"no tunnel axis found ({exc})"
+    return "tunnel", "a tunnel axis was found"
+
+
+def _check_compact(args) -> None:
+    """Refuse a bad --max-triangles / --max-error before the reconstruction runs."""
+    import numpy as np
+
+    from survey.cli.common import UsageError
+    from survey.clouds.decimate import MIN_TRIANGLES
+
+    if args.max_triangles is not None and args.max_triangles < MIN_TRIANGLES:
+        raise UsageError(f"Expected --max-triangles >= {MIN_TRIANGLES}, got "
+                         f"{args.max_triangles}; pass a larger --max-triangles.")
+    if args.max_error is not None and not (np.isfinite(args.max_error)
+                                           and args.max_error > 0):
+        raise UsageError(f"Expected a positive --max-error (m), got {args.max_error:g}; "
+                         "pass e.g. --max-error 0.02.")
+
+
+def _compact(args, vertices, faces, support, points):
+    """The mesh decimated as --max-triangles / --max-error ask (or as it is), the
+    support carried to the nearest original vertex, and the "decimation" JSON block
+    (None when nothing was asked), with the input points' distances to the result."""
+    import numpy as np
+
+    if args.max_triangles is None and args.max_error is None:
+        return vertices, faces, support, None
+    from survey.clouds.decimate import decimate_mesh, point_mesh_distances
+
+    dec = decimate_mesh(vertices, faces, max_triangles=args.max_triangles,
+                        max_error_m=args.max_error)
+    sup = None if support is None else np.asarray(support)[dec.nearest_original]
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) > 200_000:
+        p = p[np.random.default_rng(0).choice(len(p), 200_000, replace=False)]
+    origin = np.round(p.mean(axis=0))
+    d = point_mesh_distances(p - origin, dec.vertices - origin, dec.faces)
+    block = dict(dec.quality, points_to_mesh={
+        "median_m": float(np.median(d)), "p95_m": float(np.percentile(d, 95)),
+        "max_m": float(d.max()), "points": int(len(p))})
+    return dec.vertices, dec.faces, sup, block
+
+
+def _print_compact(block) -> None:
+    e = block["error"]
+    a, b = e["original_to_decimated"], e["decimated_to_original"]
+    print(f"decimated {block['triangles_before']:,} -> {block['triangles']:,} triangles "
+          f"(quadric, Open3D, {block['tries']} tries): undecimated -> decimated median "
+          f"{a['median_m'] * 1000:.1f} mm, 95 % {a['p95_m'] * 1000:.1f} mm, max "
+          f"{a['max_m'] * 1000:.1f} mm; back: median {b['median_m'] * 1000:.1f} mm, 95 % "
+          f"{b['p95_m'] * 1000:.1f} mm, max {b['max_m'] * 1000:.1f} mm; points -> mesh "
+          f"median {block['points_to_mesh']['median_m'] * 1000:.1f} mm")
+
+
+def _fallback_possible(args, clouds, why: str) -> None:
+    """Refuse the solid fallback when a cloud records no scanner position."""
+    from survey.cli.common import UsageError
+    from survey.clouds.scanners import station_position
+
+    for c in clouds:
+        if station_position(c) is None:
+            raise UsageError(f"Expected scanner positions for the solid route --method "
+                             f"auto falls back to ({why}), got '{c}' that records no "
+                             "station pose; pass --scanners FILE or --trajectory FILE, or "
+                             "--method tunnel to keep the tunnel mesh.")
 
 
 def _read_reduced(clouds, voxel_m: float):
@@ -235,28 +315,38 @@ def cmd_mesh(args) -> int:
     import numpy as np
 
     clouds = list(args.cloud)
+    _check_compact(args)
     method = args.method
+    choice: dict = {"method_asked": args.method}
     if method == "auto" and not args.tunnel_json and (args.trajectory or args.scanners):
         method = "solid"           # scanner positions are what the solid route asks for
+        choice["method_reason"] = "scanner positions given (--trajectory/--scanners)"
     if method == "solid":
         _check_method_options(args, method)
-        return _mesh_solid(args, clouds)
+        choice.setdefault("method_reason", "--method solid asked")
+        return _mesh_solid(args, clouds, choice)
     pts, counts, n_in = _read_reduced(clouds, args.voxel)
-    method = _mesh_method(args, pts)
+    method, choice["method_reason"] = _mesh_method(args, pts)
     _check_method_options(args, method)
     if method == "solid":
         del pts
-        return _mesh_solid(args, clouds)
+        return _mesh_solid(args, clouds, choice)
     al, hc = _tunnel_axis(args.tunnel_json)
     if method == "poisson":
         from survey.clouds.reconstruct import poisson_tunnel
         from survey.world.mesh import write_ply
 
         v, f = poisson_tunnel(pts, alignment=al, centre_height_m=hc, depth=args.depth)
+        v, f, _, block = _compact(args, v, f, None, pts)
         write_ply(args.output, v, f)
+        if args.json:
+            write_json(args.json, {"method": "poisson", **choice, "points": int(n_in),
+                                   "triangles": int(len(f)), "decimation": block})
         if not args.quiet:
             print(f"{n_in:,} points -> {len(f):,} triangles (Poisson, depth "
                   f"{args.depth}, trimmed) -> {args.output}")
+            if block:
+                _print_compact(block)
         return 0
     from survey.clouds.reconstruct import reconstruct_within_budget
 
@@ -271,22 +361,42 @@ def cmd_mesh(args) -> int:
         rec = reconstruct_within_budget(pts, args.triangles, alignment=al, centre_height_m=hc,
                                         cell_m=cell_m, cell_rad=np.deg2rad(cell_deg),
                                         min_points=args.min_points, counts=counts)
+    if args.method == "auto":
+        from survey.clouds.meshchoice import judge_tunnel_fit
+
+        judged = judge_tunnel_fit(pts, rec.vertices, rec.faces, rec.support, counts=counts)
+        choice["auto"] = judged.as_json()
+        if not judged.good:
+            _fallback_possible(args, clouds, judged.reason)
+            _check_method_options(args, "solid")
+            choice["method_reason"] = f"{judged.reason}: fell back to solid"
+            del pts, counts, rec
+            return _mesh_solid(args, clouds, choice)
+        choice["method_reason"] += f"; {judged.reason}"
+    from survey.world.mesh import write_ply
+
     if args.detail:
         from survey.clouds.detail import with_detail_layer
 
         mesh = with_detail_layer(rec, pts)
-        mesh.write(args.output)
+        v, f, sup = mesh.vertices, mesh.faces, mesh.support
         if not args.quiet:
             print(f"detail layer: {mesh.detail_faces:,} triangles of attachment tubes")
     else:
-        rec.write(args.output)
+        v, f, sup = rec.vertices, rec.faces, rec.support.astype(np.float64)
+    v, f, sup, block = _compact(args, v, f, sup, pts)
+    write_ply(args.output, v, f, vertex_fields={"support": sup})
     if args.figure:
         from survey.report.reconstruct import plot_support
 
         plot_support(rec, args.figure)
     q: dict = rec.quality or {}
     if args.json:
-        write_json(args.json, q)
+        extra = {"method": "tunnel", **choice}
+        if block is not None:
+            extra.update(decimation=block, triangles=block["triangles"],
+                         triangles_undecimated=q["triangles"])
+        write_json(args.json, {**q, **extra})
     if not args.quiet:
         via = "" if counts is None else f" ({len(pts):,} voxels of {args.voxel:g} m)"
         print(f"{q['points']:,} points{via} -> {q['triangles']:,} triangles -> "
@@ -294,10 +404,14 @@ def cmd_mesh(args) -> int:
               f"point-to-surface mean {q['mean_m'] * 1000:.1f} mm, median "
               f"{q['median_m'] * 1000:.1f} mm, 95 % {q['p95_m'] * 1000:.1f} mm, max "
               f"{q['max_m'] * 1000:.1f} mm; extrapolated {100 * q['extrapolated_share']:.1f} %")
+        if args.method == "auto":
+            print(f"method tunnel: {choice['method_reason']}")
+        if block:
+            _print_compact(block)
     return 0
 
 
-def _mesh_solid(args, clouds) -> int:
+def _mesh_solid(args, clouds, choice: dict) -> int:
     """--method solid: the clouds stream through a scanner-aware voxel grid (bounds
     first, one pass each), then ``reconstruct_solid``."""
     import numpy as np
@@ -322,9 +436,17 @@ def _mesh_solid(args, clouds) -> int:
             grid.add(xyz, scanner)
     pts, scanners, _ = grid.result()
     rec = reconstruct_solid(pts, scanners=scanners, cell_m=args.voxel, trim_m=args.trim)
-    rec.write(args.output)
-    q = dict(rec.quality, method="solid", input_points=grid.n_points, depth=rec.depth,
-             cell_m=rec.cell_m, trim_m=rec.trim_m, support_radius_m=rec.support_radius_m)
+    v, f, sup, block = _compact(args, rec.vertices, rec.faces,
+                                rec.support.astype(np.float64), pts)
+    from survey.world.mesh import write_ply
+
+    write_ply(args.output, v, f, vertex_fields={"support": sup})
+    q = dict(rec.quality, method="solid", **choice, input_points=grid.n_points,
+             depth=rec.depth, cell_m=rec.cell_m, trim_m=rec.trim_m,
+             support_radius_m=rec.support_radius_m)
+    if block is not None:
+        q.update(decimation=block, triangles=block["triangles"],
+                 triangles_undecimated=rec.quality["triangles"])
     if args.json:
         write_json(args.json, q)
     if not args.quiet:
@@ -334,6 +456,9 @@ def _mesh_solid(args, clouds) -> int:
               f"point-to-surface mean {q['mean_m'] * 1000:.1f} mm, median "
               f"{q['median_m'] * 1000:.1f} mm, 95 % {q['p95_m'] * 1000:.1f} mm; support 0 "
               f"on {100 * q['unsupported_share']:.1f} % of the vertices")
+        print(f"method solid: {q['method_reason']}")
+        if block:
+            _print_compact(block)
     return 0
 
 
