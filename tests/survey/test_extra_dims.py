@@ -182,9 +182,6 @@ def _check_preprocessed(src, path, voxel):
         assert got[key][1]["chainage"] == pytest.approx(v["chainage"], rel=1e-12)
 
 
-@pytest.mark.xfail(strict=True, reason="needs cmd_preprocess (survey/cli/commands/"
-                   "clouds.py, another helper's file) to call iter_points_extra, "
-                   "VoxelGrid.fields and write_preprocessed; remove this mark with it")
 @pytest.mark.parametrize("voxel", [None, 0.5])
 def test_preprocess_cli_keeps_extra_dimensions(tmp_path, capsys, voxel):
     """The file ``tunnelsim preprocess`` gives the user (issue 31's acceptance)."""

@@ -124,21 +124,29 @@ def _tunnel_axis(path):
 def cmd_preprocess(args) -> int:
     import numpy as np
 
-    from survey.clouds.cloudio import cloud_bounds, iter_points, write_points_las
+    from survey.clouds.cloudio import cloud_bounds
     from survey.clouds.preprocess import (
         VoxelGrid,
+        extra_dims,
+        iter_points_extra,
         radius_outliers,
         statistical_outliers,
+        write_preprocessed,
     )
 
     lo, _hi, n_in = cloud_bounds(args.cloud)
+    # The input's extra dimensions (LAS/LAZ extra bytes) travel with the points.
+    dims = extra_dims(args.cloud)
     if args.voxel is not None:
         grid = VoxelGrid(args.voxel, lo)
-        for xyz in iter_points(args.cloud):
-            grid.add(xyz)
+        for xyz, f in iter_points_extra(args.cloud):
+            grid.add(xyz, f)
         pts, counts = grid.result()
+        extra = grid.fields()
     else:
-        pts = np.concatenate(list(iter_points(args.cloud)))
+        parts = list(iter_points_extra(args.cloud))
+        pts = np.concatenate([p for p, _ in parts])
+        extra = {k: np.concatenate([f[k] for _, f in parts]) for k in dims}
         counts = np.ones(len(pts), dtype=np.int64)
     keep = np.ones(len(pts), dtype=bool)
     if args.crop:
@@ -161,8 +169,8 @@ def cmd_preprocess(args) -> int:
 
         al, hc = _tunnel_axis(args.tunnel_json)
         cls = segment_tunnel(pts[keep], alignment=al, centre_height_m=hc)
-    write_points_las(args.output, pts[keep],
-                     {"voxel_count": counts[keep].astype(np.uint32)}, classification=cls)
+    write_preprocessed(args.output, pts[keep], counts[keep],
+                       {k: v[keep] for k, v in extra.items()}, dims, classification=cls)
     if not args.quiet:
         print(f"{n_in:,} points -> {len(pts):,} after the voxel grid -> {int(keep.sum()):,} "
               f"after outlier removal -> {args.output}")
