@@ -47,10 +47,12 @@ from survey.clouds.cloudfields import LAS_INTENSITY_SCALE, iter_field
 from survey.errors import CompareError, ProfileError
 from survey.world.alignment import Alignment
 
-__all__ = ["FIELDS", "FIELD_UNITS", "LAS_INTENSITY_SCALE", "MESH_CHUNK",
-           "MESH_SAMPLES_PER_CELL", "STATISTICS", "DevelopedFrame", "DevelopedGrid",
-           "DevelopedRaster", "RasterAccumulator", "crown_t", "develop", "develop_file",
-           "file_chunks", "is_mesh_file", "iter_field", "mesh_samples"]
+__all__ = ["DEFAULT_CELL_M", "FIELDS", "FIELD_UNITS", "LAS_INTENSITY_SCALE", "MESH_CHUNK",
+           "MESH_SAMPLES_PER_CELL", "SPACING_BIN_M", "SPACING_SAMPLE", "STATISTICS",
+           "DevelopedFrame", "DevelopedGrid", "DevelopedRaster", "RasterAccumulator",
+           "crown_t", "default_cell", "develop", "develop_file", "file_chunks",
+           "file_station_spacing", "is_mesh_file", "iter_field", "mesh_samples",
+           "station_spacing"]
 
 Floats = NDArray[np.float64]
 
@@ -66,6 +68,14 @@ STATISTICS = ("mean", "min", "max", "count")
 MESH_SAMPLES_PER_CELL = 3.0
 #: Triangles sampled at once by ``mesh_samples`` (bounds its memory).
 MESH_CHUNK = 1 << 16
+#: Raster cell (m) of a dense cloud or a mesh, along the chainage and along the arc.
+DEFAULT_CELL_M = 0.05
+#: Bin (m) in which the chainages of a sample are counted to find a profile cloud's
+#: stations (``station_spacing``): finer than any station spacing in use, coarser than
+#: a profile scanner's spread along the axis.
+SPACING_BIN_M = 0.01
+#: Points read from the start of a file to find its station spacing.
+SPACING_SAMPLE = 1 << 20
 
 
 def _positive(value: Any, name: str) -> float:
@@ -178,6 +188,73 @@ def crown_t(design: DesignProfile) -> float:
     lengths = np.linalg.norm(b - a, axis=1)
     t0 = float(np.concatenate([[0.0], np.cumsum(lengths)])[seg])
     return t0 + float(f[k]) * float(lengths[seg])
+
+
+# ---------------------------------------------------------------------- data spacing
+def station_spacing(chainage_m: ArrayLike, *, bin_m: float = SPACING_BIN_M) -> float:
+    """The station spacing (m) of a profile cloud from its points' chainages (n,)
+    float64, or 0.0 for a cloud without regular gaps along the axis (a dense scan).
+
+    The chainages are counted in bins of ``bin_m``; runs of occupied bins are the
+    stations. DECISION: a profile cloud is one whose empty stretches between runs are
+    (median) longer than the runs themselves; its spacing is the median distance
+    between the centres of successive runs, so a missing profile or a gap at a portal
+    does not change it.
+    """
+    s = np.asarray(chainage_m, dtype=np.float64).ravel()
+    s = s[np.isfinite(s)]
+    h = _positive(bin_m, "bin_m")
+    if len(s) < 3:
+        return 0.0
+    k = np.unique(np.floor(s / h).astype(np.int64))
+    gaps = np.diff(k)
+    brk = np.nonzero(gaps > 1)[0]
+    if len(brk) < 2:
+        return 0.0
+    starts = k[np.concatenate([[0], brk + 1])]
+    ends = k[np.concatenate([brk, [len(k) - 1]])]
+    empty = float(np.median(gaps[brk] - 1))
+    run = float(np.median(ends - starts + 1))
+    if empty <= run:
+        return 0.0
+    return float(np.median(np.diff(0.5 * (starts + ends)))) * h
+
+
+def file_station_spacing(path: str | os.PathLike[str], alignment: Alignment, *,
+                         sample: int = SPACING_SAMPLE) -> float:
+    """``station_spacing`` of the first ``sample`` points of a cloud file (0.0 for a
+    mesh, whose area samples are dense). Reads only the start of the file: a profile
+    scanner writes profile after profile, so the start holds many stations."""
+    from survey.clouds.cloudio import iter_points
+
+    if is_mesh_file(path):
+        return 0.0
+    got: list[Floats] = []
+    n = 0
+    for chunk in iter_points(path):
+        got.append(np.asarray(chunk, dtype=np.float64))
+        n += len(chunk)
+        if n >= sample:
+            break
+    if not n:
+        return 0.0
+    p = np.concatenate(got)[:sample]
+    # DECISION: every k-th point (at most 2e5 go through to_local, the costly step);
+    # thinning keeps every station of a profile cloud, which holds thousands of points.
+    p = p[::max(1, len(p) // 200_000)]
+    s, _, _ = alignment.to_local(p)
+    lo, hi = alignment.chainage_range
+    return station_spacing(s[(s > lo) & (s < hi)])
+
+
+def default_cell(spacing_m: float, tile_m: float | None = None) -> float:
+    """The default chainage cell (m): ``DEFAULT_CELL_M``, or a profile cloud's station
+    spacing (one column per station: finer cells leave most columns empty) rounded to
+    1 mm and, with ``tile_m``, shortened to divide the tile."""
+    c = max(DEFAULT_CELL_M, round(float(spacing_m), 3))
+    if tile_m is not None:
+        c = float(tile_m) / max(1, int(np.ceil(float(tile_m) / c - 1e-9)))
+    return c
 
 
 # ---------------------------------------------------------------------- the grid

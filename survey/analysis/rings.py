@@ -32,13 +32,18 @@ from numpy.typing import ArrayLike, NDArray
 from survey.analysis.sections import SectionCut
 from survey.errors import CompareError
 
-__all__ = ["REJECT_SIGMA", "CircleFit", "EllipseFit", "RingFit", "fit_circle",
-           "fit_ellipse", "fit_rings"]
+__all__ = ["FIT_RMS_WARN_M", "REJECT_SIGMA", "CircleFit", "EllipseFit", "RingFit",
+           "fit_circle", "fit_ellipse", "fit_rings", "poor_fits"]
 
 Floats = NDArray[np.float64]
 
 #: Points beyond this many robust standard deviations of a first fit are outliers.
 REJECT_SIGMA = 3.0
+#: A ring whose circle and ellipse both fit worse than this rms (m) is not a ring: the
+#: CLI warns (``poor_fits``). DECISION: 25 mm; a segmental lining's fit rms is a few mm
+#: (scanner noise, segment steps of up to ~10 mm), a horseshoe's is decimetres (300 mm
+#: on a real one, issue 31), which makes its diameters and ovality meaningless.
+FIT_RMS_WARN_M = 0.025
 #: Iterations and relative step tolerance of the geometric fits.
 _MAX_ITER = 100
 _STEP_TOL = 1e-12
@@ -49,7 +54,8 @@ class CircleFit:
     """Geometric best-fit circle: ``centre`` (2,) and ``radius_m``; ``residuals_m``
     (n,) orthogonal distances of the points used (> 0 outside), ``rms_m``,
     ``iterations``, ``converged`` and ``algebraic`` (centre y, z and radius of the
-    Kasa start)."""
+    Kasa start); ``sigma_m`` (3,) the formal standard deviations of centre y, z and
+    radius (``_formal_sigma``)."""
 
     centre: Floats
     radius_m: float
@@ -58,10 +64,16 @@ class CircleFit:
     iterations: int
     converged: bool
     algebraic: tuple[float, float, float]
+    sigma_m: Floats = field(default_factory=lambda: np.full(3, np.nan), repr=False)
 
     @property
     def diameter_m(self) -> float:
         return 2.0 * self.radius_m
+
+    @property
+    def diameter_sigma_m(self) -> float:
+        """Formal standard deviation of the diameter (m), 2 sigma_radius."""
+        return 2.0 * float(self.sigma_m[2])
 
 
 @dataclass(frozen=True)
@@ -69,7 +81,8 @@ class EllipseFit:
     """Geometric best-fit ellipse: ``centre`` (2,), semi-axes ``a_m`` >= ``b_m``,
     ``angle_rad`` of the major axis from the +offset axis (in [0, pi)); residuals as
     in ``CircleFit``; ``algebraic`` the (centre y, centre z, a, b, angle) of the
-    direct fit."""
+    direct fit; ``sigma`` (5,) the formal standard deviations of centre y, z (m), a, b
+    (m) and the angle (rad) (``_formal_sigma``)."""
 
     centre: Floats
     a_m: float
@@ -80,11 +93,17 @@ class EllipseFit:
     iterations: int
     converged: bool
     algebraic: tuple[float, float, float, float, float]
+    sigma: Floats = field(default_factory=lambda: np.full(5, np.nan), repr=False)
 
     @property
     def diameters_m(self) -> tuple[float, float]:
         """(largest, smallest) diameter (m)."""
         return 2.0 * self.a_m, 2.0 * self.b_m
+
+    @property
+    def diameters_sigma_m(self) -> tuple[float, float]:
+        """Formal standard deviations of (largest, smallest) diameter (m)."""
+        return 2.0 * float(self.sigma[2]), 2.0 * float(self.sigma[3])
 
     def ovality(self, nominal_diameter_m: float | None = None) -> float:
         """(D_max - D_min) / D_nominal, the usual ovality of a segmental ring (ASSUMED
@@ -148,6 +167,26 @@ def _lm(residual_jac: Any, x0: Floats, max_iter: int) -> tuple[Floats, int, bool
     return x, max_iter, False
 
 
+def _formal_sigma(r: Floats, jac: Floats) -> Floats:
+    """Formal standard deviations of the parameters of a least-squares fit at its
+    solution: sqrt(diag(s0^2 (J^T J)^-1)), s0^2 = r^T r / (n - k) (Gauss–Markov; e.g.
+    Ghilani 2010, 10.5). NaN where n <= k or J^T J is singular.
+
+    DECISION: formal, from the scatter of the points about the fitted shape, which the
+    fit treats as independent; neighbouring scan points are not (shared range and
+    angle errors, joints and bolts), so this is a lower bound of the real uncertainty
+    and the reports say so."""
+    n, k = jac.shape
+    if n <= k:
+        return np.full(k, np.nan)
+    s02 = float(r @ r) / (n - k)
+    try:
+        cov = s02 * np.linalg.inv(jac.T @ jac)
+    except np.linalg.LinAlgError:
+        return np.full(k, np.nan)
+    return np.sqrt(np.maximum(np.diag(cov), 0.0))
+
+
 def _circle(p: Floats) -> CircleFit:
     alg = _kasa(p)
 
@@ -158,9 +197,9 @@ def _circle(p: Floats) -> CircleFit:
         return rho - x[2], jac
 
     x, it, ok = _lm(rj, np.array(alg), _MAX_ITER)
-    res = rj(x)[0]
+    res, jac = rj(x)
     return CircleFit(x[:2].copy(), float(abs(x[2])), res, float(np.sqrt(np.mean(res ** 2))),
-                     it, ok, alg)
+                     it, ok, alg, _formal_sigma(res, jac))
 
 
 def fit_circle(points: ArrayLike, *, reject_sigma: float | None = REJECT_SIGMA
@@ -267,9 +306,10 @@ def _ellipse(p: Floats) -> EllipseFit:
     a, b = abs(a), abs(b)
     if b > a:
         a, b, th = b, a, th + np.pi / 2
-    res = rj(np.array([cy, cz, a, b, th]))[0]
+    res, jac = rj(np.array([cy, cz, a, b, th]))
     return EllipseFit(np.array([cy, cz]), float(a), float(b), float(np.mod(th, np.pi)),
-                      res, float(np.sqrt(np.mean(res ** 2))), it, ok, alg)
+                      res, float(np.sqrt(np.mean(res ** 2))), it, ok, alg,
+                      _formal_sigma(res, jac))
 
 
 def fit_ellipse(points: ArrayLike, *, reject_sigma: float | None = REJECT_SIGMA
@@ -308,10 +348,13 @@ class RingFit:
                 "circle_centre_y_m": float(self.circle.centre[0]),
                 "circle_centre_z_m": float(self.circle.centre[1]),
                 "circle_diameter_m": self.circle.diameter_m,
+                "circle_diameter_sigma_m": self.circle.diameter_sigma_m,
                 "circle_rms_m": self.circle.rms_m,
                 "ellipse_centre_y_m": float(self.ellipse.centre[0]),
                 "ellipse_centre_z_m": float(self.ellipse.centre[1]),
                 "diameter_max_m": dmax, "diameter_min_m": dmin,
+                "diameter_max_sigma_m": self.ellipse.diameters_sigma_m[0],
+                "diameter_min_sigma_m": self.ellipse.diameters_sigma_m[1],
                 "major_axis_angle_deg": float(np.rad2deg(self.ellipse.angle_rad)),
                 "ellipse_rms_m": self.ellipse.rms_m, "ovality": self.ovality,
                 "centre_offset_y_m": float(self.centre_offset_m[0]),
@@ -336,3 +379,10 @@ def fit_rings(cuts: Sequence[SectionCut], *, reference_centre: ArrayLike = (0.0,
         out.append(RingFit(c.chainage_m, len(c.yz), ci, el, el.centre - ref,
                            nominal_diameter_m))
     return out
+
+
+def poor_fits(rings: Sequence[RingFit], rms_m: float = FIT_RMS_WARN_M) -> list[RingFit]:
+    """The rings whose best fit (the smaller of the circle's and the ellipse's rms)
+    exceeds ``rms_m``: sections that are not circles or ellipses (a horseshoe, a
+    rectangle), or bands full of fittings."""
+    return [r for r in rings if min(r.circle.rms_m, r.ellipse.rms_m) > rms_m]

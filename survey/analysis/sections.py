@@ -33,13 +33,17 @@ from raytrace.checks import as_points
 from survey.errors import AlignmentError, CompareError
 from survey.world.alignment import Alignment
 
-__all__ = ["MAX_SECTION_POINTS", "SectionCut", "cut_cloud", "cut_file", "cut_mesh",
-           "section_chainages"]
+__all__ = ["FLOOR_PERCENTILE", "MAX_SECTION_POINTS", "SectionCut", "above_floor",
+           "cut_cloud", "cut_file", "cut_mesh", "section_chainages"]
 
 Floats = NDArray[np.float64]
 
 #: Most points kept per section (a uniform random subset beyond; ~16 MB per section).
 MAX_SECTION_POINTS = 1_000_000
+#: Percentile of a section's heights taken as its floor (``above_floor``). DECISION: 1,
+#: the profile's lowest points, while a few stray points below the floor (a drain, a
+#: multipath echo) do not move it.
+FLOOR_PERCENTILE = 1.0
 #: Spacing of the centreline points of the first, approximate chainage test (m).
 _PRE_STEP_M = 0.5
 #: Samples per metre of a mesh cut polyline, by default every 5 mm.
@@ -72,6 +76,31 @@ class SectionCut:
     def __repr__(self) -> str:
         return (f"SectionCut(chainage {self.chainage_m:g} m +- {self.half_width_m:g} m, "
                 f"{len(self.yz):,} points)")
+
+
+def above_floor(cut: SectionCut, min_height_m: float, *, floor_m: float | None = None
+                ) -> tuple[SectionCut, float]:
+    """The points of ``cut`` at least ``min_height_m`` above the floor, and the floor
+    height used (m, in the section frame).
+
+    The floor is ``floor_m`` when given (a rail or floor height in the section frame),
+    else the section's ``FLOOR_PERCENTILE`` of heights: its lowest points. So the
+    height is measured from the rail or floor, whatever the frame's origin (a fitted
+    axis runs through the profile's centre, metres above the floor).
+    """
+    h = float(min_height_m)
+    if not np.isfinite(h):
+        raise CompareError(f"Expected a finite minimum height in m, got {min_height_m!r}.")
+    if floor_m is not None:
+        f = float(floor_m)
+        if not np.isfinite(f):
+            raise CompareError(f"Expected a finite floor height in m, got {floor_m!r}.")
+    elif len(cut.yz):
+        f = float(np.percentile(cut.yz[:, 1], FLOOR_PERCENTILE))
+    else:
+        f = 0.0
+    keep = cut.yz[:, 1] >= f + h
+    return SectionCut(cut.chainage_m, cut.half_width_m, cut.yz[keep], cut.n_in_band), f
 
 
 def section_chainages(alignment: Alignment, *, every_m: float | None = None,
@@ -259,11 +288,15 @@ def cut_cloud(points: ArrayLike | Iterable[ArrayLike], alignment: Alignment,
 
 def cut_file(path: str | os.PathLike[str], alignment: Alignment, chainages: ArrayLike,
              half_width_m: float, *, max_points: int = MAX_SECTION_POINTS, seed: int = 0,
-             mesh_spacing_m: float = MESH_SPACING_M) -> list[SectionCut]:
+             mesh_spacing_m: float = MESH_SPACING_M,
+             classes: Sequence[int] | None = None) -> list[SectionCut]:
     """Sections of a file: a mesh (PLY with faces, OBJ, STL, OFF) is cut by the section
     planes (``cut_mesh``; ``half_width_m`` unused), a cloud (every format of
     ``survey.clouds.cloudio.iter_points``) is streamed chunk by chunk (``cut_cloud``).
-    Raises ``CloudFileError`` for an unreadable file."""
+    ``classes``: keep only the points of a cloud whose ``classification`` (LAS, or a
+    PLY/NPZ/CSV field of that name; ``survey.clouds.segment`` writes lining 64 and
+    floor 2) is one of these codes. Raises ``CloudFileError`` for an unreadable file
+    or a cloud without a classification, ``CompareError`` for classes with a mesh."""
     from sensors.ply import read_ply_header
     from survey.clouds.cloudio import iter_points, read_reference
 
@@ -277,11 +310,21 @@ def cut_file(path: str | os.PathLike[str], alignment: Alignment, chainages: Arra
         except Exception:  # a broken header: iter_points names the problem
             is_mesh = False
     if is_mesh:
+        if classes is not None:
+            raise CompareError(f"Expected a classified point cloud to keep classes "
+                               f"{list(classes)} of, got the mesh '{p}'.")
         v, f = read_reference(p)
         assert f is not None
         return cut_mesh(v, f, alignment, chainages, spacing_m=mesh_spacing_m)
-    return cut_cloud(iter_points(p), alignment, chainages, half_width_m,
-                     max_points=max_points, seed=seed)
+    if classes is None:
+        return cut_cloud(iter_points(p), alignment, chainages, half_width_m,
+                         max_points=max_points, seed=seed)
+    from survey.clouds.cloudfields import iter_field
+
+    keep = np.asarray(sorted({int(c) for c in classes}), dtype=np.float64)
+    chunks = (xyz[np.isin(c, keep)] for xyz, c in iter_field(p, "classification"))
+    return cut_cloud(chunks, alignment, chainages, half_width_m, max_points=max_points,
+                     seed=seed)
 
 
 def _plane_segments(v: Floats, faces: NDArray[np.int64], g: Floats

@@ -178,14 +178,21 @@ def rings_markdown(rings: Sequence[RingFit], *, title: str = "Ring fits",
         out += [f"Input: `{source}`", ""]
     out += ["Geometric (orthogonal-distance) best-fit circle and ellipse per section; "
             "centre offset from the design centre (y left, z up); ovality = "
-            "(D_max - D_min) / D_nominal.", "",
-            "| chainage (m) | points | circle D (mm) | D max (mm) | D min (mm) | "
-            "major axis (deg) | ovality (%) | offset y (mm) | offset z (mm) | rms (mm) |",
-            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+            "(D_max - D_min) / D_nominal. σ: formal standard deviation of the diameter "
+            "from the scatter of the points about the fit (s0² (JᵀJ)⁻¹, the points taken "
+            "as independent: a lower bound, as neighbouring scan points share errors).",
+            "",
+            "| chainage (m) | points | circle D (mm) | σ circle D (mm) | D max (mm) | "
+            "σ D max (mm) | D min (mm) | σ D min (mm) | major axis (deg) | ovality (%) | "
+            "offset y (mm) | offset z (mm) | rms (mm) |",
+            "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in rings:
         dmax, dmin = r.ellipse.diameters_m
+        smax, smin = r.ellipse.diameters_sigma_m
         out.append(f"| {r.chainage_m:.3f} | {r.n_points:,} | {1000 * r.circle.diameter_m:.1f} "
-                   f"| {1000 * dmax:.1f} | {1000 * dmin:.1f} | "
+                   f"| {1000 * r.circle.diameter_sigma_m:.2f} "
+                   f"| {1000 * dmax:.1f} | {1000 * smax:.2f} | {1000 * dmin:.1f} | "
+                   f"{1000 * smin:.2f} | "
                    f"{np.rad2deg(r.ellipse.angle_rad):.1f} | {100 * r.ovality:.3f} | "
                    f"{1000 * r.centre_offset_m[0]:.1f} | {1000 * r.centre_offset_m[1]:.1f} | "
                    f"{1000 * r.ellipse.rms_m:.1f} |")

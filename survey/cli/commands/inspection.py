@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from survey.cli.common import CommandSet, out_dir, pair, say, write_json, write_text
+from survey.cli.common import CommandSet, floats, out_dir, pair, say, write_json, write_text
 from survey.errors import TunnelsimCLIError
 
 #: --field choices of develop (an M3C2 output's ``distance``, a scan's ``intensity``).
@@ -30,11 +30,13 @@ def _frame_options(c) -> None:
              help="vertex order of --design: as in the file, or sorted by angle")
     c.option("--design-shift", metavar="DY,DZ",
              help="move --design by DY,DZ metres into the section frame")
-    c.option("--cell", type=float, default=0.05, metavar="M",
-             help="raster cell along the chainage, m (default 0.05)")
+    c.option("--cell", type=float, metavar="M",
+             help="raster cell along the chainage, m (default: 0.05, or the station "
+                  "spacing of a profile cloud, found from the first points read; printed "
+                  "and written to the JSON)")
     c.option("--cell-arc", type=float, metavar="M",
-             help="raster cell along the arc, m (default --cell; shortened to divide a "
-                  "closed profile exactly)")
+             help="raster cell along the arc, m (default --cell, or 0.05 when --cell is "
+                  "chosen from the data; shortened to divide a closed profile exactly)")
     c.option("--from", dest="chainage_from", type=float, metavar="M",
              help="first chainage (default: the alignment's start)")
     c.option("--to", dest="chainage_to", type=float, metavar="M",
@@ -72,8 +74,13 @@ def register(commands: CommandSet) -> None:
              help="leave out points farther than M from the design line (fittings, "
                   "people, the platform)")
     c.option("--limit-mm", type=float, metavar="MM",
-             help="colour-bar limit +-MM for deviations and distances (default: the 99th "
-                  "percentile of |value|, the same on every tile)")
+             help="colour-bar limit +-MM for deviations and distances (default: the 98th "
+                  "percentile of |value| over the cells with data, the same on every "
+                  "tile; printed and written to each JSON as colour_scale)")
+    c.option("--tolerance", metavar="MM[,MM...]",
+             help="colour deviations and distances in tolerance classes with these "
+                  "increasing edges in mm (e.g. -20,0,50,100,200) instead of a "
+                  "continuous bar")
 
     c = commands.add(
         "clearance", cmd_clearance,
@@ -94,6 +101,11 @@ def register(commands: CommandSet) -> None:
                   "[,BOTTOM] in m")
     c.option("--required", type=float, default=0.0, metavar="M",
              help="free space required beyond the envelope, m (default 0)")
+    c.option("--merge-gap", default="auto", metavar="M|auto",
+             help="violating cells at most M metres apart (cells without a violation "
+                  "between them, along each axis) form one region; 0: touching cells "
+                  "only (default auto: 2 x the data's spacing along the chainage, the "
+                  "station spacing of a profile cloud; printed)")
 
 
 def _tunnel(args):
@@ -136,13 +148,14 @@ def _setup(args):
                     ("--tile-m", args.tile_m)):
         if v is not None and not v > 0:
             raise TunnelsimCLIError(f"Expected {flag} > 0 m, got {v}.")
-    if args.tile_m is not None:
+    if args.tile_m is not None and args.cell is not None:
         # Checked before the (long) pass over the input.
         r = args.tile_m / args.cell
         if abs(r - round(r)) > 1e-6 * max(1.0, r):
             raise TunnelsimCLIError(f"Expected --tile-m a whole multiple of --cell "
                                     f"({args.cell:g} m), got {args.tile_m:g} m.")
     al, prof, crs = _tunnel(args)
+    _choose_cell(args, al)
     design = _design(args, prof)
     rng = None
     if args.chainage_from is not None or args.chainage_to is not None:
@@ -156,13 +169,49 @@ def _setup(args):
     return al, design, rng, crs
 
 
+def _choose_cell(args, al) -> None:
+    """Set args.cell (and args.cell_arc) when --cell is not given, from the station
+    spacing of the input (``file_station_spacing``), and args.cell_chosen: a line that
+    says what was chosen (printed, and written to the JSON as ``cell_chosen``)."""
+    from survey.analysis.developed import (DEFAULT_CELL_M, default_cell,
+                                           file_station_spacing)
+
+    if args.cell is not None:
+        args.cell_chosen = f"cell {args.cell:g} m along the chainage (--cell)"
+        return
+    spacing = file_station_spacing(args.input, al)
+    args.cell = default_cell(spacing, args.tile_m)
+    if args.cell_arc is None:
+        args.cell_arc = DEFAULT_CELL_M
+    if spacing > 0:
+        args.cell_chosen = (f"cell {args.cell:g} m along the chainage: the input is a "
+                            f"profile cloud with stations every {spacing:.3f} m (one "
+                            f"column per station; set it with --cell)")
+    else:
+        args.cell_chosen = (f"cell {args.cell:g} m along the chainage (the default for a "
+                            f"dense cloud or a mesh; set it with --cell)")
+
+
 def cmd_develop(args) -> int:
     from survey.analysis.developed import develop_file
-    from survey.report.developed import write_developed
+    from survey.report.developed import colour_scale, write_developed
 
     al, design, rng, crs = _setup(args)
     if args.max_deviation is not None and not args.max_deviation > 0:
         raise TunnelsimCLIError(f"Expected --max-deviation > 0 m, got {args.max_deviation}.")
+    if args.limit_mm is not None and not args.limit_mm > 0:
+        raise TunnelsimCLIError(f"Expected --limit-mm > 0, got {args.limit_mm}.")
+    edges = None
+    if args.tolerance is not None:
+        mm = floats(args.tolerance, "--tolerance")
+        if args.limit_mm is not None or args.field == "intensity" or args.stat == "count":
+            raise TunnelsimCLIError("Expected --tolerance alone, for deviations or "
+                                    "distances, got it with --limit-mm, --field intensity "
+                                    "or --stat count; leave one out.")
+        if any(b <= a for a, b in zip(mm, mm[1:])):
+            raise TunnelsimCLIError(f"Expected --tolerance edges increasing in mm, got "
+                                    f"{args.tolerance!r}.")
+        edges = [v / 1000.0 for v in mm]
     out = out_dir(args.output, args.force)
     raster = develop_file(args.input, al, design, field=args.field, cell_m=args.cell,
                           cell_arc_m=args.cell_arc, chainage_range=rng,
@@ -171,19 +220,36 @@ def cmd_develop(args) -> int:
         raise TunnelsimCLIError(f"Expected points of '{args.input}' on the tunnel between "
                                 "the chainages asked, got none; check --tunnel-json, "
                                 "--from/--to and the input's CRS.")
+    raster.meta["cell_chosen"] = args.cell_chosen
     limit = None if args.limit_mm is None else args.limit_mm / 1000.0
+    scale = colour_scale(raster, args.stat, limit=limit, edges=edges)
     paths = write_developed(raster, out, tile_m=args.tile_m, stat=args.stat, crs=crs,
-                            limit=limit)
+                            limit=limit, edges=edges)
     pngs = [p.name for p in paths if p.suffix == ".png"]
-    write_text(out / "developed.md", _develop_markdown(raster, args, pngs))
+    write_text(out / "developed.md", _develop_markdown(raster, args, pngs, scale))
     seen = raster.count > 0
     say(args, f"developed {args.field} ({args.stat}): {raster.meta['points']:,} points in "
               f"{raster.grid.n_arc} x {raster.grid.n_s} cells, {100 * seen.mean():.0f} % "
               f"with data, {len(pngs)} tile{'s' if len(pngs) != 1 else ''} -> {out}/")
+    say(args, args.cell_chosen)
+    if scale is not None:
+        say(args, _scale_line(scale))
     return 0
 
 
-def _develop_markdown(raster, args, pngs) -> str:
+def _scale_line(scale) -> str:
+    """The colour scale chosen, in one line (mm)."""
+    if scale.edges is not None:
+        return (f"colour classes at {', '.join(f'{1000 * e:g}' for e in scale.edges)} mm "
+                f"(--tolerance); {100 * scale.beyond_share:.1f} % of the cells lie "
+                "beyond them")
+    how = "--limit-mm" if scale.source == "given" else \
+        f"the {scale.percentile:g}th percentile of |value|; set it with --limit-mm"
+    return (f"colour scale +-{1000 * scale.limit:.1f} mm ({how}); "
+            f"{100 * scale.beyond_share:.1f} % of the cells lie beyond it")
+
+
+def _develop_markdown(raster, args, pngs, scale=None) -> str:
     import numpy as np
 
     g = raster.grid
@@ -203,15 +269,27 @@ def _develop_markdown(raster, args, pngs) -> str:
     if ok.any():
         lines += [f"{args.stat} {raster.field}: {np.nanmin(v):.4g} to {np.nanmax(v):.4g} "
                   f"{raster.unit if args.stat != 'count' else 'points'}.", ""]
+    lines += [f"Raster: {args.cell_chosen}.", ""]
+    if scale is not None:
+        lines += [f"Colour scale: {_scale_line(scale)}.", ""]
     lines += [f"![{p}]({p})" for p in pngs]
     return "\n".join(lines) + "\n"
 
 
 def cmd_clearance(args) -> int:
     from survey.analysis.clearance import clearance_file, read_envelope
-    from survey.report.developed import (clearance_markdown, regions_csv, violations_csv,
-                                         write_developed)
+    from survey.report.developed import (clearance_markdown, merge_line, regions_csv,
+                                         violations_csv, write_developed)
 
+    gap: float | str = "auto"
+    if args.merge_gap != "auto":
+        try:
+            gap = float(args.merge_gap)
+        except ValueError:
+            gap = float("nan")
+        if not gap >= 0:
+            raise TunnelsimCLIError(f"Expected --merge-gap auto or a gap >= 0 m, got "
+                                    f"{args.merge_gap!r}.")
     al, design, rng, crs = _setup(args)
     envelope = read_envelope(args.envelope)
     if not (args.required >= 0):
@@ -219,7 +297,8 @@ def cmd_clearance(args) -> int:
     out = out_dir(args.output, args.force)
     res = clearance_file(args.input, al, envelope, design, cell_m=args.cell,
                          cell_arc_m=args.cell_arc, chainage_range=rng,
-                         required_m=args.required)
+                         required_m=args.required, merge_gap_m=gap)
+    res.meta["cell_chosen"] = args.cell_chosen
     if res.points == 0:
         raise TunnelsimCLIError(f"Expected points of '{args.input}' on the tunnel between "
                                 "the chainages asked, got none; check --tunnel-json, "
@@ -239,6 +318,8 @@ def cmd_clearance(args) -> int:
                   f"region{'s' if len(res.regions) != 1 else ''}, deepest "
                   f"{1000 * worst.max_depth_m:.1f} mm at chainage "
                   f"{worst.deepest_chainage_m:.3f} m -> {out}/")
+        say(args, args.cell_chosen)
+        say(args, merge_line(res))
     else:
         say(args, f"clearance against '{envelope.name}': clear, smallest margin "
                   f"{1000 * res.min_margin_m:.1f} mm -> {out}/")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 from survey.cli.commands.axis import datum_options
@@ -31,6 +32,11 @@ def _cut_options(c) -> None:
                   "cut by the plane itself)")
     c.option("--max-points", type=int, default=1_000_000, metavar="N",
              help="most points kept per section (a random subset beyond; default 1e6)")
+    c.option("--classes", metavar="C[,C...]",
+             help="keep only points of these classification codes (a LAS "
+                  "classification, e.g. from 'tunnelsim preprocess --segment': lining 64, "
+                  "floor 2; so lamps (65), cables and people (66) do not count as "
+                  "underbreak)")
     c.option("-o", "--output", required=True, path="out", help="output folder")
     c.option("--force", action="store_true", help="write into a non-empty folder")
 
@@ -83,8 +89,14 @@ def register(commands: CommandSet) -> None:
              help="nominal diameter for the ovality (default: the mean of the fitted "
                   "axes)")
     c.option("--min-height", type=float, metavar="M",
-             help="use only points at least this high in the section frame (leave out "
-                  "the invert, track bed or walkway)")
+             help="use only points at least M above the floor (leave out the invert, "
+                  "track bed or walkway); the floor: --rail-height, else the alignment "
+                  "of --tunnel-json (height 0 of its section frame), else with "
+                  "--fit-axis each section's lowest points (its 1st percentile of "
+                  "heights), as a fitted axis runs through the profile's centre")
+    c.option("--rail-height", type=float, metavar="M",
+             help="height of the rail or floor in the section frame (m, negative below "
+                  "the alignment or fitted axis) that --min-height is measured from")
 
 
 def _alignment(args):
@@ -162,8 +174,34 @@ def _cuts(args, al, chainages):
 
     if args.width is None or not args.width >= 0:
         raise TunnelsimCLIError(f"Expected --width >= 0 m, got {args.width}.")
-    return cut_file(args.input, al, chainages, args.width, max_points=args.max_points,
-                    seed=args.seed)
+    from survey.errors import CloudFileError
+
+    classes = None
+    if args.classes is not None:
+        vals = floats(args.classes, "--classes")
+        if not vals or any(v != int(v) or not 0 <= v <= 255 for v in vals):
+            raise TunnelsimCLIError(f"Expected --classes as whole codes 0-255 (e.g. 64,2), "
+                                    f"got {args.classes!r}.")
+        classes = [int(v) for v in vals]
+        from survey.analysis.developed import is_mesh_file
+
+        if is_mesh_file(args.input):
+            raise TunnelsimCLIError(f"Expected a classified point cloud for --classes, got "
+                                    f"the mesh '{args.input}'; leave out --classes.")
+    try:
+        cuts = cut_file(args.input, al, chainages, args.width, max_points=args.max_points,
+                        seed=args.seed, classes=classes)
+    except CloudFileError as e:
+        if classes is None or "classification" not in str(e):
+            raise
+        raise TunnelsimCLIError(f"Expected a per-point classification in "
+                                f"'{args.input}' for --classes, got none; classify it "
+                                "with 'tunnelsim preprocess --segment' or leave out "
+                                "--classes.") from None
+    if classes is not None and not any(len(c.yz) for c in cuts):
+        raise TunnelsimCLIError(f"Expected points of classes {args.classes} in the "
+                                "section bands, got none; check --classes.")
+    return cuts
 
 
 def cmd_sections(args) -> int:
@@ -205,28 +243,62 @@ def cmd_rings(args) -> int:
     import numpy as np
 
     from survey.analysis.design import DesignProfile
-    from survey.analysis.rings import fit_rings
-    from survey.analysis.sections import SectionCut
+    from survey.analysis.rings import FIT_RMS_WARN_M, fit_rings, poor_fits
+    from survey.analysis.sections import above_floor
     from survey.report.sections import plot_rings, rings_csv, rings_markdown
 
     if not Path(args.input).is_file():
         raise TunnelsimCLIError(f"Expected an input cloud or mesh, got '{args.input}' which "
                                 "does not exist.")
     al, prof = _alignment(args)
+    if args.rail_height is not None and args.min_height is None:
+        raise TunnelsimCLIError("Expected --rail-height with --min-height (the height it "
+                                "measures from), got it alone; add --min-height M.")
+    for flag, v in (("--min-height", args.min_height), ("--rail-height", args.rail_height)):
+        if v is not None and not np.isfinite(v):
+            raise TunnelsimCLIError(f"Expected {flag} a finite height in m, got {v}.")
     chainages = _chainages(args, al)
     out = out_dir(args.output, args.force)
     cuts = _cuts(args, al, chainages)
+    floors = None
     if args.min_height is not None:
-        cuts = [SectionCut(c.chainage_m, c.half_width_m, c.yz[c.yz[:, 1] >= args.min_height],
-                           c.n_in_band) for c in cuts]
+        # DECISION: with --tunnel-json the alignment is the floor (a tunnel JSON runs
+        # along the invert, as before); a fitted axis runs through the profile centre,
+        # so each section's lowest points are the floor there (issue 31).
+        rail = args.rail_height if args.rail_height is not None else \
+            (None if args.fit_axis else 0.0)
+        kept = [above_floor(c, args.min_height, floor_m=rail) for c in cuts]
+        cuts = [k[0] for k in kept]
+        floors = [k[1] for k in kept]
     ref = DesignProfile.from_profile(prof).centre if prof is not None else np.zeros(2)
     rings = fit_rings(cuts, reference_centre=ref, nominal_diameter_m=args.nominal_diameter)
+    bad = poor_fits(rings)
+    if bad:
+        worst = max(bad, key=lambda r: min(r.circle.rms_m, r.ellipse.rms_m))
+        rms = min(worst.circle.rms_m, worst.ellipse.rms_m)
+        warnings.warn(f"{len(bad)} of {len(rings)} rings fit a circle or an ellipse no "
+                      f"better than {1000 * FIT_RMS_WARN_M:g} mm rms (worst "
+                      f"{1000 * rms:.0f} mm at chainage {worst.chainage_m:g} m): the "
+                      "section is not a ring (a horseshoe?), so its diameters and "
+                      "ovality mean little; compare it with its design profile with "
+                      "'tunnelsim sections --design', or drop the invert with "
+                      "--min-height.", UserWarning, stacklevel=2)
     write_text(out / "rings.csv", rings_csv(rings))
     write_text(out / "rings.md", rings_markdown(rings, source=Path(args.input).name))
-    write_json(out / "rings.json", [r.to_dict() for r in rings])
+    rows = [r.to_dict() for r in rings]
+    if floors is not None:
+        for row, f in zip(rows, sorted(zip([c.chainage_m for c in cuts], floors))):
+            row["floor_height_m"] = f[1]
+    write_json(out / "rings.json", rows)
     plot_rings(rings, out / "rings.png")
     dmax = max(r.ellipse.diameters_m[0] for r in rings)
     dmin = min(r.ellipse.diameters_m[1] for r in rings)
+    if floors is not None:
+        src = "--rail-height" if args.rail_height is not None else \
+            ("each section's lowest points (its 1st percentile of heights)"
+             if args.fit_axis else "the alignment of --tunnel-json")
+        say(args, f"--min-height {args.min_height:g} m above the floor: {src}, at "
+                  f"{np.median(floors):.3f} m in the section frame (median)")
     say(args, f"{len(rings)} rings: diameters {1000 * dmin:.1f} to {1000 * dmax:.1f} mm, "
               f"largest ovality {100 * max(r.ovality for r in rings):.3f} % -> {out}/")
     return 0
