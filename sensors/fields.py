@@ -30,10 +30,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from typing import Final
+
 import numpy as np
 
 __all__ = ["FIELD_NAMES", "FIELD_UNITS", "FILE_DTYPE", "FILE_FIELDS", "FILE_NAMES",
-           "LAS_COMPACT", "LAS_DESCRIPTIONS", "LAS_EXTRA", "POINT_DTYPE", "XYZ",
+           "FLAG_MIXED", "FLAG_PARTICLE", "FLAG_SURFACE", "LAS_COMPACT",
+           "LAS_DESCRIPTIONS", "LAS_EXTRA", "MIXED_SPREAD_M", "POINT_DTYPE",
+           "RETURN_FIELDS", "RETURN_POINT_DTYPE", "XYZ",
            "FileField", "field_offset", "file_records", "las_description", "point_field"]
 
 #: One simulated return (a structured NumPy dtype, native byte order).
@@ -42,6 +46,27 @@ POINT_DTYPE = np.dtype([
     ("range", "f8"), ("azimuth", "f4"), ("elevation", "f4"), ("time", "f8"),
     ("channel", "i4"), ("column", "i4"), ("frame", "i4"), ("intensity", "f4"),
     ("incidence", "f4"), ("triangle", "i4"), ("flag", "u1")])
+
+#: Values of the ``flag`` field (``sensors.physics`` and ``sensors.waveform`` set them).
+FLAG_SURFACE: Final = 1
+FLAG_PARTICLE: Final = 2
+FLAG_MIXED: Final = 3
+#: Sub-returns whose ranges spread more than this are flagged mixed (m).
+MIXED_SPREAD_M: Final = 0.01
+
+#: Per-point fields of multiple returns, added to ``POINT_DTYPE`` records where a mode
+#: other than the default is simulated (the LAS writer stores return_number and
+#: number_of_returns in the point's return bits, the echo's width (sigma, m) and
+#: amplitude (relative power) as extra bytes). ``sensors.waveform`` re-exports it.
+RETURN_FIELDS: Final = (("return_number", "u1"), ("number_of_returns", "u1"),
+                        ("echo_width", "f4"), ("echo_amplitude", "f4"))
+
+#: One return of a multiple-return run (``Settings(returns=...)``): ``POINT_DTYPE``
+#: followed by ``sensors.waveform.RETURN_FIELDS``: return_number (1 = nearest
+#: reported echo of its pulse), number_of_returns, echo_width (the echo's Gaussian
+#: sigma, m) and echo_amplitude (its peak, relative power). The LAS writer stores the
+#: first two in the point's return bits and the echo fields as extra bytes.
+RETURN_POINT_DTYPE = np.dtype(POINT_DTYPE.descr + list(RETURN_FIELDS))
 
 #: The field names of ``POINT_DTYPE``, in file order.
 FIELD_NAMES: tuple[str, ...] = tuple(POINT_DTYPE.names or ())
@@ -142,6 +167,9 @@ LAS_DESCRIPTIONS: dict[str, str] = {
     "ny": "M3C2 normal y [unit vector]",
     "nz": "M3C2 normal z [unit vector]",
     "voxel_count": "input points in voxel [count]",
+    # multiple returns (RETURN_POINT_DTYPE; sensors.writers.LAS_ECHO_EXTRA)
+    "echo_width": "echo Gaussian sigma [m]",
+    "echo_amplitude": "echo peak [relative power]",
 }
 
 

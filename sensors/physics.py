@@ -48,19 +48,17 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_number
 from .errors import SimulationError
+from .fields import FLAG_MIXED, FLAG_PARTICLE, FLAG_SURFACE, MIXED_SPREAD_M
 from .spec import Physics
+from .waveform import RETURN_MODES
 
 __all__ = ["FLAG_MIXED", "FLAG_PARTICLE", "FLAG_SURFACE", "MIXED_SPREAD_M", "SUBRAY_COUNTS",
            "Settings", "detection_probability", "intensity", "intensity_constants",
            "noise_constants", "perpendicular_basis", "power", "range_sigma",
            "subray_offsets"]
 
-#: Return flags in the output.
-FLAG_SURFACE: Final = 1
-FLAG_PARTICLE: Final = 2
-FLAG_MIXED: Final = 3
-#: Sub-returns whose ranges spread more than this are flagged mixed (m).
-MIXED_SPREAD_M: Final = 0.01
+# Return flags in the output, and the spread that makes a return mixed (m): defined
+# with the point record (sensors.fields), re-exported here where they were.
 
 # Sub-ray offsets in units of the divergence half-angle: centre, 6 at 1/2, 12 at 1.
 _A6 = 2 * np.pi * np.arange(6) / 6
@@ -97,6 +95,11 @@ class Settings:
     reflectivity : float in [0, 1]
         Reflectivity used where the mesh has none (and no ``reflectivity`` is given to
         the simulation).
+    returns : {"strongest", "last", "first", "dual", "all"} or None
+        Multiple returns: the pulse's full waveform (``sensors.waveform``), its echoes
+        and those the device reports in this return mode (one of its spec's
+        ``returns.modes``; output records ``sensors.fields.RETURN_POINT_DTYPE``). None (the
+        default): the single blended return per pulse, as before the waveform model.
 
     Raises
     ------
@@ -113,6 +116,7 @@ class Settings:
     particle_rate_per_m: float = 0.0
     particle_reflectivity: float = 0.1
     reflectivity: float = 0.5
+    returns: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("range_noise", "angle_jitter", "detection"):
@@ -132,6 +136,10 @@ class Settings:
                   unit=_FRACTION, lo=0, hi=1, lo_open=True)
         as_number(self.reflectivity, "reflectivity", SimulationError, unit=_FRACTION, lo=0,
                   hi=1)
+        if self.returns is not None and self.returns not in RETURN_MODES:
+            raise SimulationError(f"Expected `returns` (--returns) in {list(RETURN_MODES)} "
+                                  f"or None, got {self.returns!r}; pass --returns with one "
+                                  "of them.")
 
     @classmethod
     def ideal(cls) -> Settings:

@@ -27,6 +27,16 @@ Output fields (SI, radians):
   pattern; ``intensity`` in [0, 1]; ``incidence`` angle at the surface (rad);
   ``triangle`` input face index (-1 for particles); ``flag`` 1 surface, 2 particle,
   3 mixed (beam-divergence sub-returns disagree by more than 1 cm).
+
+Multiple returns (``Settings(returns=mode)``, one of the sensor's ``[returns]``
+modes): each pulse's footprint sub-rays and its dust particle make a waveform
+(``sensors.waveform.chunk_returns``), the mode picks the echoes the device reports,
+and each is detected and noised as a single return is. The chunks then hold
+``RETURN_POINT_DTYPE`` records: one per detected echo, grouped by pulse and in range
+order, with ``return_number`` (1 = nearest), ``number_of_returns`` (among the detected
+ones), ``echo_width`` (sigma, m) and ``echo_amplitude`` (relative power). With
+``returns=None`` (the default) none of this runs: the points are those of the
+single-return model, bit for bit.
 """
 
 from __future__ import annotations
@@ -44,6 +54,7 @@ from scipy.spatial.transform import Rotation
 from raytrace import Scene
 
 from . import physics as ph
+from . import waveform
 from ._threads import run_each
 from ._checks import as_number, as_points, as_whole
 from ._kernels.pulses import (
@@ -53,7 +64,7 @@ from ._kernels.pulses import (
     world_directions,
 )
 from .errors import SimulationError
-from .fields import POINT_DTYPE
+from .fields import POINT_DTYPE, RETURN_POINT_DTYPE
 from .patterns import CHUNK_PULSES, Pulses, Scan, TLSScan, chunk_size, scan_for
 from .spec import SensorSpec, load_sensor
 from .trajectory import Mount, Trajectory
@@ -151,6 +162,7 @@ class Run:
         self.mount, self.trajectory = mount, trajectory
         self._poses = poses
         self.settings, self.seed = settings, _seed(seed)
+        _check_returns(sensor, settings)
         self._rho_faces, self._rho_default = _reflectivity(scene, reflectivity, settings)
         self.chunk_pulses = chunk_size(chunk_pulses)
         self.station = station
@@ -346,6 +358,8 @@ class Run:
         z = rng.normal(4, 1)
         dw = np.empty((n, 3))
         world_directions(pulses.direction, jit, mats, dw)
+        if st.returns is not None:   # multiple returns: the waveform model
+            return self._chunk_returns(rng, pulses, t_abs, pos, mats, dw, dpart, u_det, z)
         ret = self._surface(pos[0] if single else pos, dw, "cubemap" if single else "auto")
         n_hit = int(np.count_nonzero(ret[3]))
         if dpart is not None and u_part is not None:
@@ -362,6 +376,71 @@ class Run:
         f = [out[name] for name in out.dtype.names or ()]
         fill_points(idx, r, p, flag, tri, cos, pulses.direction, t_abs, pulses.channel,
                     pulses.column, pulses.frame, pos, mats, p_min, log_span, *f)
+        return out, n_hit
+
+    def _chunk_returns(self, rng: _Streams, pulses: Pulses, t_abs: NDArray[np.float64],
+                       pos: NDArray[np.float64], mats: NDArray[np.float64],
+                       dw: NDArray[np.float64], dpart: NDArray[np.float64] | None,
+                       u_det: NDArray[np.float64], z: NDArray[np.float64]
+                       ) -> tuple[NDArray[np.void], int]:
+        """``_chunk`` in a multiple-return mode (``Settings.returns``): each pulse's
+        sub-rays and particle make a waveform (``sensors.waveform.chunk_returns``), the
+        device's mode picks its echoes, each is detected and noised as a single return
+        is; records of ``RETURN_POINT_DTYPE``, one per detected return."""
+        st, phys, spec = self.settings, self.sensor.physics, self.sensor
+        assert st.returns is not None
+        n = len(dw)
+        single = self.station is not None
+        t, tri, hit, cos, e, w = self._cast_subrays(pos[0] if single else pos, dw,
+                                                    "cubemap" if single else "auto")
+        n_hit = int(np.count_nonzero(hit.any(axis=1)))
+        pr = pp = None
+        if dpart is not None:
+            # A particle echoes where it lies before the farthest surface the footprint
+            # reaches (the beam ends there) and within range.
+            far = np.where(hit, t, -np.inf).max(axis=1)
+            far = np.where(np.isfinite(far), far, phys.range_max_m)
+            pr = np.where(dpart < np.minimum(far, phys.range_max_m), dpart, np.inf)
+            pp = ph.power(st.particle_reflectivity, 1.0, pr, st.attenuation_per_m)
+        rs = spec.returns
+        cr = waveform.chunk_returns(np.where(hit, t, np.inf), e, cos, tri, w,
+                                    rs.model(phys), st.returns, dual=rs.dual,
+                                    max_returns=rs.max_returns, particle_range_m=pr,
+                                    particle_power=pp)
+        k = len(cr)
+        # DECISION: the first reported return of a pulse draws from streams 3 and 4,
+        # as the single return does; returns 2, 3, ... from streams 5 and 6, one
+        # column each, so adding a mode changes no draw of the default path.
+        later = cr.return_number.astype(np.int64) - 2
+        u, zz = u_det[cr.pulse], z[cr.pulse]
+        if (later >= 0).any():
+            width = max(rs.max_returns - 1, 1)
+            u2 = rng.uniform_columns(5, width)
+            z2 = rng.normal(6, width).reshape(-1, width)
+            more = later >= 0
+            u[more] = u2[cr.pulse[more], later[more]]
+            zz[more] = z2[cr.pulse[more], later[more]]
+        r = cr.range_m.copy()
+        p_min, log_span = ph.intensity_constants(phys)
+        floor2, ref2 = ph.noise_constants(phys)
+        returned = np.empty(k, dtype=np.bool_)
+        detect_and_noise(r, cr.power, cr.flag, u, zz, st.detection, p_min,
+                         1.0 / phys.detection_softness, st.range_noise, floor2, ref2,
+                         returned)
+        idx = np.flatnonzero(returned)
+        out = np.empty(len(idx), dtype=RETURN_POINT_DTYPE)
+        f = [out[name] for name in POINT_DTYPE.names or ()]
+        q = cr.pulse
+        per_pos = pos[q] if pos.shape[0] == n and n > 1 else pos
+        per_rot = mats[q] if mats.shape[0] == n and n > 1 else mats
+        fill_points(idx, r, cr.power, cr.flag, cr.triangle, cr.cos,
+                    np.ascontiguousarray(pulses.direction[q]), t_abs[q], pulses.channel[q],
+                    pulses.column[q], pulses.frame[q], np.ascontiguousarray(per_pos),
+                    np.ascontiguousarray(per_rot), p_min, log_span, *f)
+        out["return_number"], out["number_of_returns"] = \
+            waveform.renumber_returns(q, returned)
+        out["echo_width"] = cr.width_m[idx]
+        out["echo_amplitude"] = cr.amplitude[idx]
         return out, n_hit
 
     def _surface(self, origin: NDArray[np.float64], dw: NDArray[np.float64], method: str
@@ -396,9 +475,13 @@ class Run:
                 np.where(won, ph.FLAG_PARTICLE, flag).astype(np.uint8),
                 np.where(won, -1, tri).astype(np.int32))
 
-    def _subrays(self, origin: NDArray[np.float64], dw: NDArray[np.float64], method: str
-                 ) -> _Returns:
-        """Beam divergence: cast the footprint's sub-rays and combine them (NumPy)."""
+    def _cast_subrays(self, origin: NDArray[np.float64], dw: NDArray[np.float64],
+                      method: str) -> tuple[NDArray[np.float64], NDArray[np.int64],
+                                            NDArray[np.bool_], NDArray[np.float64],
+                                            NDArray[np.float64], NDArray[np.float64]]:
+        """Beam divergence: cast the footprint's sub-rays of the beams ``dw`` (n, 3).
+        Returns, (n, m) each: range t, triangle, hit (a face beyond the minimum range),
+        cosine of incidence, power e (0 where no hit); and the weights w (m,)."""
         st, phys = self.settings, self.sensor.physics
         n = len(dw)
         off, w = ph.subray_offsets(st.beam_subrays)
@@ -419,6 +502,14 @@ class Run:
             np.full((n, m), self._rho_default)
         e = np.where(hit, ph.power(rho, cos, np.where(hit, t, 1.0), st.attenuation_per_m),
                      0.0)
+        return t, tri, hit, cos, e, w
+
+    def _subrays(self, origin: NDArray[np.float64], dw: NDArray[np.float64], method: str
+                 ) -> _Returns:
+        """Beam divergence: cast the footprint's sub-rays and combine them (NumPy)."""
+        st = self.settings
+        t, tri, hit, cos, e, w = self._cast_subrays(origin, dw, method)
+        n, m = t.shape
         any_hit = hit.any(axis=1)
         j = np.argmax(e, axis=1)
         rows = np.arange(n)
@@ -472,6 +563,10 @@ class _Streams:
     def uniform(self, stream: int) -> NDArray[np.float64]:
         return self._take(stream, lambda g, s: g.random(s), 1)
 
+    def uniform_columns(self, stream: int, width: int) -> NDArray[np.float64]:
+        """(n, width) uniforms (``uniform`` is the (n,) of width 1)."""
+        return self._take(stream, lambda g, s: g.random(s), width).reshape(-1, width)
+
     def exponential(self, stream: int) -> NDArray[np.float64]:
         return self._take(stream, lambda g, s: g.standard_exponential(s), 1)
 
@@ -498,6 +593,16 @@ def _settings(settings: ph.Settings | None) -> ph.Settings:
         raise SimulationError(f"Expected `settings` as a sensors.Settings, got "
                               f"{type(settings).__name__}; build one with Settings(...).")
     return settings
+
+
+def _check_returns(spec: SensorSpec, settings: ph.Settings) -> None:
+    """A return mode must be one the device records (its spec's ``[returns] modes``)."""
+    mode = settings.returns
+    if mode is not None and mode not in spec.returns.modes:
+        raise SimulationError(f"Expected --returns in {list(spec.returns.modes)} for "
+                              f"{spec.name} (its [returns] modes), got {mode!r}; pass "
+                              "--returns with one of them, or leave it out for one "
+                              "return per pulse.")
 
 
 def _station_position(position: ArrayLike) -> NDArray[np.float64]:

@@ -40,6 +40,7 @@ from .spec_types import (KINDS, NO_RETURN, POINT_LAYOUTS, RING_ORDERS,
                          SATURATION_RANGE_FLOOR_M,
                          Driver, Pattern, Physics, ProfilerPattern, SensorSpec,
                          SpinningPattern, TLSPattern)
+from .waveform import DEFAULT_RETURNS, ReturnsSpec
 
 __all__ = ["KINDS", "POINT_LAYOUTS", "RING_ORDERS", "SPEC_DIR", "TABLE_KEYS", "Driver",
            "Pattern", "Physics", "ProfilerPattern", "SensorSpec", "SpinningPattern",
@@ -50,7 +51,7 @@ SPEC_DIR: Final = Path(__file__).resolve().parent / "specs"
 #: Keys each table of a sensor file may hold; anything else is refused on load.
 #: ``tls.resolutions_deg`` is free-form (preset name -> step) and not listed.
 TABLE_KEYS: Final[Mapping[str, tuple[str, ...]]] = {
-    "": ("device", "range", "detection", "noise", "beam", "driver", *KINDS),
+    "": ("device", "range", "detection", "noise", "beam", "driver", "returns", *KINDS),
     "device": ("name", "vendor", "model", "kind", "wavelength_nm", "sources"),
     "range": ("min_m", "max_m"),
     "detection": ("range_m", "reflectivity", "softness"),
@@ -67,6 +68,8 @@ TABLE_KEYS: Final[Mapping[str, tuple[str, ...]]] = {
     "driver": ("package", "point_layout", "frame_id", "topic", "ring_order",
                "intensity_max", "beam_origin_offset_mm", "organized", "no_return",
                "signal_photons_at_threshold"),
+    # Optional (sensors.waveform.ReturnsSpec): what the device records per pulse.
+    "returns": ("modes", "dual", "max_returns", "pulse_fwhm_ns", "pulse_source"),
 }
 
 
@@ -307,6 +310,17 @@ def _driver(root: _Table) -> Driver | None:
                   signal)
 
 
+def _returns(root: _Table, file: str) -> ReturnsSpec:
+    """The ``[returns]`` table (keys checked by ``_Table``), errors naming the file."""
+    table = root.sub("returns")
+    try:
+        return ReturnsSpec.from_table(table.data, file)
+    except SensorSpecError as exc:
+        msg = str(exc)
+        raise SensorSpecError(msg if file in msg else
+                              f"{file}: {msg.rstrip('.')}; fix the sensor file.") from None
+
+
 def _load(path: Path) -> SensorSpec:
     try:
         data = tomllib.loads(path.read_text())
@@ -335,9 +349,11 @@ def _load(path: Path) -> SensorSpec:
         pattern = _spinning(root.sub("spinning"))
     else:
         pattern = _profiler(root.sub("profiler"))
+    # [returns] is optional: without it a device records one return (today's model).
+    returns = _returns(root, path.name) if "returns" in data else DEFAULT_RETURNS
     return SensorSpec(dev.text("name"), dev.text("vendor"), dev.text("model"), kind,
                       dev.num("wavelength_nm", positive=True), dev.texts("sources"), phys,
-                      pattern, str(path), _driver(root))
+                      pattern, str(path), _driver(root), returns)
 
 
 def _registry() -> dict[str, str]:

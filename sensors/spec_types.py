@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import SensorSpecError
+from .waveform import DEFAULT_RETURNS, ReturnsSpec
 
 __all__ = ["KINDS", "NO_RETURN", "POINT_LAYOUTS", "RING_ORDERS", "SATURATION_RANGE_FLOOR_M",
            "Driver", "Pattern", "Physics", "ProfilerPattern", "SensorSpec",
@@ -292,6 +293,10 @@ class SensorSpec:
         The file it was read from.
     driver : Driver or None
         The ROS 2 driver's conventions (``[driver]``), if the file gives them.
+    returns : ReturnsSpec
+        What the device records per pulse (``[returns]``: return modes, what ``dual``
+        means, echoes at most, pulse width); ``DEFAULT_RETURNS`` (one return,
+        ``strongest``) for a file without the table.
     """
 
     name: str
@@ -304,6 +309,7 @@ class SensorSpec:
     pattern: Pattern
     path: str
     driver: Driver | None = None
+    returns: ReturnsSpec = DEFAULT_RETURNS
 
     def __post_init__(self) -> None:
         want = _PATTERN_OF_KIND.get(self.kind)

@@ -48,16 +48,30 @@ import math
 import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING, Final, TypeVar
+from typing import Final, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_number, as_whole
 from .errors import SensorSpecError, SimulationError
+# DECISION: the flags and RETURN_FIELDS come from sensors.fields (not sensors.physics),
+# so that sensors.spec can import ReturnsSpec from here without an import cycle.
+from .fields import FLAG_MIXED, FLAG_PARTICLE, FLAG_SURFACE, MIXED_SPREAD_M, RETURN_FIELDS
 
-if TYPE_CHECKING:  # DECISION: not at run time, so that the spec loader can import
-    from .spec import Physics  # ReturnsSpec from here without an import cycle
+
+
+class Physics(Protocol):
+    """What the waveform model reads of a device's ``sensors.spec.Physics``.
+
+    DECISION: a protocol, not an import of sensors.spec (which imports ReturnsSpec
+    from here): no import cycle, even one for type checking only."""
+
+    @property
+    def threshold_power(self) -> float: ...
+
+    @property
+    def detection_softness(self) -> float: ...
 
 __all__ = ["BIN_S", "ChunkReturns", "DEFAULT_PULSE_FWHM_S", "DEFAULT_RETURNS",
            "DUAL_KINDS", "EVLR_HEADER_BYTES", "Echoes", "MAX_ECHOES", "RETURN_FIELDS",
@@ -88,12 +102,6 @@ PULSE_BLOCK: Final = 256
 THRESHOLD_SOFTNESSES: Final = 4.0
 
 RETURN_MODES: Final = ("strongest", "last", "first", "dual", "all")
-#: Per-point fields of multiple returns, added to ``POINT_DTYPE`` records where a mode
-#: other than the default is simulated (the LAS writer stores return_number and
-#: number_of_returns in the point's return bits, the echo's width (sigma, m) and
-#: amplitude (relative power) as extra bytes).
-RETURN_FIELDS: Final = (("return_number", "u1"), ("number_of_returns", "u1"),
-                        ("echo_width", "f4"), ("echo_amplitude", "f4"))
 DUAL_KINDS: Final = ("strongest_last", "first_last", "strongest_second")
 _G = TypeVar("_G", bound=np.generic)
 _FWHM_TO_SIGMA: Final = 1.0 / (2.0 * math.sqrt(2.0 * math.log(2.0)))
@@ -602,7 +610,6 @@ def chunk_returns(subray_range_m: ArrayLike, subray_power: ArrayLike,
     ChunkReturns
     """
     from ._kernels.waveform import attribute_returns
-    from .physics import FLAG_MIXED, FLAG_PARTICLE, FLAG_SURFACE, MIXED_SPREAD_M
 
     r = np.asarray(subray_range_m, dtype=np.float64)
     cos = np.asarray(subray_cos, dtype=np.float64)

@@ -46,7 +46,8 @@ def run_settings(args):
         base = Settings(range_noise=not args.no_noise, angle_jitter=not args.no_noise,
                         detection=not args.no_detection)
     return replace(base, beam_subrays=args.beam_subrays, mixed=args.mixed,
-                   attenuation_per_m=args.attenuation, particle_rate_per_m=args.particles)
+                   attenuation_per_m=args.attenuation, particle_rate_per_m=args.particles,
+                   returns=getattr(args, "returns", None))
 
 
 def finish_run(args, run, label, *, min_return: float = 0.0, where: str = "",
