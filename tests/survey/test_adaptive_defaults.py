@@ -558,3 +558,54 @@ def test_clearance_figure_labels_only_the_deepest_regions(intruded, tunnel_json,
     assert sorted(labels) == sorted(want)
     assert any(f"the {LABELLED_REGIONS} deepest of {len(rows)} regions" in t
                for t in figs[0])
+
+
+# ---------------------------------------------------------------------- mesh
+def _profile_cloud(spacing_m: float, rng) -> np.ndarray:
+    """Rings of a 3 m circle every ``spacing_m`` along a straight 60 m axis at UTM
+    coordinates, a point every ~1 cm on each ring, 2 mm noise: a profile scanner's
+    cloud."""
+    al = Alignment([straight(60.0)], start_xy=UTM, heading_rad=0.4, profile=((0.0, 250.0),))
+    s = np.arange(0.3, 60.0 - 0.3, spacing_m)
+    a = np.arange(0.0, 2 * np.pi, ARC_STEP / R)
+    ss, aa = np.meshgrid(s, a, indexing="ij")
+    r = R + rng.normal(0.0, 0.002, ss.shape)
+    off, up = r * np.sin(aa), 1.5 + r * np.cos(aa)
+    return al.to_world(ss.ravel(), off.ravel(), up.ravel())
+
+
+def test_mesh_cell_is_the_profile_spacing_and_interpolates_less(tmp_path, capsys):
+    # A profile cloud (0.5 m apart): without --cell the mesher takes one cell per
+    # profile, says so, and records it; its interpolated share is far below that of
+    # the old fixed 0.1 m cell on the same file (which leaves 4 of 5 columns empty).
+    pts = _profile_cloud(0.5, np.random.default_rng(2))
+    src = tmp_path / "profiles.laz"
+    write_points_las(src, pts)
+    runs = {}
+    for name, extra in (("auto", []), ("fixed", ["--cell", "0.1,2"])):
+        js = tmp_path / f"{name}.json"
+        assert main(["mesh", str(src), "-o", str(tmp_path / f"{name}.ply"), "--json",
+                     str(js), "--method", "tunnel", *extra]) == 0
+        runs[name] = json.loads(js.read_text()), capsys.readouterr().out
+    auto, out = runs["auto"]
+    assert (auto["cell_chosen"]["cell_m"], auto["cell_chosen"]["cell_deg"]) == (0.5, 2.0)
+    assert "profile" in auto["cell_chosen"]["how"]
+    assert "cell: 0.5 m along the axis" in out and "--cell" in out
+    fixed, out_fixed = runs["fixed"]
+    assert "cell_chosen" not in fixed and "cell:" not in out_fixed
+    assert fixed["extrapolated_share"] > 0.6
+    assert auto["extrapolated_share"] < 0.1
+    assert (tmp_path / "auto.ply").read_bytes() != (tmp_path / "fixed.ply").read_bytes()
+
+
+def test_mesh_cell_stays_fixed_on_a_dense_cloud(tmp_path, capsys):
+    # Profiles 1 cm apart (a dense MLS cloud) are no profile cloud: the old default.
+    pts = _profile_cloud(0.01, np.random.default_rng(3))[::40]
+    src = tmp_path / "dense.laz"
+    write_points_las(src, pts)
+    js = tmp_path / "d.json"
+    assert main(["mesh", str(src), "-o", str(tmp_path / "d.ply"), "--json", str(js),
+                 "--method", "tunnel", "--quiet"]) == 0
+    chosen = json.loads(js.read_text())["cell_chosen"]
+    assert (chosen["cell_m"], chosen["cell_deg"]) == (0.1, 2.0)
+    assert chosen["how"].startswith("default")
