@@ -23,7 +23,17 @@ Topics (frames ``map``, ``odom``, ``base_link`` and the driver's cloud frame):
   (``nav_msgs/msg/Odometry``): the same true platform poses with their twist.
 - ``/imu/data_raw`` (REP 145's name for an IMU without orientation):
   ``sensor_msgs/msg/Imu`` at ``ImuModel.rate_hz`` in ``base_link``, the trajectory's
-  derivatives (``platform_motion``) plus the noise and bias of ``ImuModel``, seeded.
+  derivatives (``platform_motion``) plus the noise and bias of ``ImuModel``, seeded;
+  with ``imu_mount`` in ``imu_link`` (``base_link -> imu_link`` on ``/tf_static``), the
+  derivatives of that frame's own trajectory (``mounted_trajectory``: the lever arm's
+  centripetal and tangential accelerations included).
+- ``/odom`` (with ``wheel_odometry``): ``nav_msgs/msg/Odometry`` at ``POSE_RATE_HZ``,
+  ``odom -> base_link`` by planar dead reckoning of the true distance and heading
+  change with the seeded noise of ``WheelOdometryModel``; it starts at the true pose.
+
+A ``sensors.robot.RobotDescription`` gives the drive CLI's mount (base_link on the
+ground contact plane -> sensor), trajectory (``base_trajectory``) and ``imu_mount``,
+the same transforms as the URDF written beside the bag.
 
 Stamps are the trajectory's time base (s -> ns; negative times are refused), or, with
 ``start_time_ns``, that epoch at the scan's start: a time t is stamped
@@ -71,17 +81,20 @@ from .errors import PointFileError
 from .fields import POINT_DTYPE
 # Message contents live in two modules of their own; their public names are re-exported
 # here, where users have always imported them from.
-from .imu import (DEFAULT_IMU, IMU_STREAM, STANDARD_GRAVITY, ImuModel, imu_normals,
-                  platform_motion)
+from .imu import (DEFAULT_IMU, DEFAULT_WHEEL_ODOMETRY, IMU_STREAM, ODOM_STREAM,
+                  STANDARD_GRAVITY, ImuModel, WheelOdometryModel, imu_normals,
+                  mounted_trajectory, platform_motion)
 from .pointcloud2 import (GENERIC_DRIVER, LAYOUTS, PointLayout, cloud_points, organise,
                           organised_width)
 from .spec import ProfilerPattern, SensorSpec, SpinningPattern
 from .stream import Stream
 from .trajectory import Mount, Trajectory
 
-__all__ = ["DEFAULT_IMU", "FRAMES", "GENERIC_DRIVER", "IMU_TOPIC", "INSTALL_HINT",
+__all__ = ["DEFAULT_IMU", "DEFAULT_WHEEL_ODOMETRY", "FRAMES", "GENERIC_DRIVER", "IMU_TOPIC",
+           "INSTALL_HINT",
            "LAYOUTS", "METADATA_VERSIONS", "ODOMETRY_TOPIC", "POSE_RATE_HZ",
-           "STANDARD_GRAVITY", "ImuModel", "PointLayout", "RosbagStream", "cloud_points",
+           "STANDARD_GRAVITY", "WHEEL_ODOMETRY_TOPIC", "ImuModel", "PointLayout",
+           "RosbagStream", "WheelOdometryModel", "cloud_points",
            "parse_start_time", "platform_motion"]
 
 INSTALL_HINT: Final = "pip install 'tunnelsim[ros]' (or: pip install rosbags)"
@@ -91,6 +104,9 @@ FRAMES: Final = ("map", "odom", "base_link")
 POSE_RATE_HZ: Final = 100.0
 ODOMETRY_TOPIC: Final = "/odometry/ground_truth"
 IMU_TOPIC: Final = "/imu/data_raw"
+WHEEL_ODOMETRY_TOPIC: Final = "/odom"
+#: The IMU's frame when it has a mount of its own (``imu_mount``).
+IMU_FRAME: Final = "imu_link"
 #: Pose and IMU messages are made this many seconds of trajectory at a time.
 MOTION_BLOCK_S: Final = 2.0
 #: rosbag2 metadata.yaml version each ROS 2 distribution writes (``ros_distro``):
@@ -169,6 +185,11 @@ class RosbagStream(Stream):
         first sweep's start); None: the trajectory's own time base.
     ros_distro : {"jazzy", "humble"}
         The rosbag2 metadata layout of a bag folder (``METADATA_VERSIONS``).
+    imu_mount : Mount, optional
+        base_link -> imu_link: the IMU's place on the platform (``/tf_static``); its
+        messages are then that frame's motion, in imu_link. None: in base_link.
+    wheel_odometry : WheelOdometryModel, optional
+        Writes ``/odom`` (needs ``trajectory``); None: no wheel odometry.
 
     Raises
     ------
@@ -184,7 +205,8 @@ class RosbagStream(Stream):
                  span_s: tuple[float, float] | None = None,
                  imu: ImuModel | None = DEFAULT_IMU, info: dict[str, Any] | None = None,
                  compress: bool = True, start_time_ns: int | None = None,
-                 ros_distro: str = "jazzy") -> None:
+                 ros_distro: str = "jazzy", imu_mount: Mount | None = None,
+                 wheel_odometry: WheelOdometryModel | None = None) -> None:
         self.path = Path(path)
         if ros_distro not in METADATA_VERSIONS:
             raise PointFileError(f"Expected a ROS 2 distribution in "
@@ -241,6 +263,14 @@ class RosbagStream(Stream):
         self.span_s = None if span_s is None else (float(span_s[0]), float(span_s[1]))
         if trajectory is None:
             self.imu = None
+            wheel_odometry = None
+        self.imu_mount, self.wheel_odometry = imu_mount, wheel_odometry
+        self._imu_traj = trajectory if trajectory is None or imu_mount is None else \
+            mounted_trajectory(trajectory, imu_mount)
+        self._imu_frame = "base_link" if imu_mount is None else IMU_FRAME
+        self._odo: tuple[Any, ...] | None = None     # wheel odometry's running state
+        self._odo_j = 0
+        self._odo_noise: list[tuple[int, NDArray[np.float64]]] = []
         self.messages: dict[str, int] = {}
         self.dropped_points = 0
         self._info = dict(info or {})
@@ -289,6 +319,8 @@ class RosbagStream(Stream):
         if self.trajectory is not None:
             topics += [("/tf", "tf2_msgs/msg/TFMessage", ()),
                        (ODOMETRY_TOPIC, "nav_msgs/msg/Odometry", ())]
+        if self.wheel_odometry is not None:
+            topics.append((WHEEL_ODOMETRY_TOPIC, "nav_msgs/msg/Odometry", ()))
         if self.imu is not None:
             topics.append((IMU_TOPIC, "sensor_msgs/msg/Imu", ()))
         self._conn = {name: self._bag.add_connection(name, kind, typestore=self._ts,
@@ -340,6 +372,10 @@ class RosbagStream(Stream):
         tfs = [self._transform(t_s, "map", "odom", origin, (0, 0, 0, 1)),
                self._transform(t_s, "base_link", self.driver.frame_id, mount.lever_arm_m,
                                mount.boresight.as_quat())]
+        if self.imu_mount is not None and self.imu is not None:
+            tfs.append(self._transform(t_s, "base_link", IMU_FRAME,
+                                       self.imu_mount.lever_arm_m,
+                                       self.imu_mount.boresight.as_quat()))
         msg = self._ts.types["tf2_msgs/msg/TFMessage"](transforms=tfs)
         self._put("/tf_static", t_s, msg)
 
@@ -490,6 +526,78 @@ class RosbagStream(Stream):
             tfm = T["tf2_msgs/msg/TFMessage"](transforms=[tf])
             out.append((ti, 0, partial(self._put, "/tf", ti, tfm)))
             out.append((ti, 1, partial(self._put, ODOMETRY_TOPIC, ti, odo)))
+        if self.wheel_odometry is not None:
+            out += self._wheel_messages(t, local, rot)
+        return out
+
+    def _wheel_messages(self, t: NDArray[np.float64], local: NDArray[np.float64],
+                        rot: Any) -> list[tuple[float, int, Callable[[], None]]]:
+        """``/odom``: planar dead reckoning (x, y, yaw) of the true base_link motion's
+        steps with ``WheelOdometryModel``'s noise, seeded per sample block (the same
+        whatever the motion blocks)."""
+        model = self.wheel_odometry
+        assert model is not None
+        yaw = np.unwrap(np.arctan2(rot.apply([1.0, 0.0, 0.0])[:, 1],
+                                   rot.apply([1.0, 0.0, 0.0])[:, 0]))
+        n = len(t)
+        if self._odo is None:      # starts at the true pose; scale error drawn once
+            scale = 1.0 + model.scale_sigma * np.random.default_rng(
+                [self.seed, ODOM_STREAM + 1]).standard_normal()
+            self._odo = (local[0, :2].copy(), float(yaw[0]), local[0, :2].copy(),
+                         float(yaw[0]), local[0, 2], scale, 0.0, 0.0)
+        xy, psi, p_prev, y_prev, z0, scale, var_s, var_y = self._odo
+        # True steps: the distance along the heading (signed) and the heading change.
+        prev_xy = np.vstack([p_prev[None, :], local[:-1, :2]])
+        prev_yaw = np.concatenate([[y_prev], yaw[:-1]])
+        dyaw = np.angle(np.exp(1j * (yaw - prev_yaw)))
+        mid = prev_yaw + 0.5 * dyaw
+        d = local[:, :2] - prev_xy
+        ds = d[:, 0] * np.cos(mid) + d[:, 1] * np.sin(mid)
+        z = imu_normals(self.seed, self._odo_j, n, 2, self._odo_noise, stream=ODOM_STREAM)
+        self._odo_j += n
+        v_s = model.distance_var_per_m * np.abs(ds) + model.distance_var_per_rad * \
+            np.abs(dyaw)
+        v_y = model.yaw_var_per_rad * np.abs(dyaw) + model.yaw_var_per_m * np.abs(ds)
+        ds_m = scale * ds + np.sqrt(v_s) * z[:, 0]
+        dy_m = dyaw + np.sqrt(v_y) * z[:, 1]
+        # Midpoint (second-order Runge-Kutta) integration of the unicycle model.
+        head = psi + np.cumsum(dy_m)
+        mid_m = head - 0.5 * dy_m
+        pos = xy + np.cumsum(np.column_stack([ds_m * np.cos(mid_m),
+                                              ds_m * np.sin(mid_m)]), axis=0)
+        vs = var_s + np.cumsum(v_s)
+        vy = var_y + np.cumsum(v_y)
+        dt = 1.0 / POSE_RATE_HZ
+        self._odo = (pos[-1].copy(), float(head[-1]), local[-1, :2].copy(), float(yaw[-1]),
+                     z0, scale, float(vs[-1]), float(vy[-1]))
+        T = self._ts.types
+        out: list[tuple[float, int, Callable[[], None]]] = []
+        for i, ti in enumerate(t.tolist()):
+            h = 0.5 * float(head[i])
+            cov = np.zeros(36)
+            # DECISION: the pose covariance is the accumulated along-track variance
+            # on x and y and the heading's on yaw; z, roll and pitch are not measured
+            # (1e6, robot_localization's convention for an unused dimension).
+            cov[[0, 7, 35]] = vs[i], vs[i], vy[i]
+            cov[[14, 21, 28]] = 1e6
+            tw = np.zeros(36)
+            tw[[0, 35]] = v_s[i] / dt ** 2, v_y[i] / dt ** 2
+            tw[[7, 14, 21, 28]] = 1e6
+            msg = T["nav_msgs/msg/Odometry"](
+                header=self._header(ti, "odom"), child_frame_id="base_link",
+                pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                    pose=T["geometry_msgs/msg/Pose"](
+                        position=T["geometry_msgs/msg/Point"](
+                            x=float(pos[i, 0]), y=float(pos[i, 1]), z=float(z0)),
+                        orientation=T["geometry_msgs/msg/Quaternion"](
+                            x=0.0, y=0.0, z=float(np.sin(h)), w=float(np.cos(h)))),
+                    covariance=cov),
+                twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                    twist=T["geometry_msgs/msg/Twist"](
+                        linear=self._vec(np.array([ds_m[i] / dt, 0.0, 0.0])),
+                        angular=self._vec(np.array([0.0, 0.0, dy_m[i] / dt]))),
+                    covariance=tw))
+            out.append((ti, 3, partial(self._put, WHEEL_ODOMETRY_TOPIC, ti, msg)))
         return out
 
     def _vec(self, v: NDArray[np.float64]) -> Any:
@@ -500,7 +608,8 @@ class RosbagStream(Stream):
                                                                  Callable[[], None]]]:
         assert self.trajectory is not None and self.imu is not None
         imu = self.imu
-        _pos, rot, _vel, omega, acc = platform_motion(self.trajectory, t)
+        assert self._imu_traj is not None
+        _pos, rot, _vel, omega, acc = platform_motion(self._imu_traj, t)
         # Specific force in the body frame: R^T (a - g), g = (0, 0, -G) (REP 145:
         # a level IMU at rest reads +G along z).
         force = rot.inv().apply(acc + np.array([0.0, 0.0, STANDARD_GRAVITY]))
@@ -524,7 +633,7 @@ class RosbagStream(Stream):
         out: list[tuple[float, int, Callable[[], None]]] = []
         for i, ti in enumerate(t.tolist()):
             msg = T["sensor_msgs/msg/Imu"](
-                header=self._header(ti, "base_link"),
+                header=self._header(ti, self._imu_frame),
                 orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
                 orientation_covariance=no_orientation,
                 angular_velocity=self._vec(gyro[i]), angular_velocity_covariance=cov_g,
@@ -548,7 +657,9 @@ class RosbagStream(Stream):
         self._bag.set_custom_data("tunnelsim", json.dumps(dict(
             self._info, driver=asdict(self.driver), point_layout_source=self.layout.source,
             sweep_period_s=self.period_s, dropped_partial_sweep_points=self.dropped_points,
-            imu=None if self.imu is None else asdict(self.imu))))
+            imu=None if self.imu is None else asdict(self.imu),
+            wheel_odometry=None if self.wheel_odometry is None else
+            asdict(self.wheel_odometry))))
         self._bag.close()
         inner = self._bag.path
         if self.ros_distro == "humble" and not self._single:

@@ -17,15 +17,18 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
 from .errors import PointFileError
-from .trajectory import Trajectory
+from .trajectory import Mount, Trajectory
 
-__all__ = ["DEFAULT_IMU", "IMU_STREAM", "STANDARD_GRAVITY", "ImuModel", "imu_normals",
-           "platform_motion"]
+__all__ = ["DEFAULT_IMU", "DEFAULT_WHEEL_ODOMETRY", "IMU_STREAM", "ODOM_STREAM",
+           "STANDARD_GRAVITY", "ImuModel", "WheelOdometryModel", "imu_normals",
+           "mounted_trajectory", "platform_motion"]
 
 #: Standard gravity (m/s^2, 3rd CGPM 1901); the IMU's specific force adds it along +z.
 STANDARD_GRAVITY: Final = 9.80665
 #: Random stream of the IMU noise, apart from the simulation's streams (0-4).
 IMU_STREAM: Final = 101
+#: Random stream of the wheel odometry's noise.
+ODOM_STREAM: Final = 103
 _IMU_BLOCK: Final = 1 << 14
 
 
@@ -59,6 +62,51 @@ def platform_motion(trajectory: Trajectory, t: ArrayLike, step_s: float | None =
     acc = (pp - 2 * p0 + pm) / h ** 2
     omega = (rm.inv() * rp).as_rotvec() / (2 * h)
     return pos, rot, vel, omega, acc
+
+
+def mounted_trajectory(trajectory: Trajectory, mount: Mount) -> Trajectory:
+    """The trajectory of a frame rigidly mounted on the platform (``mount``: its origin
+    and axes in the platform frame): position p + R lever, attitude R boresight. Its
+    ``platform_motion`` is then that frame's own motion (the lever arm's centripetal
+    and tangential accelerations included, as the IMU at that place measures them)."""
+    rot = trajectory.rotations
+    return Trajectory(trajectory.times,
+                      trajectory.positions + rot.apply(np.asarray(mount.lever_arm_m)),
+                      rot * mount.boresight)
+
+
+@dataclass(frozen=True)
+class WheelOdometryModel:
+    """Noise of the simulated wheel odometry (``/odom``): a planar (x, y, yaw) dead
+    reckoning of the distance driven along the heading and the heading change, each
+    step's errors zero-mean normal with variances growing linearly with what was
+    driven and turned in that step (Chong & Kleeman 1997, "Accurate odometry and
+    error modelling for a mobile robot", ICRA: wheel-distance variance proportional to
+    the distance; so the odometry's error is a random walk, the same at any rate):
+    var(ds) = distance_var_per_m |ds| + distance_var_per_rad |dpsi|,
+    var(dpsi) = yaw_var_per_rad |dpsi| + yaw_var_per_m |ds|; and a constant scale error
+    of the distance (wheel radius), drawn once per seed, N(0, scale_sigma).
+
+    All values ASSUMED (no measured model of the platforms' odometry): 1 cm per
+    sqrt(m) of distance, 1 deg per sqrt(rad) turned and 0.5 deg per sqrt(m) driven
+    (slip on rock), a 1 % scale sigma. Units: m^2/m, m^2/rad, rad^2/rad, rad^2/m.
+    """
+
+    distance_var_per_m: float = 1.0e-4
+    distance_var_per_rad: float = 1.0e-6
+    yaw_var_per_rad: float = 3.0e-4
+    yaw_var_per_m: float = 7.6e-5
+    scale_sigma: float = 0.01
+
+    def __post_init__(self) -> None:
+        for name, v in asdict(self).items():
+            if not (isinstance(v, (int, float)) and not isinstance(v, bool)
+                    and np.isfinite(v) and v >= 0):
+                raise PointFileError(f"Expected `WheelOdometryModel.{name}` to be a "
+                                     f"finite number >= 0, got {v!r}.")
+
+
+DEFAULT_WHEEL_ODOMETRY: Final = WheelOdometryModel()
 
 
 @dataclass(frozen=True)
@@ -102,12 +150,12 @@ DEFAULT_IMU: Final = ImuModel()
 
 
 def imu_normals(seed: int, first: int, n: int, width: int,
-                cache: list[tuple[int, NDArray[np.float64]]] | None = None
-                ) -> NDArray[np.float64]:
+                cache: list[tuple[int, NDArray[np.float64]]] | None = None,
+                stream: int = IMU_STREAM) -> NDArray[np.float64]:
     """Standard normals (n, width) for samples [first, first + n), the same however
     they are asked for: block b of ``_IMU_BLOCK`` samples comes from
-    ``default_rng([seed, IMU_STREAM, b])``. ``cache`` (a one-item list) keeps the
-    last block drawn."""
+    ``default_rng([seed, stream, b])`` (``IMU_STREAM`` by default; the wheel odometry
+    has its own). ``cache`` (a one-item list) keeps the last block drawn."""
     if n <= 0:
         return np.empty((0, width))
     b0, b1 = first // _IMU_BLOCK, (first + n - 1) // _IMU_BLOCK
@@ -116,7 +164,7 @@ def imu_normals(seed: int, first: int, n: int, width: int,
         if cache and cache[0][0] == b:
             parts.append(cache[0][1])
             continue
-        block = np.random.default_rng([seed, IMU_STREAM, b]).standard_normal(
+        block = np.random.default_rng([seed, stream, b]).standard_normal(
             (_IMU_BLOCK, width))
         if cache is not None:
             cache[:] = [(b, block)]

@@ -31,6 +31,11 @@ _LIMIT_KEYS = ("max_speed_mps", "max_accel_mps2", "max_jerk_mps3", "max_yaw_rate
                "max_yaw_accel_dps2")
 _GAIT_KEYS = ("step_hz", "bob_m", "sway_m", "roll_deg", "pitch_deg")
 _PLATFORM_KEYS = ("name", "description", "motion", "sources")
+#: The optional ``[mounts]`` table (issue 30): the IMU on the base (its origin in
+#: base_link, on the ground contact plane under the platform's centre, and its roll,
+#: pitch, yaw) and, for a wheeled base, the wheel radius. Without it the IMU sits at
+#: the platform frame (the mast top, with the sensor), as before.
+_MOUNT_KEYS = ("imu_xyz_m", "imu_rpy_deg")
 _TRAVERSE_KEYS = ("max_slope_deg", "max_roll_deg", "max_step_m", "ground_clearance_m",
                   "footprint_width_m", "footprint_length_m")
 #: Tables and keys of a platform file, by motion: all required, nothing else allowed.
@@ -107,6 +112,14 @@ class PlatformSpec:
         A walker's.
     traversability : Traversability or None
         The ground it crosses and the room it needs (wheeled, walking; else None).
+    imu_xyz_m : (float, float, float) or None
+        The IMU's origin in base_link (x forward, y left, z up from the ground contact
+        under the platform's centre; m); None: at the platform frame (``[mounts]``
+        absent).
+    imu_rpy_rad : (float, float, float)
+        The IMU's roll, pitch, yaw in base_link (fixed axes x, y, z; rad).
+    wheel_radius_m : float
+        A wheeled base's wheel radius (m; 0 when not given or not wheeled).
     path : str
         The file it was read from.
     """
@@ -122,6 +135,9 @@ class PlatformSpec:
     gait: Gait | None
     path: str
     traversability: Traversability | None = None
+    imu_xyz_m: tuple[float, float, float] | None = None
+    imu_rpy_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    wheel_radius_m: float = 0.0
 
     def __repr__(self) -> str:
         out = f"PlatformSpec({self.name}: {self.motion}, mast {self.mast_height_m:g} m"
@@ -168,6 +184,17 @@ class _Table:
                                 f"{v!r}; fix the platform file.")
         return float(v)
 
+    def vec3(self, key: str) -> tuple[float, float, float]:
+        v = self.data[key]
+        ok = isinstance(v, list) and len(v) == 3 and all(
+            isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
+            for x in v)
+        if not ok:
+            raise PlatformError(f"Expected `{self.table}.{key}` in {self.file} to be 3 "
+                                f"finite numbers [x, y, z], got {v!r}; fix the platform "
+                                "file.")
+        return (float(v[0]), float(v[1]), float(v[2]))
+
     def text(self, key: str) -> str:
         v = self.data[key]
         if not isinstance(v, str) or not v:
@@ -191,7 +218,12 @@ def _load(path: Path) -> PlatformSpec:
     if motion not in MOTIONS:
         raise PlatformError(f"Expected `platform.motion` in {f} to be one of {MOTIONS}, "
                             f"got {motion!r}; fix the platform file.")
-    keys = TABLE_KEYS[motion]
+    keys = dict(TABLE_KEYS[motion])
+    mount_keys = _MOUNT_KEYS + (("wheel_radius_m",) if motion == "wheeled" else ())
+    # DECISION: [mounts] is optional (a platform file from before issue 30 still loads:
+    # its IMU stays at the platform frame); when present, all its keys are required.
+    if "mounts" in data:
+        keys["mounts"] = mount_keys
     _Table(data, f, "", tuple(keys))
     t = {name: _Table(data[name], f, name, valid) for name, valid in keys.items()}
     src = t["platform"].data["sources"]
@@ -224,11 +256,21 @@ def _load(path: Path) -> PlatformSpec:
         trav = Traversability(math.radians(slope), math.radians(roll),
                               tv.num("max_step_m"), tv.num("ground_clearance_m"),
                               tv.num("footprint_width_m"), tv.num("footprint_length_m"))
+    imu_xyz: tuple[float, float, float] | None = None
+    imu_rpy = (0.0, 0.0, 0.0)
+    wheel_r = 0.0
+    if "mounts" in t:
+        m = t["mounts"]
+        imu_xyz = m.vec3("imu_xyz_m")
+        roll, pitch, yaw = m.vec3("imu_rpy_deg")
+        imu_rpy = (math.radians(roll), math.radians(pitch), math.radians(yaw))
+        if wheeled:
+            wheel_r = m.num("wheel_radius_m")
     return PlatformSpec(t["platform"].text("name"), t["platform"].text("description"),
                         motion, tuple(src), body.num("mast_height_m"),
                         body.num("wheelbase_m") if wheeled else 0.0,
                         body.num("track_m") if wheeled else 0.0, limits, gait, str(path),
-                        trav)
+                        trav, imu_xyz, imu_rpy, wheel_r)
 
 
 def _registry() -> dict[str, str]:

@@ -11,13 +11,23 @@ Ignition Gazebo Fortress: a world folder that loads as is and talks to ROS 2.
       models/tunnel/meshes/tunnel.obj            visual mesh (OBJ), local coordinates
       models/tunnel/meshes/tunnel_collision.stl  collision mesh (decimated when large)
       README.txt                     how to run it, and what SDF cannot express
+      robot.urdf, robot.launch.py    the robot (``sensors.robot``, the drive's
+                                     ground_robot): base_link -> sensor / imu_link, and
+                                     robot_state_publisher (ROS 2 Python launch file)
+
+The robot is the ground_robot platform's description (issue 30): the model's origin is
+base_link on the ground contact plane, the sensor on its mast (``body.mast_height_m``),
+the IMU in its body (``[mounts]``), the wheels the platform's track apart; the sensor
+poses in the SDF are the URDF's base_link -> sensor (``robot_description``).
 
 The flavour (``gazebo_sdf.FLAVOURS``) picks the plugin and message names, the resource
 path variable and the launch line; ``gazebo_sdf`` documents the topics and where each
 name comes from.
 
 Coordinates: metres, Z up, shifted to a local origin (UTM-sized numbers would lose
-millimetres in Gazebo's float32 render buffers); the origin is the world's frame
+millimetres in Gazebo's float32 render buffers): the robot's start rounded to whole
+metres, the ``map -> odom`` a drive's bag states for a robot starting there
+(``Trajectory.origin``); the origin is the world's frame
 ``map_origin`` (at -origin: world = local + origin), and is recorded in
 ``model.config``, ``model.sdf`` (a ``tunnelsim:origin`` custom element) and README.
 When the tunnel states a coordinate reference system (its JSON's ``crs``, or a
@@ -74,8 +84,8 @@ from numpy.typing import ArrayLike, NDArray
 from raytrace.fileio import atomic_writer
 from survey.errors import GazeboExportError
 
-from .gazebo_sdf import (BASE, FLAVOURS, RANGE_RESOLUTION_M, Flavour, bridge_entries,
-                         bridge_yaml, crs_suffix, imu_sdf, lidar_sdf, model_config,
+from .gazebo_sdf import (BASE, FLAVOURS, RANGE_RESOLUTION_M, ROBOT, Flavour,
+                         bridge_entries, bridge_yaml, chassis_z, crs_suffix, imu_sdf, lidar_sdf, model_config,
                          model_sdf, origin_frame, robot_sdf, world_sdf)
 from .gazebo_sdf import flavour as flavour_of
 
@@ -173,15 +183,33 @@ def _check_output(out: Path, force: bool, mount: str) -> None:
         raise GazeboExportError(f"Expected mount 'level' or 'down', got {mount!r}.")
 
 
-def _sensor_pose(sensor: SensorSpec, mount: str) -> str:
-    """The lidar's SDF pose on the chassis: level, upside down, or (a profiler) turned
-    to scan the cross-section."""
-    top = BASE["clearance"] + BASE["height"]
+def robot_description(sensor: SensorSpec, mount: str) -> Any:
+    """The world's robot (issue 30): the ground_robot platform's description
+    (``sensors.robot``; base_link on the ground contact plane, the sensor on its mast,
+    the IMU in its body), the sensor level, upside down (``mount`` "down"), or (a
+    profiler) turned to scan the cross-section."""
+    from scipy.spatial.transform import Rotation
+
+    from sensors.bag import GENERIC_DRIVER
+    from sensors.platform_spec import load_platform
+    from sensors.robot import RobotDescription
+    from sensors.trajectory import Mount
+
     if sensor.kind == "profiler":
-        return f"0.10 0 {top + 0.05:.3f} 0 -1.5707963 0"
-    if mount == "down":
-        return f"0.10 0 {top + 0.15:.3f} 3.14159265 0 0"
-    return f"0.10 0 {top + 0.05:.3f} 0 0 0"
+        m = Mount((0.0, 0.0, 0.0), Rotation.from_euler("xyz", [0.0, -np.pi / 2, 0.0]))
+    elif mount == "down":
+        m = Mount.pointing_down((0.0, 0.0, 0.0))
+    else:
+        m = Mount()
+    return RobotDescription.from_platform(load_platform("ground_robot"),
+                                          (sensor.driver or GENERIC_DRIVER).frame_id, m)
+
+
+def _pose_in_chassis(xyz: Floats, rot: Any) -> str:
+    """An SDF pose in the chassis link (which sits ``chassis_z`` above the model's
+    origin, base_link): SDF's rpy, like URDF's, is fixed-axis roll, pitch, yaw."""
+    p = np.asarray(xyz, dtype=np.float64) - [0.0, 0.0, chassis_z()]
+    return " ".join(f"{x:.15g}" for x in (*p, *rot.as_euler("xyz")))
 
 
 def _lamps(points: Floats, spacing_m: float) -> str:
@@ -299,7 +327,7 @@ def _placement(mesh_path: str | Path, scene: Scene, chainage_m: float | None,
 
 def _readme(fl: Flavour, mesh_name: str, sensor_name: str, out_name: str, org: str,
             origin: Floats, lim_text: str, start: str, crs_name: str | None = None,
-            crs_wkt: str | None = None) -> str:
+            crs_wkt: str | None = None, frame_id: str = "lidar") -> str:
     crs = "Coordinate reference system: none stated (local coordinates)\n" \
         if crs_wkt is None else (f"Coordinate reference system: {crs_name}\n  WKT: "
                                  f"{' '.join(crs_wkt.split())}\n")
@@ -316,10 +344,14 @@ def _readme(fl: Flavour, mesh_name: str, sensor_name: str, out_name: str, org: s
             f"Local origin (world = local + origin): {org} m{crs_suffix(crs_name)}; SDF "
             "frame map_origin.\n"
             f"  As a ROS frame: ros2 run tf2_ros static_transform_publisher {o} "
-            "--frame-id map --child-frame-id tunnel_world\n"
+            "--frame-id map --child-frame-id odom (the drive's bag states the same "
+            "map -> odom)\n"
             f"{crs}"
-            "Frames (Gazebo's scoped names): tunnel_world -> robot -> robot::chassis -> "
-            "robot::chassis::lidar, robot::chassis::imu\n"
+            f"Frames (Gazebo's scoped names): tunnel_world -> {ROBOT} (its origin is "
+            f"base_link, on the ground contact plane) -> {ROBOT}::chassis -> "
+            f"{ROBOT}::chassis::{sensor_name}, {ROBOT}::chassis::imu\n"
+            f"ROS frames (robot.urdf; ros2 launch ./robot.launch.py): base_link -> "
+            f"mast_link -> {frame_id}, base_link -> imu_link, as the drive's bag\n"
             "Ground truth: /tf (PosePublisher) and /odometry/ground_truth "
             "(OdometryPublisher, frame tunnel_world)\n"
             f"Not expressible in SDF:\n{lim_text}\n")
@@ -394,12 +426,16 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
     warns = unit_warnings(v)
     for w in warns:
         warnings.warn(w, UserWarning, stacklevel=2)
+    desc = robot_description(sensor, mount)
     sensor_xml, limits = lidar_sdf(sensor, name=sensor.name,
-                                   pose=_sensor_pose(sensor, mount))
-    origin = np.floor(v.min(axis=0))
+                                   pose=_pose_in_chassis(*desc.base_to_sensor()))
     floor, yaw, lamps, route = _placement(mesh_path, scene, chainage_m, waypoints,
                                           route_height_m, light_spacing_m,
                                           route_clearance_m, voxel_m)
+    # DECISION (issue 30): the local origin is the one a drive's bag states as map ->
+    # odom for a robot starting here (``Trajectory.origin``: base_link's first
+    # position rounded to whole metres), so that the world and the bag share odom.
+    origin = np.round(floor)
     floor = floor - origin
     retro = laser_retro(refl if refl is not None and len(refl) == len(f) else None, v, f,
                         default=reflectivity)
@@ -407,8 +443,11 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
     lim_text = "\n".join(f"  - {x}" for x in limits)
     org = " ".join(f"{x:.3f}" for x in origin)
     name = Path(mesh_path).name
-    robot = robot_sdf(fl, f"{floor[0]:.3f} {floor[1]:.3f} {floor[2]:.3f} 0 0 {yaw:.6f}",
-                      sensor_xml, imu_sdf(imu or DEFAULT_IMU), POSE_RATE_HZ)
+    robot = robot_sdf(fl, f"{floor[0]:.6f} {floor[1]:.6f} {floor[2]:.6f} 0 0 {yaw:.9f}",
+                      sensor_xml, imu_sdf(imu or DEFAULT_IMU,
+                                          pose=_pose_in_chassis(*desc.base_to_imu())),
+                      POSE_RATE_HZ, track_m=desc.track_m,
+                      wheel_radius_m=desc.wheel_radius_m)
     entries = bridge_entries(fl, (sensor.driver or GENERIC_DRIVER).topic)
     start = (f"route start ({route.length_m:.1f} m route, smallest clearance "
              f"{route.min_clearance_m:.2f} m)" if route is not None else "tunnel axis") + \
@@ -428,7 +467,10 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
         write_obj(mdir / "tunnel.obj", v - origin, f)
         trimesh.Trimesh(cv, cf, process=False).export(mdir / "tunnel_collision.stl")
         _write(tmp / "README.txt", _readme(fl, name, sensor.name, out.name, org, origin,
-                                           lim_text, start, crs_name, crs_wkt))
+                                           lim_text, start, crs_name, crs_wkt,
+                                           desc.sensor_frame))
+        desc.write_urdf(tmp / "robot.urdf")
+        desc.write_launch(tmp / "robot.launch.py", "robot.urdf")
 
     _replace_folder(out, fill)
     return {"path": str(out), "flavour": fl.name, "triangles": int(len(f)),

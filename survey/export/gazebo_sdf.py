@@ -64,14 +64,16 @@ __all__ = ["BASE", "CLOCK_TOPIC", "CMD_VEL_TOPIC", "FLAVOURS", "GT_ODOMETRY_TOPI
            "IMU_BIAS_CORRELATION_S", "IMU_GZ_TOPIC", "LIDAR_GZ_TOPIC", "POINTS_SUFFIX",
            "RANGE_RESOLUTION_M", "ROBOT", "Flavour", "bridge_entries", "bridge_yaml",
            "crs_suffix", "flavour", "imu_sdf", "lidar_sdf", "model_config", "model_sdf",
-           "origin_frame", "pose_topic", "robot_sdf", "world_sdf"]
+           "chassis_z", "origin_frame", "pose_topic", "robot_sdf", "world_sdf"]
 
 #: Range resolution written to SDF (m): ASSUMED, the specs give no range quantisation.
 RANGE_RESOLUTION_M: Final = 0.001
-#: LIMO-sized differential-drive base (AgileX LIMO: 322 x 220 x 251 mm, wheels 45 mm
-#: radius, track 172 mm, 4.2 kg; public product sheet).
+#: LIMO-sized differential-drive base (AgileX LIMO: 322 x 220 x 251 mm, 4.2 kg; public
+#: product sheet). Track and wheel radius are the ground_robot platform's (issue 30:
+#: the world's robot is the drive's; ``robot_sdf`` takes them from its description),
+#: the wheels centred on the track.
 BASE: Final = {"length": 0.322, "width": 0.220, "height": 0.10, "clearance": 0.05,
-               "wheel_radius": 0.045, "wheel_width": 0.045, "track": 0.172, "mass": 4.2}
+               "wheel_radius": 0.045, "wheel_width": 0.045, "track": 0.175, "mass": 4.2}
 #: The robot model's name: it scopes the PosePublisher's topic and the frames.
 ROBOT: Final = "robot"
 LIDAR_GZ_TOPIC: Final = "/lidar"
@@ -310,16 +312,29 @@ def _inertia_box(m: float, x: float, y: float, z: float) -> str:
             "</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>")
 
 
+def chassis_z() -> float:
+    """Height of the chassis link's frame above the model's origin (base_link) (m)."""
+    return BASE["clearance"] + BASE["height"] / 2
+
+
 def robot_sdf(fl: Flavour, pose: str, sensor_xml: str, imu_xml: str,
-              pose_rate_hz: float) -> str:
+              pose_rate_hz: float, *, track_m: float | None = None,
+              wheel_radius_m: float | None = None) -> str:
     """The robot model: chassis (carrying the lidar and the IMU), two driven wheels and
-    a caster; DiffDrive, PosePublisher and OdometryPublisher systems (module doc)."""
-    b = BASE
-    zc = b["clearance"] + b["height"] / 2
+    a caster; DiffDrive, PosePublisher and OdometryPublisher systems (module doc).
+    The model's origin is base_link (the ground contact plane); ``track_m`` and
+    ``wheel_radius_m`` (the platform's; ``BASE``'s by default) place the wheels,
+    centred ``track_m`` apart."""
+    b = dict(BASE)
+    if track_m:
+        b["track"] = track_m
+    if wheel_radius_m:
+        b["wheel_radius"] = wheel_radius_m
+    zc = chassis_z()
     wr, ww = b["wheel_radius"], b["wheel_width"]
     wheels = []
     joints = []
-    for side, y in (("left", b["track"] / 2 + ww / 2), ("right", -b["track"] / 2 - ww / 2)):
+    for side, y in (("left", b["track"] / 2), ("right", -b["track"] / 2)):
         wheels.append(f"""      <link name="{side}_wheel">
         <pose>0 {y:.4f} {wr:.4f} -1.5707963 0 0</pose>
         {_inertia_box(0.3, 2 * wr, 2 * wr, ww)}
@@ -335,7 +350,7 @@ def robot_sdf(fl: Flavour, pose: str, sensor_xml: str, imu_xml: str,
     drive = fl.plugin("diff-drive", "DiffDrive", f"""
 <left_joint>left_wheel_joint</left_joint>
 <right_joint>right_wheel_joint</right_joint>
-<wheel_separation>{b["track"] + ww}</wheel_separation>
+<wheel_separation>{b["track"]}</wheel_separation>
 <wheel_radius>{wr}</wheel_radius>
 <topic>{CMD_VEL_TOPIC}</topic>
 <odom_topic>/model/{ROBOT}/wheel_odometry</odom_topic>

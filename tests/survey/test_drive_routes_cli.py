@@ -358,7 +358,12 @@ def test_gazebo_route_keeps_to_what_the_robot_crosses(tmp_path, capsys):
                  "--waypoints", str(tmp_path / "wp.csv"), "--clearance", "0.25"]) == 0
     line = [x for x in capsys.readouterr().out.splitlines() if x.startswith("robot at")][0]
     x, y, z = (float(t) for t in line.split(": ")[1].split()[:3])
-    assert (x, y, z) == pytest.approx((0.5, 1.0, 0.0), abs=0.06)   # local: y + 2
+    import xml.etree.ElementTree as ET
+    frame = ET.parse(tmp_path / "w2" / "world.sdf").getroot().find(
+        "world/frame[@name='map_origin']/pose").text.split()
+    origin = -np.array(frame[:3], dtype=float)          # world = local + origin
+    assert (x + origin[0], y + origin[1], z + origin[2]) == pytest.approx(
+        (0.5, -1.0, 0.0), abs=0.06)
     tun = str(tmp_path / "bfo.ply")
     assert main(["tunnel", "-o", tun, "--preset", "bfo", "--edge-length", "1.0",
                  "--relief", "none", "--quiet"]) == 0

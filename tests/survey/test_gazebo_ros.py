@@ -260,9 +260,12 @@ def test_origin_is_a_frame_naming_the_crs(sdf_check, tmp_path):
     frame = ET.parse(tmp_path / "w" / "world.sdf").getroot().find(
         "world/frame[@name='map_origin']")
     pose = np.array(frame.find("pose").text.split(), dtype=float)
-    v = t.vertices
-    # world = local + origin; the frame is the CRS origin in local coordinates.
-    np.testing.assert_allclose(pose[:3], -np.floor(v.min(axis=0)), atol=1e-3)
+    # world = local + origin; the frame is the CRS origin in local coordinates; the
+    # origin is the robot's start (base_link) rounded to metres, the map -> odom a
+    # drive's bag states for a robot starting there (issue 30).
+    start = np.array(info["robot_pose"][:3]) + info["origin"]
+    np.testing.assert_allclose(info["origin"], np.round(start), atol=1e-9)
+    np.testing.assert_allclose(pose[:3], -np.asarray(info["origin"]), atol=1e-3)
     np.testing.assert_allclose(pose[3:], 0.0)
     assert info["origin"][0] == pytest.approx(2_600_000.0, abs=10.0)
     assert "EPSG:2056" in frame.find(f"{NS}crs").text
@@ -287,7 +290,12 @@ def test_robot_starts_at_the_route_start_without_json(tunnels, tmp_path):
     # The lamps hang inside the tunnel over the route (local x within its length).
     lamps = [np.array(li.find("pose").text.split()[:3], dtype=float) for li in
              ET.parse(tmp_path / "w" / "world.sdf").getroot().iter("light")]
-    assert lamps and all(0.0 <= p[0] <= 20.0 and 0.5 < p[2] < 5.0 for p in lamps)
+    import trimesh
+
+    o = np.asarray(info["origin"])
+    floor_z = float(trimesh.load(tunnels / "bare.ply", process=False).vertices[:, 2].min())
+    assert lamps and all(0.0 <= p[0] + o[0] <= 20.0 and 0.5 < p[2] + o[2] - floor_z < 5.0
+                         for p in lamps)
 
 
 def test_waypoints_choose_the_start_even_with_json(tunnels, tmp_path, capsys):
@@ -300,7 +308,10 @@ def test_waypoints_choose_the_start_even_with_json(tunnels, tmp_path, capsys):
     assert "start of the route" in text and "ign gazebo" in text
     pose = ET.parse(tmp_path / "w" / "world.sdf").getroot().find(
         "world/model[@name='robot']/pose").text.split()
-    origin = np.floor(load_mesh(tunnels / "t.ply")[0].vertices.min(axis=0))
+    # world = local + origin, the origin being where the map_origin frame is not
+    frame = ET.parse(tmp_path / "w" / "world.sdf").getroot().find(
+        "world/frame[@name='map_origin']/pose").text.split()
+    origin = -np.array(frame[:3], dtype=float)
     xy = np.array(pose[:2], dtype=float) + origin[:2]
     np.testing.assert_allclose(xy, [15.0, 0.0], atol=0.05)
     assert abs(abs(float(pose[5])) - math.pi) < math.radians(5)     # facing -x

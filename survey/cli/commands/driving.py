@@ -136,6 +136,13 @@ def register(commands: CommandSet) -> None:
                   "(version 5) or jazzy (version 9; the default)")
     crs_option(c)
     physics_options(c)
+    # The shared -o help names the point formats; a drive also writes ROS 2 bags.
+    for action in c.parser._actions:
+        if "--output" in action.option_strings:
+            action.help = ("output: points (.laz, .las, .ply, .npz) or a ROS 2 bag (.mcap, "
+                           "or a name without a suffix: a rosbag2 folder); the robot's "
+                           "URDF and launch file (<name>_robot.urdf, "
+                           "<name>_robot.launch.py) are written beside it")
 
 
 def _bag_options(args) -> dict:
@@ -233,15 +240,18 @@ def cmd_drive(args) -> int:
                                 "exist.")
     crs = output_crs(args)      # before the simulation: a bad --crs fails at once
     bag = _bag_options(args)
-    meta = scene = refl = None
+    meta = scene = refl = platform = None
     if args.trajectory:
         traj = Trajectory.read(args.trajectory)
     else:
         from sensors.platform_spec import load_platform
 
-        if args.along is None or args.speed is None:
+        if args.along is None:
             raise TunnelsimCLIError("Expected --trajectory FILE, or --along centreline (or "
                                     "auto) with --speed V, got neither.")
+        if args.speed is None:
+            raise TunnelsimCLIError(f"Expected --speed V (m/s) with --along {args.along}, "
+                                    "got none; pass e.g. --speed 1.")
         auto = args.along == "auto"
         platform = load_platform(args.platform or ("ground_robot" if auto else "trolley"))
         if platform.motion == "static" and (args.duration is None or args.standstill):
@@ -267,6 +277,7 @@ def cmd_drive(args) -> int:
     if scene is None:
         scene, refl = load_mesh(args.mesh)
     where = _check_drive_reach(args, scene, spec, traj, mount, t_end)
+    robot = _robot(args, spec, platform, mount)
     run = simulate_drive(scene, spec, traj, mount, settings=run_settings(args), seed=args.seed,
                          reflectivity=refl if refl is not None else args.reflectivity,
                          t_end=t_end)
@@ -278,15 +289,47 @@ def cmd_drive(args) -> int:
         # world control points state it, and 'correct' gives it to the corrected cloud.
         crs = None
     else:                              # every drive writes the truth it drove (issue 22)
-        _true_trajectory(args, driven)
+        _true_trajectory(args, driven, robot)
     label = f"{spec.name} drive {run.duration_s:.1f} s"
     if args.window_s is not None:
-        return _finish_windows(args, run, label, refl if refl is not None else
+        code = _finish_windows(args, run, label, refl if refl is not None else
                                args.reflectivity, crs=crs,
                                min_return=0.0 if args.allow_outside else MIN_DRIVE_RETURN)
-    return finish_run(args, run, label,
-                       min_return=0.0 if args.allow_outside else MIN_DRIVE_RETURN,
-                       where=where, crs=crs, bag=bag)
+    else:
+        # DECISION: a drifted run's bag keeps its own frames (the SLAM frame's poses).
+        code = finish_run(args, run, label,
+                          min_return=0.0 if args.allow_outside else MIN_DRIVE_RETURN,
+                          where=where, crs=crs, bag=bag,
+                          robot=None if args.slam_drift else robot)
+    _robot_files(args, robot)
+    return code
+
+
+def _robot(args, spec, platform, mount):
+    """The drive's robot description (``sensors.robot``): the platform's (--platform,
+    at --height) carrying the sensor on --mount/--lever; for --trajectory, base_link is
+    the trajectory's frame."""
+    from sensors.pointcloud2 import GENERIC_DRIVER
+    from sensors.robot import RobotDescription
+
+    frame = (spec.driver or GENERIC_DRIVER).frame_id
+    if platform is None:
+        return RobotDescription("platform", frame, 0.0, mount)
+    return RobotDescription.from_platform(platform, frame, mount, height_m=args.height)
+
+
+def _robot_files(args, robot) -> None:
+    """``<stem>_robot.urdf`` and ``<stem>_robot.launch.py`` (robot_state_publisher)
+    beside the output."""
+    from pathlib import Path
+
+    out = Path(args.output)
+    stem = output_stem(out)
+    urdf = robot.write_urdf(out.with_name(f"{stem}_robot.urdf"))
+    launch = robot.write_launch(out.with_name(f"{stem}_robot.launch.py"), urdf.name)
+    if not args.quiet:
+        print(f"robot: {robot.name}, base_link {robot.mast_height_m:g} m below the "
+              f"platform frame -> {urdf.name}, {launch.name}")
 
 
 def _finish_windows(args, run, label, reflectivity, *, crs, min_return: float) -> int:
@@ -490,16 +533,23 @@ def _check_drive_reach(args, scene, spec, traj, mount, t_end) -> str:
             f"coordinate frame{hint}")
 
 
-def _true_trajectory(args, traj) -> None:
+def _true_trajectory(args, traj, robot=None) -> None:
     """The platform's true trajectory of a drive, beside the cloud
     (``_true_trajectory.txt``, TUM; for --trajectory, the input trimmed to what was
-    driven): the ground truth a SLAM estimate is judged by."""
+    driven): the ground truth a SLAM estimate is judged by; and base_link's
+    (``_base_link_trajectory.txt``, the bag's odom -> base_link) where base_link is not
+    the platform frame (a wheeled robot: on the ground contact plane)."""
     from pathlib import Path
 
     out = Path(args.output)
     path = traj.write(out.with_name(f"{output_stem(out)}_true_trajectory.txt"))
     if not args.quiet:
         print(f"true trajectory: {len(traj)} poses -> {path.name}")
+    if robot is not None and robot.mast_height_m > 0:
+        base = robot.base_trajectory(traj).write(
+            out.with_name(f"{output_stem(out)}_base_link_trajectory.txt"))
+        if not args.quiet:
+            print(f"base_link trajectory: {len(traj)} poses -> {base.name}")
 
 
 def _slam_files(args, run, traj, meta, *, full=None, crs=None):

@@ -51,15 +51,23 @@ def run_settings(args):
 
 
 def finish_run(args, run, label, *, min_return: float = 0.0, where: str = "",
-                crs=None, bag=None) -> int:
+                crs=None, bag=None, robot=None) -> int:
     """Write the run and print its summary; refuse (the output removed by
     ``run_command``) a run that returned no point, or fewer than ``min_return`` of its
-    pulses (``where`` says what the caller knows: the poses, the mesh's box)."""
+    pulses (``where`` says what the caller knows: the poses, the mesh's box).
+    ``robot`` (``sensors.robot.RobotDescription``): a ROS 2 bag output takes its
+    frames from it (``write_robot_bag``)."""
+    from sensors.writers import format_of
+
     prog = Progress(args.quiet)
     try:
-        # A drifted run (--slam-drift) states no CRS, and its write takes none.
-        stats = run.write(args.output, progress=prog, fields=args.fields,
-                          **({} if crs is None else {"crs": crs}), **(bag or {}))
+        if robot is not None and format_of(args.output) in ("mcap", "rosbag2"):
+            stats = write_robot_bag(args.output, run, robot, progress=prog, crs=crs,
+                                    **(bag or {}))
+        else:
+            # A drifted run (--slam-drift) states no CRS, and its write takes none.
+            stats = run.write(args.output, progress=prog, fields=args.fields,
+                              **({} if crs is None else {"crs": crs}), **(bag or {}))
     finally:
         prog.close()
     pulses, points = int(stats["pulses"]), int(stats["points"])
@@ -75,6 +83,37 @@ def finish_run(args, run, label, *, min_return: float = 0.0, where: str = "",
     return 0
 
 
+def write_robot_bag(path, run, robot, *, progress=None, crs=None, **bag) -> dict:
+    """A drive's ROS 2 bag in the frames of ``robot`` (issue 30): /tf and the ground
+    truth odometry for base_link (``robot.base_trajectory``), /tf_static base_link ->
+    sensor and base_link -> imu_link, the IMU at its mount, /odom wheel odometry
+    (``sensors.bag.DEFAULT_WHEEL_ODOMETRY``, seeded by the run's seed). The points are
+    the run's, in the sensor frame, as ``Run.write`` writes them. Returns the run's
+    stats plus the path."""
+    from sensors.bag import DEFAULT_WHEEL_ODOMETRY, RosbagStream
+    from sensors.crs import file_wkt, parse_crs
+    from sensors.writers import format_of
+
+    spec = run.sensor
+    mount = robot.sensor_mount_from_base()
+    info = {"sensor": spec.name, "seed": run.seed,
+            "mount_lever_arm_m": list(mount.lever_arm_m),
+            "mount_boresight_xyzw": mount.boresight.as_quat().tolist(),
+            "robot": robot.name, "mast_height_m": robot.mast_height_m}
+    if crs is not None:
+        info["crs"] = file_wkt(parse_crs(crs, metric=True, what="the output CRS"))
+    span = (run.t0, run.t0 + run.duration_s)
+    with RosbagStream(path, spec, single_file=format_of(path) == "mcap", seed=run.seed,
+                      mount=mount, trajectory=robot.base_trajectory(run.trajectory),
+                      span_s=span, info=info, imu_mount=robot.imu_mount(),
+                      wheel_odometry=DEFAULT_WHEEL_ODOMETRY, **bag) as w:
+        for chunk in run:
+            w.write_points(chunk)
+            if progress is not None:
+                progress(run.pass_stats["pulses"], run.n_pulses)
+    return dict(run.stats, path=str(path))
+
+
 def xyz_text(p) -> str:
     """(x, y, z) to the millimetre (a BVH box is padded by ~1e-6 of its size)."""
     return "(" + ", ".join(f"{round(float(c), 3) + 0.0:.10g}" for c in p) + ")"
@@ -85,4 +124,4 @@ def box_text(lo, hi) -> str:
 
 
 __all__ = ["box_text", "crs_option", "finish_run", "output_crs", "run_settings",
-           "xyz_text"]
+           "write_robot_bag", "xyz_text"]

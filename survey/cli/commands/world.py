@@ -253,6 +253,8 @@ def cmd_gazebo(args) -> int:
         print(f"{spec.name} as gpu_lidar; SDF cannot express:")
         for item in info["limitations"]:
             print(f"  - {item}")
+        print(f"robot.urdf: base_link on the ground, the sensor and imu_link as in a "
+              f"drive's bag; ros2 launch ./robot.launch.py for robot_state_publisher")
         print(f"run: cd {info['path']} && {info['run']}")
         print("bridge: ros2 run ros_gz_bridge parameter_bridge --ros-args -p "
               "config_file:=$PWD/bridge.yaml")
