@@ -444,15 +444,15 @@ def _scale_message(scale_ppm: Any, sigma_ppm: Any) -> str:
     sd = ", ".join(f"{v:,.1f}" for v in np.atleast_1d(sigma_ppm))
     return (f"Expected source and target in the same unit (a scale within ±"
             f"{MAX_SCALE_PPM:,.0f} ppm), got a best-fit scale of {s} ppm (± {sd}): "
-            "different units? mm against m gives -999,000 ppm; convert one file, or pass "
-            "allow_scale=True (--allow-scale) if the scale is real.")
+            "different units? mm against m gives -999,000 ppm; convert one file, or give "
+            "--allow-scale (allow_scale=True in Python) if the scale is real.")
 
 
 MIRROR = ("Expected source and target of the same handedness, got a best-fit rotation "
           "that is a reflection (det = -1 for the centred points, weakest axis {f:.3g} "
           "times the noise): the systems are mirror images: are x and y swapped? Check "
-          "the column order of both files, or pass allow_reflection=True "
-          "(--allow-reflection) to fit the best proper rotation anyway.")
+          "the column order of both files (--columns), or give --allow-reflection "
+          "(allow_reflection=True in Python) to fit the best proper rotation anyway.")
 
 
 def fit_helmert(source: ArrayLike, target: ArrayLike, *, model: HelmertModel = 7,

@@ -572,7 +572,16 @@ def report_header(args: argparse.Namespace, inputs: list[tuple[str, Any, str]],
     --instrument."""
     from survey.report.header import ReportHeader, ReportInput
 
-    return ReportHeader(inputs=[ReportInput.of(r, p, note) for r, p, note in inputs],
+    def entry(role: str, path: Any, note: str) -> ReportInput:
+        # An option's value may name a file with a fragment (design.xml#NAME) or be no
+        # file at all (an envelope given as box:W,H): checksum the file where there is
+        # one, else state the value.
+        p = Path(str(path).split("#", 1)[0])
+        if p.is_file():
+            return ReportInput.of(role, path, note)
+        return ReportInput(role, str(path), "–", note or "not a file")
+
+    return ReportHeader(inputs=[entry(r, p, note) for r, p, note in inputs if p is not None],
                         crs=crs, project=getattr(args, "project", None),
                         instrument=getattr(args, "instrument", None),
                         settings=settings or [])

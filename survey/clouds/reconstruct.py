@@ -253,7 +253,10 @@ def reconstruct_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
             if len(sc) < 2:
                 raise ReconstructionError(f"Expected at least 2 rings on the lining, got "
                                           f"{len(sc)} (lining {extent.start_m:.2f} to "
-                                          f"{extent.end_m:.2f} m); pass portals=False.")
+                                          f"{extent.end_m:.2f} m); the portals found in the data "
+                                          "leave too little lining: crop the cloud to the "
+                                          "tunnel (preprocess --crop), or in Python pass "
+                                          "portals=False.")
         n_s = len(sc)
         edges = np.concatenate([[sc[0] - (sc[1] - sc[0]) / 2], (sc[1:] + sc[:-1]) / 2,
                                 [sc[-1] + (sc[-1] - sc[-2]) / 2]])

@@ -101,7 +101,7 @@ def test_cli_rings_artefacts(tbm_mesh, tmp_path):
     out = tmp_path / "rings"
     assert main(["rings", str(tbm_mesh(0.1)), "--at", "30,50", "--min-height", "0.5",
                  "--nominal-diameter", "5", "-o", str(out), "--quiet"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["rings.csv", "rings.json",
+    assert sorted(p.name for p in out.iterdir()) == ["rings.csv", "rings.html", "rings.json",
                                                      "rings.md", "rings.png"]
     rows = list(csv.DictReader(open(out / "rings.csv")))
     assert [float(r["chainage_m"]) for r in rows] == [30.0, 50.0]

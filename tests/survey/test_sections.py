@@ -295,9 +295,18 @@ def test_cli_sections_writes_the_as_built_report(tbm_mesh, tmp_path, capsys):
     out = tmp_path / "sec"
     assert main(["sections", str(mesh), "--at", "30,50,70", "-o", str(out)]) == 0
     names = sorted(p.name for p in out.iterdir())
-    assert names == ["contours.csv", "report.json", "report.md", "section_0+030.000.png",
+    assert names == ["contours.csv", "report.html", "report.json", "report.md",
+                     "section_0+030.000.png",
                      "section_0+050.000.png", "section_0+070.000.png", "sections.csv",
                      "volumes.csv"]
+    # the report states its input with its checksum (issue 31) and the HTML embeds the
+    # section plots it links
+    import hashlib
+
+    md = (out / "report.md").read_text(encoding="utf-8")
+    assert hashlib.sha256(mesh.read_bytes()).hexdigest() in md
+    html = (out / "report.html").read_text(encoding="utf-8")
+    assert html.count("data:image/png;base64,") == 3
     rows = list(csv.DictReader(open(out / "sections.csv")))
     assert [float(r["chainage_m"]) for r in rows] == [30.0, 50.0, 70.0]
     # A smooth segmental lining: within 1 cm of the design except the cable (inside).

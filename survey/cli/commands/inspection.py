@@ -6,7 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from survey.cli.common import CommandSet, floats, out_dir, pair, say, write_json, write_text
+from survey.cli.common import (CommandSet, floats, out_dir, pair, report_options, say,
+                               write_headed_report, write_json, write_text)
 from survey.errors import TunnelsimCLIError
 
 #: --field choices of develop (an M3C2 output's ``distance``, a scan's ``intensity``).
@@ -46,6 +47,7 @@ def _frame_options(c) -> None:
                   "multiples of M), for long tunnels")
     c.option("-o", "--output", required=True, path="out", help="output folder")
     c.option("--force", action="store_true", help="write into a non-empty folder")
+    report_options(c)
 
 
 def register(commands: CommandSet) -> None:
@@ -226,7 +228,14 @@ def cmd_develop(args) -> int:
     paths = write_developed(raster, out, tile_m=args.tile_m, stat=args.stat, crs=crs,
                             limit=limit, edges=edges)
     pngs = [p.name for p in paths if p.suffix == ".png"]
-    write_text(out / "developed.md", _develop_markdown(raster, args, pngs, scale))
+    write_headed_report(args, out / "developed.md",
+                        _develop_markdown(raster, args, pngs, scale),
+                        [("cloud", args.input, ""), ("alignment", args.tunnel_json, ""),
+                         *([("design", args.design, "")] if args.design else [])],
+                        crs_from=[args.input],
+                        settings=[("field", f"{args.field} ({args.stat})"),
+                                  ("cell (m)", f"{raster.grid.cell_s_m:g} along the "
+                                   f"chainage x {raster.grid.cell_arc_m:g} along the arc")])
     seen = raster.count > 0
     say(args, f"developed {args.field} ({args.stat}): {raster.meta['points']:,} points in "
               f"{raster.grid.n_arc} x {raster.grid.n_s} cells, {100 * seen.mean():.0f} % "
@@ -310,8 +319,11 @@ def cmd_clearance(args) -> int:
     write_text(out / "violations.csv", violations_csv(res))
     write_text(out / "regions.csv", regions_csv(res))
     write_json(out / "clearance.json", res.to_dict())
-    write_text(out / "clearance.md", clearance_markdown(res, source=Path(args.input).name,
-                                                        figures=pngs))
+    write_headed_report(args, out / "clearance.md",
+                        clearance_markdown(res, source=Path(args.input).name, figures=pngs),
+                        [("cloud", args.input, ""), ("alignment", args.tunnel_json, ""),
+                         ("envelope", args.envelope, "")],
+                        crs_from=[args.input])
     if res.regions:
         worst = res.regions[0]
         say(args, f"clearance against '{envelope.name}': {len(res.regions)} violation "

@@ -6,7 +6,8 @@ import warnings
 from pathlib import Path
 
 from survey.cli.commands.axis import datum_options
-from survey.cli.common import CommandSet, floats, out_dir, pair, say, write_json, write_text
+from survey.cli.common import (CommandSet, floats, out_dir, pair, report_options, say,
+                               write_headed_report, write_json, write_text)
 from survey.errors import TunnelsimCLIError
 
 def _cut_options(c) -> None:
@@ -39,6 +40,7 @@ def _cut_options(c) -> None:
                   "underbreak)")
     c.option("-o", "--output", required=True, path="out", help="output folder")
     c.option("--force", action="store_true", help="write into a non-empty folder")
+    report_options(c)
 
 
 def register(commands: CommandSet) -> None:
@@ -227,11 +229,19 @@ def cmd_sections(args) -> int:
     write_text(out / "volumes.csv", volumes_csv(rep))
     write_text(out / "contours.csv", contours_csv(rep))
     write_json(out / "report.json", rep.to_dict())
-    write_text(out / "report.md", sections_markdown(rep, source=Path(args.input).name,
-                                                    plots=not args.no_plots))
     if not args.no_plots:
         for s in rep.sections:
             plot_section(s, rep, out / section_png_name(s.chainage_m))
+    write_headed_report(args, out / "report.md",
+                        sections_markdown(rep, source=Path(args.input).name,
+                                          plots=not args.no_plots),
+                        [("cloud or mesh", args.input, ""),
+                         ("alignment", args.tunnel_json, "fitted axis" if args.fit_axis
+                          else ""),
+                         *([("design", args.design, "")] if args.design else [])],
+                        crs_from=[args.input],
+                        settings=[("band (m)", f"±{args.width:g}")] if getattr(
+                            args, "width", None) is not None else None)
     worst = max(rep.sections, key=lambda s: s.max_m)
     say(args, f"{len(rep.sections)} sections against '{design.name}': overbreak "
               f"{rep.overbreak_m3:.3f} m^3, underbreak {rep.underbreak_m3:.3f} m^3; largest "
@@ -284,7 +294,12 @@ def cmd_rings(args) -> int:
                       "'tunnelsim sections --design', or drop the invert with "
                       "--min-height.", UserWarning, stacklevel=2)
     write_text(out / "rings.csv", rings_csv(rings))
-    write_text(out / "rings.md", rings_markdown(rings, source=Path(args.input).name))
+    write_headed_report(args, out / "rings.md",
+                        rings_markdown(rings, source=Path(args.input).name),
+                        [("cloud or mesh", args.input, ""),
+                         ("alignment", args.tunnel_json, "fitted axis" if args.fit_axis
+                          else "")],
+                        crs_from=[args.input])
     rows = [r.to_dict() for r in rings]
     if floors is not None:
         for row, f in zip(rows, sorted(zip([c.chainage_m for c in cuts], floors))):
