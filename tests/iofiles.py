@@ -241,3 +241,12 @@ def truncate(path, keep: float) -> None:
 def zeros_after_signature(path, n: int = 400) -> None:
     """``LASF`` followed by zeros (a header that was never filled in)."""
     Path(path).write_bytes(b"LASF" + bytes(n))
+
+
+def report_body(path) -> list[str]:
+    """A report's lines less its header's "computed (UTC)" line: the one line two runs
+    of the same computation may write differently (survey.report.header)."""
+    from pathlib import Path
+
+    return [ln for ln in Path(path).read_text(encoding="utf-8").splitlines()
+            if "computed (UTC)" not in ln]
