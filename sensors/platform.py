@@ -477,6 +477,16 @@ def _differences(t: NDArray[np.float64], p: NDArray[np.float64], psi: NDArray[np
                  ) -> list[tuple[int, NDArray[np.float64], float]]:
     """(order, magnitude per difference, limit) of the speed, acceleration, jerk, yaw
     rate and yaw acceleration by differences of the samples (``_rates``' formulas)."""
+    v, a, j, w, al = _finite_differences(t, p, psi)
+    return [(1, v, speed), (2, a, lim.max_accel_mps2), (3, j, lim.max_jerk_mps3),
+            (1, w, lim.max_yaw_rate_radps), (2, al, lim.max_yaw_accel_radps2)]
+
+
+def _finite_differences(t: NDArray[np.float64], p: NDArray[np.float64],
+                        psi: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
+    """|speed|, |acceleration|, |jerk| of positions p (k, d) and |yaw rate|, |yaw
+    acceleration| of headings psi (k,), by differences of the samples (each one
+    shorter than the last)."""
     dt = np.diff(t)
     v = np.diff(p, axis=0) / dt[:, None]
     a = np.diff(v, axis=0) / (0.5 * (dt[1:] + dt[:-1]))[:, None]
@@ -484,9 +494,7 @@ def _differences(t: NDArray[np.float64], p: NDArray[np.float64], psi: NDArray[np
     w = np.diff(psi) / dt
     al = np.diff(w) / (0.5 * (dt[1:] + dt[:-1]))
     n = np.linalg.norm
-    return [(1, n(v, axis=1), speed), (2, n(a, axis=1), lim.max_accel_mps2),
-            (3, n(j, axis=1), lim.max_jerk_mps3), (1, np.abs(w), lim.max_yaw_rate_radps),
-            (2, np.abs(al), lim.max_yaw_accel_radps2)]
+    return n(v, axis=1), n(a, axis=1), n(j, axis=1), np.abs(w), np.abs(al)
 
 
 def _rates(t: NDArray[np.float64], p: NDArray[np.float64], psi: NDArray[np.float64]
@@ -495,15 +503,8 @@ def _rates(t: NDArray[np.float64], p: NDArray[np.float64], psi: NDArray[np.float
     acceleration (of headings psi (k,)) by central differences on the samples."""
     if len(t) < 4:
         return 0.0, 0.0, 0.0, 0.0, 0.0
-    dt = np.diff(t)
-    v = np.diff(p, axis=0) / dt[:, None]
-    a = np.diff(v, axis=0) / (0.5 * (dt[1:] + dt[:-1]))[:, None]
-    j = np.diff(a, axis=0) / dt[1:-1, None]
-    w = np.diff(psi) / dt
-    al = np.diff(w) / (0.5 * (dt[1:] + dt[:-1]))
-    n = np.linalg.norm
-    return (float(n(v, axis=1).max()), float(n(a, axis=1).max()),
-            float(n(j, axis=1).max()), float(np.abs(w).max()), float(np.abs(al).max()))
+    v, a, j, w, al = (float(x.max()) for x in _finite_differences(t, p, psi))
+    return v, a, j, w, al
 
 
 def _floor_z(scene: Any, xy: NDArray[np.float64], z_from: NDArray[np.float64],
