@@ -16,6 +16,14 @@ Topics (frames ``map``, ``odom``, ``base_link`` and the driver's cloud frame):
   its clouds (``[driver] organized``, the OS1: height = rings, width = the columns of
   a revolution, a cell for every pulse, zeros (or NaN, ``no_return``) where a pulse
   had no return, ``is_dense`` false then; ``sensors.pointcloud2.organise``).
+- multiple returns (chunks of ``RETURN_POINT_DTYPE``, ``Settings(returns=...)``, the
+  CLI's ``--returns``): as the driver publishes them. ouster-ros: return 2 on a topic
+  of its own, ``topic + [driver] dual_topic_suffix`` (``/ouster/points2``), in the same
+  organised layout, each grid holding the cells of its return (zeros elsewhere);
+  velodyne_pointcloud and rslidar_sdk: both returns in the one cloud, layout unchanged
+  (no return field), the returns of a firing next to each other
+  (``sensors.pointcloud2.returns_in_one_cloud``). The return fields are not written.
+  A single-return drive's bag is unchanged.
 - ``/tf_static``: ``map -> odom`` (the trajectory's local origin, so that ``odom``
   coordinates stay small where ``map`` holds UTM ones) and ``base_link -> <cloud
   frame>`` (the mount: lever arm and boresight).
@@ -85,10 +93,11 @@ from .imu import (DEFAULT_IMU, DEFAULT_WHEEL_ODOMETRY, IMU_STREAM, ODOM_STREAM,
                   STANDARD_GRAVITY, ImuModel, WheelOdometryModel, imu_normals,
                   mounted_trajectory, platform_motion)
 from .pointcloud2 import (GENERIC_DRIVER, LAYOUTS, PointLayout, cloud_points, organise,
-                          organised_width)
+                          organised_width, return_topics, returns_in_one_cloud)
 from .spec import ProfilerPattern, SensorSpec, SpinningPattern
 from .stream import Stream
 from .trajectory import Mount, Trajectory
+from .waveform import RETURN_MODES
 
 __all__ = ["DEFAULT_IMU", "DEFAULT_WHEEL_ODOMETRY", "FRAMES", "GENERIC_DRIVER", "IMU_TOPIC",
            "INSTALL_HINT",
@@ -190,6 +199,12 @@ class RosbagStream(Stream):
         messages are then that frame's motion, in imu_link. None: in base_link.
     wheel_odometry : WheelOdometryModel, optional
         Writes ``/odom`` (needs ``trajectory``); None: no wheel odometry.
+    returns : {"strongest", "last", "first", "dual", "all"}, optional
+        The drive's return mode (``Settings.returns``): with "dual" or "all" a driver
+        with ``dual_topic_suffix`` publishes return 2 on its own topic; a mode of one
+        echo per pulse publishes the driver's topic alone, as the device in a
+        single-return profile does. None: from the points: the return topics where the
+        chunks carry return fields (``RETURN_POINT_DTYPE``).
 
     Raises
     ------
@@ -206,8 +221,14 @@ class RosbagStream(Stream):
                  imu: ImuModel | None = DEFAULT_IMU, info: dict[str, Any] | None = None,
                  compress: bool = True, start_time_ns: int | None = None,
                  ros_distro: str = "jazzy", imu_mount: Mount | None = None,
-                 wheel_odometry: WheelOdometryModel | None = None) -> None:
+                 wheel_odometry: WheelOdometryModel | None = None,
+                 returns: str | None = None) -> None:
         self.path = Path(path)
+        if returns is not None and returns not in RETURN_MODES:
+            raise PointFileError(f"Expected a return mode in {list(RETURN_MODES)}, got "
+                                 f"{returns!r}; pass --returns dual (or another mode).")
+        #: one echo per pulse: the later returns' topics stay closed
+        self._single_echo = returns in ("strongest", "last", "first")
         if ros_distro not in METADATA_VERSIONS:
             raise PointFileError(f"Expected a ROS 2 distribution in "
                                  f"{sorted(METADATA_VERSIONS)} for the bag's metadata, got "
@@ -284,6 +305,7 @@ class RosbagStream(Stream):
         self._bias = np.zeros(6)
         self._ready: float | None = None          # motion messages made up to this time
         self._pending: list[tuple[float, int, Callable[[], None]]] = []
+        self._returns = False                     # chunks of multiple returns seen
         self._noise: list[tuple[int, NDArray[np.float64]]] = []
         self._ts = get_typestore(Stores.ROS2_HUMBLE)
         self._tmp = Path(tempfile.mkdtemp(prefix="." + self.path.name + ".", suffix=".part",
@@ -326,6 +348,20 @@ class RosbagStream(Stream):
         self._conn = {name: self._bag.add_connection(name, kind, typestore=self._ts,
                                                      offered_qos_profiles=list(qos))
                       for name, kind, qos in topics}
+
+    def _open_return_topics(self) -> None:
+        """A multiple-return drive: the driver's topics of the later returns (opened on
+        the first chunk that has return fields, before any cloud is published)."""
+        self._returns = True
+        if self.driver.organized and not self.driver.dual_topic_suffix:
+            raise PointFileError(f"Expected `dual_topic_suffix` in the [driver] table of "
+                                 f"{self.spec.path} for the organised clouds of a "
+                                 "multiple-return drive (one cell per pulse), got none; "
+                                 "add it to the sensor file or drop --returns.")
+        for topic in return_topics(self.driver)[1:]:
+            self._conn[topic] = self._bag.add_connection(
+                topic, "sensor_msgs/msg/PointCloud2", typestore=self._ts,
+                offered_qos_profiles=[])
 
     def _ns(self, t_s: float) -> int:
         """ROS time (ns) of trajectory time ``t_s`` (see the module notes)."""
@@ -385,6 +421,9 @@ class RosbagStream(Stream):
         the next one begins (or on ``close``)."""
         if not len(points):
             return
+        if not self._returns and not self._single_echo and \
+                "return_number" in (points.dtype.names or ()):
+            self._open_return_topics()
         frames = np.asarray(points["frame"])
         if (np.diff(frames) < 0).any() or (self._frame is not None and
                                            frames[0] < self._frame):
@@ -430,6 +469,27 @@ class RosbagStream(Stream):
         self._motion_until(log)
         shift = 0.0 if self.start_time_ns is None else \
             self.start_time_ns * 1e-9 - (self._t0 or 0.0)
+        topics = return_topics(self.driver) if self._returns else (self.driver.topic,)
+        if not self._returns:
+            parts = [sweep]
+        elif len(topics) == 1:
+            parts = [sweep[returns_in_one_cloud(sweep)]]
+        else:
+            # One topic per return (ouster-ros); a sweep of POINT_DTYPE (an empty one)
+            # has return 1 only.
+            rn = sweep["return_number"] if "return_number" in (sweep.dtype.names or ()) \
+                else np.ones(len(sweep), dtype=np.uint8)
+            if len(rn) and int(rn.max()) > len(topics):
+                raise PointFileError(f"Expected at most {len(topics)} returns per pulse "
+                                     f"for the topics of {self.driver.package}, got "
+                                     f"{int(rn.max())}; pass --returns dual.")
+            parts = [sweep[rn == i + 1] for i in range(len(topics))]
+        for topic, part in zip(topics, parts):
+            self._put(topic, log, self._cloud(part, stamp, shift))
+        self._next = k + 1
+
+    def _cloud(self, sweep: NDArray[np.void], stamp: float, shift: float) -> Any:
+        """One sweep's records as the driver's PointCloud2 message."""
         drv = self.driver
         pts = cloud_points(self.layout, sweep, stamp, self._rings, drv.intensity_max,
                            physics=self.spec.physics,
@@ -447,13 +507,11 @@ class RosbagStream(Stream):
         field = T["sensor_msgs/msg/PointField"]
         fields = [field(name=n, offset=o, datatype=_ROS_TYPE[f], count=1)
                   for n, o, f in self.layout.fields]
-        msg = T["sensor_msgs/msg/PointCloud2"](
+        return T["sensor_msgs/msg/PointCloud2"](
             header=self._header(stamp, self.driver.frame_id), height=height, width=width,
             fields=fields, is_bigendian=False, point_step=self.layout.point_step,
             row_step=self.layout.point_step * width,
             data=np.ascontiguousarray(pts).view(np.uint8).reshape(-1), is_dense=dense)
-        self._put(self.driver.topic, log, msg)
-        self._next = k + 1
 
     # ------------------------------------------------------------------ poses and IMU
     def _limit(self, t_s: float) -> float:
@@ -657,6 +715,8 @@ class RosbagStream(Stream):
         self._bag.set_custom_data("tunnelsim", json.dumps(dict(
             self._info, driver=asdict(self.driver), point_layout_source=self.layout.source,
             sweep_period_s=self.period_s, dropped_partial_sweep_points=self.dropped_points,
+            **({"return_topics": list(return_topics(self.driver))} if self._returns
+               else {}),
             imu=None if self.imu is None else asdict(self.imu),
             wheel_odometry=None if self.wheel_odometry is None else
             asdict(self.wheel_odometry))))

@@ -4,7 +4,8 @@
 offsets, types and point step, from the driver's own source); ``cloud_points`` turns one
 sweep of simulated ``POINT_DTYPE`` records into those points, and ``organise`` lays a
 revolution's points out in the driver's organised grid (ouster-ros: rings x columns,
-a cell for every pulse). ``sensors.bag`` writes
+a cell for every pulse). ``return_topics`` and ``returns_in_one_cloud`` place the
+returns of a multiple-return drive as each driver does. ``sensors.bag`` writes
 them (and re-exports these names); ``GENERIC_DRIVER`` stands in for a sensor file
 without a ``[driver]`` table.
 """
@@ -22,7 +23,8 @@ from .physics import intensity_constants
 from .spec import Driver, Physics
 
 __all__ = ["GENERIC_DRIVER", "LAYOUTS", "OUSTER_REFLECTIVITY_MAX", "OUSTER_SIGNAL_MAX",
-           "PointLayout", "cloud_points", "organise", "organised_width", "received_power"]
+           "PointLayout", "cloud_points", "organise", "organised_width", "received_power",
+           "return_topics", "returns_in_one_cloud"]
 
 
 @dataclass(frozen=True)
@@ -202,3 +204,38 @@ def organise(layout: PointLayout, points: NDArray[np.void], sweep: NDArray[np.vo
     grid[idx] = points
     dense = len(np.unique(idx)) == len(grid)
     return grid, dense
+
+
+def return_topics(driver: Driver) -> tuple[str, ...]:
+    """The cloud topics of a multiple-return drive, the one of return 1 first: the
+    driver's topic, and ``topic + dual_topic_suffix`` for return 2 where the driver
+    publishes it on a topic of its own (ouster-ros, ``Driver.dual_topic_suffix``);
+    the driver's topic alone where every return goes into the one cloud."""
+    if driver.dual_topic_suffix:
+        return (driver.topic, driver.topic + driver.dual_topic_suffix)
+    return (driver.topic,)
+
+
+def returns_in_one_cloud(sweep: NDArray[np.void]) -> NDArray[np.intp]:
+    """Indices (n,) that put one sweep of multiple-return records (n,)
+    (``RETURN_POINT_DTYPE``) in the order of a driver that publishes every return in
+    the one cloud: firing by firing (``column``), in each firing the points of return 1
+    (all its channels, in the records' order: the firing order), then those of return 2.
+
+    velodyne_pointcloud (ros-drivers/velodyne, velodyne_pointcloud/src/lib/rawdata.cpp,
+    ``unpack_vlp16``) appends every data block of a packet in packet order, and a
+    dual-return packet holds the two returns of the same firings in consecutive blocks;
+    rs_driver's Airy decoder (src/rs_driver/driver/decoder/decoder_RSAIRY.hpp,
+    ``FourInOneBlockIterator``) likewise decodes the blocks of both returns of a firing
+    one after the other into one cloud.
+
+    DECISION: which return a device puts in the first block is not in the drivers'
+    source (they decode blocks in order whatever they hold); the simulation's order is
+    kept: return 1 (the nearest reported echo) first. The VLP-16 packs two firings in a
+    block; this orders by single firings (one ``column``).
+    """
+    names = sweep.dtype.names or ()
+    if "return_number" not in names:
+        return np.arange(len(sweep))
+    # np.lexsort is stable: within a firing and return, the records keep their order.
+    return np.lexsort((np.asarray(sweep["return_number"]), np.asarray(sweep["column"])))

@@ -67,7 +67,7 @@ TABLE_KEYS: Final[Mapping[str, tuple[str, ...]]] = {
     "profiler": ("profile_rate_hz", "points_per_profile", "blind_sector_deg"),
     "driver": ("package", "point_layout", "frame_id", "topic", "ring_order",
                "intensity_max", "beam_origin_offset_mm", "organized", "no_return",
-               "signal_photons_at_threshold"),
+               "signal_photons_at_threshold", "dual_topic_suffix"),
     # Optional (sensors.waveform.ReturnsSpec): what the device records per pulse.
     "returns": ("modes", "dual", "max_returns", "pulse_fwhm_ns", "pulse_source"),
 }
@@ -304,10 +304,15 @@ def _driver(root: _Table) -> Driver | None:
         raise SensorSpecError(f"Expected a field `driver.signal_photons_at_threshold` in "
                               f"{d.file} for the ouster layout (its intensity is signal "
                               "photons), got none; add it to the sensor file.")
+    # Optional: "" (both returns of a dual drive in the one cloud) where not given.
+    suffix = d.text("dual_topic_suffix") if "dual_topic_suffix" in d.data else ""
+    if suffix and not _ROS_NAME.match(topic + suffix):
+        raise d.err("dual_topic_suffix", "a suffix that keeps the topic a ROS 2 topic "
+                    "name (letters, digits, _)", suffix)
     return Driver(d.text("package"), layout, frame, topic, order,
                   d.num("intensity_max", positive=True),
                   d.num("beam_origin_offset_mm", lo=0.0) * 1e-3, organized, no_return,
-                  signal)
+                  signal, suffix)
 
 
 def _returns(root: _Table, file: str) -> ReturnsSpec:

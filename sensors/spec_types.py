@@ -245,6 +245,10 @@ class Driver:
         The ouster layout's ``intensity`` (signal photons) of a return at the
         detection threshold power; signal is proportional to the received power
         (``sensors.pointcloud2``). 0 for the other layouts (optional in the file).
+    dual_topic_suffix : str
+        Where the driver publishes the second return of a multiple-return drive: on
+        its own topic, ``topic + dual_topic_suffix`` (ouster-ros: "/ouster/points2"),
+        in the same layout; "" (the default): both returns in the one cloud.
     """
 
     package: str
@@ -257,6 +261,7 @@ class Driver:
     organized: bool = False
     no_return: str = "zero"
     signal_photons_at_threshold: float = 0.0
+    dual_topic_suffix: str = ""
 
     def rings(self, elevations_rad: NDArray[np.float64]) -> NDArray[np.uint16]:
         """Ring of each channel (channels, firing order): its rank by elevation, ties
