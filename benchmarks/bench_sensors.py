@@ -13,7 +13,13 @@ a RoboSense Airy drive end to end to LAZ/LAS/NPZ against real time, in one run.
   floor, from chainage 50 m) for ``--drive-s`` seconds, simulated and written by
   ``Run.write`` (writer thread on), once per ``--drive-formats`` entry, plus a pass
   without writing (``sim``): wall time, real-time factor (simulated seconds / wall
-  seconds) and M points/s.
+  seconds) and M points/s. ``--drive-sensor ouster_os1_64`` gives the OS1-64 rows of
+  issue 30 (its speed as x real time, into memory and to LAZ).
+* ``size``: the LAZ size of issue 30: a ``--size-sensor`` (default VLP-16) drive of
+  ``--size-s`` seconds (default 120) on the same line, simulated once into memory, then
+  written as LAZ (full fields: sensor_x.. and range float32, the default since issue
+  30), as LAZ with the float64 types of earlier versions (``LAS_EXTRA_F8``) and as an
+  MCAP bag: bytes, bytes per point, write wall time.
 
 Each engine runs in its own subprocess; peak memory is its maximum RSS. The mesh is the
 ``bfo`` preset (300 m gallery with cables, niches, bolts and prisms) at the edge length
@@ -25,6 +31,9 @@ Usage::
     python benchmarks/bench_sensors.py                       # superhigh: 225M rays
     python benchmarks/bench_sensors.py --resolution high --json out.json
     python benchmarks/bench_sensors.py --engines drive --drive-s 60
+    python benchmarks/bench_sensors.py --engines size --size-s 120          # issue 30
+    python benchmarks/bench_sensors.py --engines drive --drive-sensor ouster_os1_64 \
+        --drive-s 10 --drive-formats laz:full
 
 Needs the ``bench`` extra (open3d); Open3D also needs libusb-1.0 (Debian:
 ``apt-get install libusb-1.0-0``).
@@ -149,7 +158,7 @@ def _drive(a) -> list[dict]:
     scene = Scene(tun.vertices, tun.faces)
     s = np.array([50.0, 50.0 + a.drive_s + 1.0])
     truth = Trajectory.along_polyline(tun.alignment.to_world(s, 0.0, 0.5), 1.0)
-    sensor = load_sensor("robosense_airy")
+    sensor = load_sensor(a.drive_sensor)
 
     def run(d):
         return simulate_drive(scene, sensor, truth, Mount(), seed=1,
@@ -183,6 +192,49 @@ def _drive(a) -> list[dict]:
     return rows
 
 
+def _size(a) -> list[dict]:
+    """Issue 30: the size of a drive's LAZ (float32 and float64 sensor fields) and of
+    its MCAP bag, from one simulation held in memory."""
+    import sensors.writers
+    from raytrace import Scene
+    from sensors import Mount, Trajectory, load_sensor, simulate_drive
+    from sensors.fields import LAS_EXTRA, LAS_EXTRA_F8
+
+    tun, _ = _world(a.edge)
+    scene = Scene(tun.vertices, tun.faces)
+    s = np.array([50.0, 50.0 + a.size_s + 1.0])
+    truth = Trajectory.along_polyline(tun.alignment.to_world(s, 0.0, 0.5), 1.0)
+    sensor = load_sensor(a.size_sensor)
+
+    def run(d):
+        return simulate_drive(scene, sensor, truth, Mount(), seed=1,
+                              reflectivity=tun.reflectivity, t_end=truth.start_s + d)
+    run(0.1).write(Path(a.tmp) / "warm.laz", fields="full")     # compile outside
+    r = run(a.size_s)
+    t0 = time.perf_counter()
+    chunks = list(r)
+    sim = time.perf_counter() - t0
+    n = sum(len(c) for c in chunks)
+    rows = [{"engine": f"size sim {a.size_sensor}", "simulated_s": a.size_s,
+             "points": n, "wall_s": sim, "bytes": 0, "bytes_per_point": 0.0}]
+    for label, name, extra, fields in (("laz f4 (default)", "d.laz", LAS_EXTRA, "full"),
+                                       ("laz f8 (old)", "d8.laz", LAS_EXTRA_F8, "full"),
+                                       ("mcap bag", "d.mcap", LAS_EXTRA, None)):
+        sensors.writers.LAS_EXTRA = extra          # _LasPoints reads it when opened
+        out = Path(a.tmp) / name
+        t0 = time.perf_counter()
+        r.write(out, fields=fields, points=chunks)
+        wall = time.perf_counter() - t0
+        size = out.stat().st_size
+        out.unlink()
+        rows.append({"engine": f"size {label}", "simulated_s": a.size_s, "points": n,
+                     "wall_s": wall, "bytes": size, "bytes_per_point": size / max(n, 1)})
+    sensors.writers.LAS_EXTRA = LAS_EXTRA
+    for row in rows:
+        row["peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--resolution", default="superhigh")
@@ -192,19 +244,25 @@ def main():
     ap.add_argument("--format", default="laz", choices=["laz", "las", "npz", "ply"])
     ap.add_argument("--fields", default="compact", choices=["compact", "full"])
     ap.add_argument("--engines", nargs="+", default=["ours", "open3d", "lazrs", "drive"],
-                    choices=["ours", "open3d", "lazrs", "drive"])
+                    choices=["ours", "open3d", "lazrs", "drive", "size"])
     ap.add_argument("--drive-s", type=float, default=60.0,
                     help="simulated seconds of the Airy drive (default 60, as issue 16)")
     ap.add_argument("--drive-formats", nargs="+",
                     default=["laz:compact", "laz:full", "las:full", "npz:full"],
                     help="FORMAT:FIELDS entries written by the drive rows")
+    ap.add_argument("--drive-sensor", default="robosense_airy",
+                    help="sensor of the drive rows (issue 30: ouster_os1_64)")
+    ap.add_argument("--size-s", type=float, default=120.0,
+                    help="simulated seconds of the size rows (default 120, issue 30)")
+    ap.add_argument("--size-sensor", default="velodyne_vlp16",
+                    help="sensor of the size rows (default velodyne_vlp16)")
     ap.add_argument("--json", help="write the figures to this file")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     ap.add_argument("--tmp", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
         print(json.dumps({"ours": _ours, "open3d": _open3d, "lazrs": _lazrs,
-                          "drive": _drive}[a.child](a)))
+                          "drive": _drive, "size": _size}[a.child](a)))
         return
     rows: list[dict] = []
     drives: list[dict] = []
@@ -212,10 +270,19 @@ def main():
         for eng in a.engines:
             cmd = [sys.executable, __file__, "--child", eng, "--tmp", tmp, "--resolution",
                    a.resolution, "--edge", str(a.edge), "--format", a.format, "--fields",
-                   a.fields, "--drive-s", str(a.drive_s), "--drive-formats",
-                   *a.drive_formats]
+                   a.fields, "--drive-s", str(a.drive_s), "--drive-sensor",
+                   a.drive_sensor, "--size-s", str(a.size_s), "--size-sensor",
+                   a.size_sensor, "--drive-formats", *a.drive_formats]
             out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
             got = json.loads(out.strip().splitlines()[-1])
+            if eng == "size":
+                drives += got
+                for r in got:
+                    print(f"{r['engine']:24s} {r['simulated_s']:.0f} s, {r['points']:,} "
+                          f"points: {r['bytes']:,} bytes ({r['bytes']/1e9:.3f} GB), "
+                          f"{r['bytes_per_point']:.2f} bytes/point, {r['wall_s']:.1f} s "
+                          f"wall, peak RSS {r['peak_rss_mb']:.0f} MB", flush=True)
+                continue
             if eng == "drive":
                 drives += got
                 for r in got:

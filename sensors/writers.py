@@ -19,7 +19,9 @@ written under a temporary name renamed into place on a clean close: an interrupt
   point source ID (frame mod 65536) and classification 7 (noise) for particle returns,
   else 0. The other fields go into extra bytes: all of them (``fields="full"``:
   sensor_x, sensor_y, sensor_z, range, azimuth, elevation, channel, column, frame,
-  incidence, triangle, flag; the default for moving platforms) or the four a station
+  incidence, triangle, flag; the default for moving platforms; sensor_x, sensor_y,
+  sensor_z and range as float32 since issue 30, which rounds them by at most 31 um below
+  512 m, see ``sensors.fields``; NPZ and PLY keep float64) or the four a station
   cannot recompute (``"compact"``: channel, column, triangle, flag; the default for TLS
   stations, 3x faster to compress). A VLR (user "tunnelsim", record 1) holds the
   sensor, seed and station pose (or the platform mount of a drive) as JSON. Coordinates: scale 0.1 mm, offset = the first
