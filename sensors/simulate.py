@@ -327,7 +327,7 @@ class Run:
         with open_writer(path, sensor=self.sensor, seed=self.seed, pose=self.station,
                          fields=fields, fmt=fmt, expected_points=self.n_pulses,
                          mount=self.mount, trajectory=self.trajectory, span_s=span,
-                         crs=crs, **bag) as w:
+                         crs=crs, returns=self.settings.returns, **bag) as w:
             for chunk in (self if points is None else points):
                 w.write_points(chunk)
                 if progress is not None:

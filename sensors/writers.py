@@ -421,7 +421,8 @@ class _BagPoints(PointWriter):
 
     def __init__(self, path, *, spec: SensorSpec, single_file: bool,
                  trajectory: Trajectory | None, span_s, start_time_ns: int | None = None,
-                 ros_distro: str | None = None, **kw) -> None:
+                 ros_distro: str | None = None, returns: str | None = None,
+                 **kw) -> None:
         super().__init__(path, **kw)
         if self.position is not None:
             raise PointFileError("Expected a moving platform for a ROS 2 bag, got a TLS "
@@ -430,7 +431,7 @@ class _BagPoints(PointWriter):
         self._w = RosbagStream(path, spec, single_file=single_file, seed=self.seed,
                                mount=self.mount, trajectory=trajectory, span_s=span_s,
                                info=info, start_time_ns=start_time_ns,
-                               ros_distro=ros_distro or "jazzy")
+                               ros_distro=ros_distro or "jazzy", returns=returns)
 
     def _write(self, c):
         self._w.write_points(c)
@@ -448,7 +449,7 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
                 trajectory: Trajectory | None = None,
                 span_s: tuple[float, float] | None = None, crs: Any = None,
                 thread: bool = True, start_time_ns: int | None = None,
-                ros_distro: str | None = None) -> PointWriter:
+                ros_distro: str | None = None, returns: str | None = None) -> PointWriter:
     """A ``PointWriter`` for ``path`` (format from the suffix or ``fmt``: las, laz,
     ply, npz, e57, mcap; no suffix: a rosbag2 folder).
 
@@ -492,6 +493,9 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
         (``sensors.bag.RosbagStream``); other formats refuse it.
     ros_distro : {"jazzy", "humble"}, optional
         A ROS 2 bag folder's metadata layout (default jazzy); other formats refuse it.
+    returns : str, optional
+        A ROS 2 bag's return mode (``Settings.returns``): a single-echo mode keeps one
+        topic, ``dual`` opens the driver's second-return topic where it has one.
     """
     path = Path(path)
     f = format_of(path, fmt)
@@ -502,7 +506,8 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
         spec = sensor if isinstance(sensor, SensorSpec) else load_sensor(sensor)
         return _BagPoints(path, spec=spec, single_file=f == "mcap", trajectory=trajectory,
                           span_s=span_s, sensor=spec, seed=seed, pose=pose, mount=mount,
-                          crs=crs, start_time_ns=start_time_ns, ros_distro=ros_distro)
+                          crs=crs, start_time_ns=start_time_ns, ros_distro=ros_distro,
+                          returns=returns)
     if start_time_ns is not None or ros_distro is not None:
         raise PointFileError(f"Expected --start-time and --ros-distro only with a ROS 2 "
                              f"bag (-o NAME.mcap or a folder), got them for '{path}' ({f}).")

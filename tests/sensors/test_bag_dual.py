@@ -305,6 +305,10 @@ def test_drive_returns_dual_writes_the_ouster_return_topic(tmp_path, monkeypatch
              "--seed", "3", "--quiet"]
     assert main(drive + ["--returns", "dual", "-o", "dual.mcap"]) == 0
     assert main(drive + ["-o", "plain.mcap"]) == 0
+    # a single-echo mode keeps the one topic: the drive tells the bag its mode
+    assert main(drive + ["--returns", "strongest", "-o", "strongest.mcap"]) == 0
+    _, counts_s = _clouds("strongest.mcap")
+    assert "/ouster/points2" not in counts_s and counts_s["/ouster/points"] == 2
     clouds, counts = _clouds("dual.mcap")
     assert counts["/ouster/points"] == counts["/ouster/points2"] == 2
     n2 = 0

@@ -106,7 +106,8 @@ def write_robot_bag(path, run, robot, *, progress=None, crs=None, **bag) -> dict
     with RosbagStream(path, spec, single_file=format_of(path) == "mcap", seed=run.seed,
                       mount=mount, trajectory=robot.base_trajectory(run.trajectory),
                       span_s=span, info=info, imu_mount=robot.imu_mount(),
-                      wheel_odometry=DEFAULT_WHEEL_ODOMETRY, **bag) as w:
+                      wheel_odometry=DEFAULT_WHEEL_ODOMETRY,
+                      returns=run.settings.returns, **bag) as w:
         for chunk in run:
             w.write_points(chunk)
             if progress is not None:
