@@ -44,7 +44,8 @@ from .errors import PlatformError
 from .platform_spec import PlatformSpec
 from .trajectory import Mount, Trajectory
 
-__all__ = ["BASE_FRAME", "IMU_FRAME", "MAST_FRAME", "RobotDescription", "launch_file"]
+__all__ = ["BASE_FRAME", "IMU_FRAME", "MAST_FRAME", "RobotDescription", "launch_file",
+           "rpy_of"]
 
 BASE_FRAME: Final = "base_link"
 MAST_FRAME: Final = "mast_link"
@@ -239,8 +240,20 @@ def _fmt(v: NDArray[np.float64] | tuple[float, ...]) -> str:
     return " ".join(f"{float(x):.15g}" for x in v)
 
 
+def rpy_of(rot: Rotation) -> NDArray[np.float64]:
+    """URDF/SDF roll, pitch, yaw (fixed axes x, y, z; rad) of ``rot``. At a pitch of
+    ±90 deg (a profiler turned on its side) the yaw is folded into the roll, which
+    SciPy announces with a gimbal-lock warning: the rotation is still exact, so the
+    warning is not passed on to the user."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Gimbal lock detected")
+        return rot.as_euler("xyz")
+
+
 def _origin(xyz: NDArray[np.float64], rot: Rotation) -> str:
-    rpy = rot.as_euler("xyz")
+    rpy = rpy_of(rot)
     return f'<origin xyz="{_fmt(xyz)}" rpy="{_fmt(rpy)}"/>'
 
 

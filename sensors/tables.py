@@ -16,8 +16,9 @@ Rules (each a ``# DECISION:`` below):
   line into the same number (>= 2) of fields, most of them numbers;
 - decimal comma: only with a delimiter that is not a comma, when numbers are written
   ``1234,56`` (a ``.`` thousands separator, ``1.234,56``, is then dropped);
-- header: the first row is a header when one of its fields is not a number in a column
-  that holds numbers on every other line (so ids, text or numbers, decide nothing);
+- header: the first row is a header when two of its fields are not numbers in columns
+  that hold numbers on every other line, or it is all text above such a column (so
+  ids, text or numbers, decide nothing);
 - lines starting with ``#`` and blank lines are skipped (``# crs: EPSG:2056``).
 """
 
@@ -203,11 +204,16 @@ def sniff(lines: Sequence[str]) -> tuple[str, str, bool]:
     if len(rows) == 1:
         header = not any(_numeric(f, dec) for f in rows[0])
     else:
-        # A header: text in a column that is numeric on every other sampled line (a
-        # column of ids mixing "A" and "1" says nothing).
-        header = any(not _numeric(rows[0][j], dec) and
-                     all(_numeric(r[j], dec) for r in rows[1:])
-                     for j in range(len(rows[0])))
+        # A header: text in columns that are numeric on every other sampled line.
+        # DECISION: two such columns, or a first row of text only: one alone may be a
+        # column of ids that happens to hold "A" above "1", "2" (hypothesis found a
+        # headerless "A,0,0,0 / 0,1,1,1" read as a header); a real header names the
+        # coordinate columns too.
+        above = sum(not _numeric(rows[0][j], dec) and
+                    all(_numeric(r[j], dec) for r in rows[1:])
+                    for j in range(len(rows[0])))
+        header = above >= 2 or (above >= 1 and
+                                not any(_numeric(f, dec) for f in rows[0]))
     return delim, dec, header
 
 

@@ -42,6 +42,7 @@ steps that ran; every step, run or not, is checked when the pipeline is loaded.
 from __future__ import annotations
 
 import importlib.util
+import re
 import statistics
 import string
 import sys
@@ -354,7 +355,13 @@ def pipeline_report(pipe: dict, done: list, out_dir_path, *, intro: str = "") ->
         for t in st.get("tables", []):
             p = out / t
             if p.is_file():
-                text = p.read_text()
+                text = p.read_text(encoding="utf-8")
+                # Figures the table links sit beside it: their links made relative to
+                # this report's folder.
+                here = Path(t).parent.as_posix()
+                if here not in ("", "."):
+                    text = re.sub(r"(!\[[^\]]*\]\()(?![a-z]+:|/)([^)]+\))",
+                                  lambda m: m.group(1) + here + "/" + m.group(2), text)
                 # Nested headings one level down, under the step's own.
                 lines += [("##" + ln if ln.startswith("#") else ln)
                           for ln in text.rstrip().splitlines()] + [""]

@@ -82,6 +82,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from raytrace.fileio import atomic_writer
+from sensors.robot import rpy_of
 from survey.errors import GazeboExportError
 
 from .gazebo_sdf import (BASE, FLAVOURS, RANGE_RESOLUTION_M, ROBOT, Flavour,
@@ -209,7 +210,7 @@ def _pose_in_chassis(xyz: Floats, rot: Any) -> str:
     """An SDF pose in the chassis link (which sits ``chassis_z`` above the model's
     origin, base_link): SDF's rpy, like URDF's, is fixed-axis roll, pitch, yaw."""
     p = np.asarray(xyz, dtype=np.float64) - [0.0, 0.0, chassis_z()]
-    return " ".join(f"{x:.15g}" for x in (*p, *rot.as_euler("xyz")))
+    return " ".join(f"{x:.15g}" for x in (*p, *rpy_of(rot)))
 
 
 def _lamps(points: Floats, spacing_m: float) -> str:

@@ -47,8 +47,8 @@ def test_files_beside_a_copc_drive_take_its_stem(tube, tmp_path):
     assert main(["drive", "--mesh", str(tube), "--sensor", "velodyne_vlp16", "--along",
                  "centreline", "--speed", "1", "--duration", "0.2", "-o", str(out),
                  "--quiet"]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.copc.laz",
-                                                          "d_true_trajectory.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "d.copc.laz", "d_robot.launch.py", "d_robot.urdf", "d_true_trajectory.txt"]
 
 
 @pytest.mark.parametrize("suffix", ["npz", "las"])
