@@ -130,7 +130,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from sensors import load_sensor
-    from sensors.meshes import load_mesh
+    from sensors.io.meshes import load_mesh
     from sensors.simulate import Run
 
     tmp = Path(tempfile.mkdtemp(prefix="bench_cluster_"))

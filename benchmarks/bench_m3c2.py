@@ -4,7 +4,7 @@ OpenMP) on the same data, in one run.
 Data: the ``tbm`` preset tunnel and its second epoch (the preset's deformation: 5 mm
 convergence), each scanned from the same station by the ZF Imager 5016 model; epochs at
 a UTM-sized origin for ours and shifted to a local origin for py4dgeo (which needs it:
-see tests/survey/test_m3c2.py). Core points: epoch 1 subsampled on a ``--spacing``
+see tests/survey/analysis/test_m3c2.py). Core points: epoch 1 subsampled on a ``--spacing``
 grid. Parameters: normal radii ``--normal-radii``, cylinder radius ``--radius``,
 max depth ``--depth`` (0.3 m: ceil(L / r) = 3 slabs, so a core point taken from
 epoch 1 sits mid-slab and py4dgeo counts it once too); normals oriented +Z as

@@ -198,7 +198,7 @@ def _size(a) -> list[dict]:
     import sensors.writers
     from raytrace import Scene
     from sensors import Mount, Trajectory, load_sensor, simulate_drive
-    from sensors.fields import LAS_EXTRA, LAS_EXTRA_F8
+    from sensors.io.fields import LAS_EXTRA, LAS_EXTRA_F8
 
     tun, _ = _world(a.edge)
     scene = Scene(tun.vertices, tun.faces)

@@ -17,7 +17,7 @@ The ``tbm`` rows show the degeneracy of a smooth segmental lining.
 
 Everything stays in memory (no LAZ): the drive's frames are simulated once and fed to
 each odometry; re-placing the profiler uses ``to_slam_frame`` on its true points, which
-equals re-placing its sensor-frame points (tests/survey/test_odometry.py).
+equals re-placing its sensor-frame points (tests/survey/adjust/test_odometry.py).
 """
 
 from __future__ import annotations

@@ -162,7 +162,7 @@ def main():
     ap.add_argument("--platforms", default="ground_robot,walker",
                     help="platforms driven along each route at 1 m/s ('' for none)")
     args = ap.parse_args()
-    from sensors.meshes import load_mesh
+    from sensors.io.meshes import load_mesh
 
     folder = Path(args.mesh_dir)
     names = MESHES + (MORE if args.all else ())

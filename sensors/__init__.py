@@ -20,17 +20,19 @@ __version__ = "0.2.0"
 # Public names are imported on first use: ``import sensors.errors`` (which every
 # command-line start does) must not compile or load Numba.
 _EXPORTS = {
-    "sensors.errors": ("TunnelsimError", "PointFileError", "SensorSpecError", "SimulationError",
+    "sensors.errors": ("TunnelsimError", "SensorSpecError", "SimulationError",
                        "TrajectoryError", "PlatformError", "RouteError"),
+    "sensors.io.errors": ("FileFormatError", "MeshFileError", "PointFileError",
+                          "TableFileError", "TunnelFileError"),
     "sensors.patterns": ("ProfileScan", "Pulses", "SpinningScan", "TLSScan", "scan_for"),
     "sensors.physics": ("Settings",),
-    "sensors.fields": ("POINT_DTYPE",),
+    "sensors.io.fields": ("POINT_DTYPE",),
     "sensors.simulate": ("Run", "simulate_drive", "simulate_station"),
     "sensors.writers": ("PointWriter", "open_writer"),
-    "sensors.copc": ("CopcWriter",),
+    "sensors.io.copc": ("CopcWriter",),
     "sensors.spec": ("SensorSpec", "list_sensors", "load_sensor"),
     "sensors.trajectory": ("Mount", "Trajectory"),
-    "sensors.meshes": ("load_mesh",),
+    "sensors.io.meshes": ("load_mesh",),
     "sensors.freespace": ("FreeSpace", "free_space"),
     "sensors.route": ("Route", "find_route", "read_waypoints"),
     "sensors.platform_spec": ("PlatformSpec", "list_platforms", "load_platform"),
@@ -39,17 +41,18 @@ _EXPORTS = {
 
 
 if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
-    from sensors.errors import (TunnelsimError, PointFileError, SensorSpecError,
-        SimulationError, TrajectoryError, PlatformError, RouteError)
+    from sensors.errors import (TunnelsimError, SensorSpecError, SimulationError, TrajectoryError, PlatformError, RouteError)
+    from sensors.io.errors import (FileFormatError, MeshFileError, PointFileError,
+        TableFileError, TunnelFileError)
     from sensors.patterns import ProfileScan, Pulses, SpinningScan, TLSScan, scan_for
     from sensors.physics import Settings
-    from sensors.fields import POINT_DTYPE
+    from sensors.io.fields import POINT_DTYPE
     from sensors.simulate import Run, simulate_drive, simulate_station
     from sensors.writers import PointWriter, open_writer
-    from sensors.copc import CopcWriter
+    from sensors.io.copc import CopcWriter
     from sensors.spec import SensorSpec, list_sensors, load_sensor
     from sensors.trajectory import Mount, Trajectory
-    from sensors.meshes import load_mesh
+    from sensors.io.meshes import load_mesh
     from sensors.freespace import FreeSpace, free_space
     from sensors.route import Route, find_route, read_waypoints
     from sensors.platform_spec import PlatformSpec, list_platforms, load_platform

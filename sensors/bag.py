@@ -85,8 +85,8 @@ from typing import Any, Final
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import PointFileError
-from .fields import POINT_DTYPE
+from .io.errors import PointFileError
+from .io.fields import POINT_DTYPE
 # Message contents live in two modules of their own; their public names are re-exported
 # here, where users have always imported them from.
 from .imu import (DEFAULT_IMU, DEFAULT_WHEEL_ODOMETRY, IMU_STREAM, ODOM_STREAM,
@@ -95,7 +95,7 @@ from .imu import (DEFAULT_IMU, DEFAULT_WHEEL_ODOMETRY, IMU_STREAM, ODOM_STREAM,
 from .pointcloud2 import (GENERIC_DRIVER, LAYOUTS, PointLayout, cloud_points, organise,
                           organised_width, return_topics, returns_in_one_cloud)
 from .spec import ProfilerPattern, SensorSpec, SpinningPattern
-from .stream import Stream
+from .io.stream import Stream
 from .trajectory import Mount, Trajectory
 from .waveform import RETURN_MODES
 

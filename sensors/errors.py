@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from raytrace.errors import TunnelsimError
 
-__all__ = ["PlatformError", "PointFileError", "RouteError", "SensorSpecError",
+__all__ = ["PlatformError", "RouteError", "SensorSpecError",
            "SimulationError", "TrajectoryError", "TunnelsimError"]
 
 
@@ -33,5 +33,3 @@ class SimulationError(TunnelsimError, ValueError):
     """A simulation request is inconsistent (bad pose, resolution, physics setting)."""
 
 
-class PointFileError(TunnelsimError, ValueError):
-    """A point-cloud file cannot be written or read as asked."""

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial.transform import Rotation
 
-from .errors import PointFileError
+from sensors.io.errors import PointFileError
 from .trajectory import Mount, Trajectory
 
 __all__ = ["DEFAULT_IMU", "DEFAULT_WHEEL_ODOMETRY", "IMU_STREAM", "ODOM_STREAM",

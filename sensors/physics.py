@@ -48,7 +48,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_number
 from .errors import SimulationError
-from .fields import FLAG_MIXED, FLAG_PARTICLE, FLAG_SURFACE, MIXED_SPREAD_M
+from .io.fields import FLAG_MIXED, FLAG_PARTICLE, FLAG_SURFACE, MIXED_SPREAD_M
 from .spec import Physics
 from .waveform import RETURN_MODES
 
@@ -58,7 +58,7 @@ __all__ = ["FLAG_MIXED", "FLAG_PARTICLE", "FLAG_SURFACE", "MIXED_SPREAD_M", "SUB
            "subray_offsets"]
 
 # Return flags in the output, and the spread that makes a return mixed (m): defined
-# with the point record (sensors.fields), re-exported here where they were.
+# with the point record (sensors.io.fields), re-exported here where they were.
 
 # Sub-ray offsets in units of the divergence half-angle: centre, 6 at 1/2, 12 at 1.
 _A6 = 2 * np.pi * np.arange(6) / 6
@@ -98,7 +98,7 @@ class Settings:
     returns : {"strongest", "last", "first", "dual", "all"} or None
         Multiple returns: the pulse's full waveform (``sensors.waveform``), its echoes
         and those the device reports in this return mode (one of its spec's
-        ``returns.modes``; output records ``sensors.fields.RETURN_POINT_DTYPE``). None (the
+        ``returns.modes``; output records ``sensors.io.fields.RETURN_POINT_DTYPE``). None (the
         default): the single blended return per pulse, as before the waveform model.
 
     Raises

@@ -18,7 +18,7 @@ from typing import Final
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import PointFileError
+from .io.errors import PointFileError
 from .physics import intensity_constants
 from .spec import Driver, Physics
 

@@ -64,7 +64,7 @@ from ._kernels.pulses import (
     world_directions,
 )
 from .errors import SimulationError
-from .fields import POINT_DTYPE, RETURN_POINT_DTYPE
+from .io.fields import POINT_DTYPE, RETURN_POINT_DTYPE
 from .patterns import CHUNK_PULSES, Pulses, Scan, TLSScan, chunk_size, scan_for
 from .spec import SensorSpec, load_sensor
 from .trajectory import Mount, Trajectory
@@ -117,7 +117,7 @@ class Run:
     the same points (the random streams depend on the seed and the pulse index only).
     Each chunk is a structured array of ``sensors.POINT_DTYPE``: x, y, z, sx, sy, sz and
     range in metres, time in seconds, azimuth, elevation and incidence in radians
-    (``sensors.fields`` documents every field; ``FIELD_UNITS`` holds the units).
+    (``sensors.io.fields`` documents every field; ``FIELD_UNITS`` holds the units).
 
     Attributes
     ----------
@@ -316,7 +316,7 @@ class Run:
         ``start_time_ns`` and ``ros_distro``: a ROS 2 bag's epoch at the scan's start
         and metadata layout (``sensors.bag.RosbagStream``); only passed on when given.
         Returns ``stats`` plus the path."""
-        from .writers import open_writer
+        from .io.writers import open_writer
 
         span = None if self.station is not None else (self.t0, self.t0 + self.duration_s)
         bag: dict[str, Any] = {}

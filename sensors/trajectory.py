@@ -464,10 +464,10 @@ def csv_column_order(header: list[str]) -> list[int]:
 
 def _read_csv(path: Path) -> NDArray[np.float64]:
     """(n, 8) float64 rows in TUM order from a CSV trajectory (``CSV_COLUMNS``), its
-    dialect sniffed as for control points (``sensors.tables``: delimiter, decimal comma,
+    dialect sniffed as for control points (``sensors.io.tables``: delimiter, decimal comma,
     encoding; a '#' header as EuRoC writes it). A header names the 8 columns and nothing
     else; a headerless file is 8 numbers a row in TUM order."""
-    from sensors.tables import map_columns, numeric_columns, read_table
+    from sensors.io.tables import map_columns, numeric_columns, read_table
 
     fields = tuple(CSV_COLUMNS)
     tab = read_table(path, what="CSV trajectory", error=TrajectoryError, hash_header=True)

@@ -55,9 +55,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._checks import as_number, as_whole
 from .errors import SensorSpecError, SimulationError
-# DECISION: the flags and RETURN_FIELDS come from sensors.fields (not sensors.physics),
+# DECISION: the flags and RETURN_FIELDS come from sensors.io.fields (not sensors.physics),
 # so that sensors.spec can import ReturnsSpec from here without an import cycle.
-from .fields import FLAG_MIXED, FLAG_PARTICLE, FLAG_SURFACE, MIXED_SPREAD_M, RETURN_FIELDS
+from .io.fields import FLAG_MIXED, FLAG_PARTICLE, FLAG_SURFACE, MIXED_SPREAD_M, RETURN_FIELDS
 
 
 

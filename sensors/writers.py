@@ -10,7 +10,7 @@ into one. Memory stays bounded by one chunk (E57 excepted, see below), and the f
 written under a temporary name renamed into place on a clean close: an interrupted run
 (an exception, Ctrl-C) leaves no file that looks complete.
 
-- **LAS 1.4 / LAZ** (``sensors.las``): point format 6 with GPS time (the pulse time),
+- **LAS 1.4 / LAZ** (``sensors.io.las``): point format 6 with GPS time (the pulse time),
   intensity (``intensity`` x 65535), return 1 of 1 (or the chunk's
   ``return_number``/``number_of_returns`` where it has them: multiple returns,
   ``sensors.waveform``, whose ``echo_width``/``echo_amplitude`` then go into extra
@@ -21,27 +21,27 @@ written under a temporary name renamed into place on a clean close: an interrupt
   sensor_x, sensor_y, sensor_z, range, azimuth, elevation, channel, column, frame,
   incidence, triangle, flag; the default for moving platforms; sensor_x, sensor_y,
   sensor_z and range as float32 since issue 30, which rounds them by at most 31 um below
-  512 m, see ``sensors.fields``; NPZ and PLY keep float64) or the four a station
+  512 m, see ``sensors.io.fields``; NPZ and PLY keep float64) or the four a station
   cannot recompute (``"compact"``: channel, column, triangle, flag; the default for TLS
   stations, 3x faster to compress). A VLR (user "tunnelsim", record 1) holds the
   sensor, seed and station pose (or the platform mount of a drive) as JSON. Coordinates: scale 0.1 mm, offset = the first
   point rounded to a kilometre, so UTM coordinates keep 0.1 mm.
-- **PLY** (``sensors.ply``, binary little endian): every field as a vertex property;
+- **PLY** (``sensors.io.ply``, binary little endian): every field as a vertex property;
   the vertex count in the header is patched at the end.
 - **NPZ**: one array per field, as ``numpy.load`` returns them; chunks go to temporary
   raw files and are zipped at the end.
 
-Every format names a field as ``sensors.fields.FILE_FIELDS`` says (issue 22): the LAS
+Every format names a field as ``sensors.io.fields.FILE_FIELDS`` says (issue 22): the LAS
 names (``sensor_x``, ``sensor_y``, ``sensor_z``, ``gps_time``, the rest as in
 ``POINT_DTYPE``) in LAS extra bytes, PLY properties and NPZ arrays alike.
 
-LAS/LAZ, PLY and NPZ are stored by a writer thread (``sensors.stream.Background``,
+LAS/LAZ, PLY and NPZ are stored by a writer thread (``sensors.io.stream.Background``,
 ``open_writer(thread=True)``, the default): ``write_points`` queues the chunk (two at
 most wait) and the simulation goes on while it is turned into records and compressed
 (lazrs and file writes release the GIL). An error on the thread is raised by the next
 ``write_points`` or by ``close``; an exception or Ctrl-C in the caller stops the thread
 before the file is dropped. The bytes are those of the unthreaded writer.
-- **E57** (``sensors.e57``, TLS stations only): one structured scan with row/column
+- **E57** (``sensors.io.e57``, TLS stations only): one structured scan with row/column
   indices (channel = row along the vertical sweep, column = line), sensor-frame
   Cartesian coordinates and the station pose. pye57 writes a scan in one call, so the
   scan is gathered in memory first; ``E57_MAX_POINTS`` guards the machine.
@@ -51,7 +51,7 @@ before the file is dropped. The bytes are those of the unthreaded writer.
   ROS 2 driver layout, /tf_static, and with ``trajectory`` /tf, ground-truth odometry
   and an IMU. Memory stays bounded by one sweep and one chunk.
 
-With ``crs`` (``sensors.crs``: EPSG:n, WKT or PROJJSON; needs pyproj) the file states
+With ``crs`` (``sensors.io.crs``: EPSG:n, WKT or PROJJSON; needs pyproj) the file states
 the world coordinates' coordinate reference system: LAS/LAZ in the OGC WKT VLR (and
 the WKT bit), E57 in ``coordinateMetadata``, PLY and NPZ in a sidecar ``<file>.prj``
 (an older sidecar of the same name is removed when a file is written without a CRS),
@@ -73,11 +73,11 @@ import numpy as np
 from raytrace.fileio import atomic_writer
 
 from .bag import RosbagStream
-from .copc import CopcWriter
-from .crs import file_wkt, parse_crs, write_sidecar
-from .e57 import E57_MAX_POINTS, write_e57_scan
-from .errors import PointFileError
-from .fields import (
+from .io.copc import CopcWriter
+from .io.crs import file_wkt, parse_crs, write_sidecar
+from .io.e57 import E57_MAX_POINTS, write_e57_scan
+from .io.errors import PointFileError
+from .io.fields import (
     FIELD_NAMES,
     FILE_DTYPE,
     FILE_FIELDS,
@@ -86,7 +86,7 @@ from .fields import (
     POINT_DTYPE,
     file_records,
 )
-from .las import (
+from .io.las import (
     LAS_SCALE,
     LasRecords,
     LasWriter,
@@ -94,9 +94,9 @@ from .las import (
     offsets_near,
     set_las_crs,
 )
-from .ply import PlyWriter
+from .io.ply import PlyWriter
 from .spec import SensorSpec, load_sensor
-from .stream import Background, Stream, deferred_interrupt
+from .io.stream import Background, Stream, deferred_interrupt
 from .trajectory import Trajectory
 
 __all__ = ["E57_MAX_POINTS", "FORMATS", "LAS_SCALE", "PointWriter", "format_of",
@@ -253,7 +253,7 @@ class _LasPoints(PointWriter):
         header = laspy.LasHeader(point_format=6, version="1.4")
         header.scales = np.full(3, LAS_SCALE)
         header.offsets = offsets_near(first_xyz)
-        # Each extra dimension described with its unit (sensors.fields.FILE_FIELDS).
+        # Each extra dimension described with its unit (sensors.io.fields.FILE_FIELDS).
         header.add_extra_dims(extra_params({n: np.dtype(t) for n, _, t in self._extra}))
         if self._echo:   # multiple returns: the echo's width and amplitude
             header.add_extra_dims([laspy.ExtraBytesParams(name=n, type=np.dtype(t),
@@ -303,7 +303,7 @@ class _LasPoints(PointWriter):
         self._w.close()
 
     def _open_file(self, header):
-        if self._copc:   # the octree is built on close (sensors.copc: bounded memory)
+        if self._copc:   # the octree is built on close (sensors.io.copc: bounded memory)
             return CopcWriter(self.path, header)
         return LasWriter(self.path, header, compress=self._compress)
 
@@ -336,7 +336,7 @@ class _PlyPoints(PointWriter):
 class _NpzPoints(PointWriter):
     """Chunks go to one raw file per field in a temporary folder beside the target,
     zipped (stored, not compressed) into ``numpy.load``'s layout on close; arrays are
-    named by their file names (``sensors.fields.FILE_FIELDS``)."""
+    named by their file names (``sensors.io.fields.FILE_FIELDS``)."""
 
     def __init__(self, path, **kw) -> None:
         super().__init__(path, **kw)
@@ -482,10 +482,10 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
     crs : str, dict or pyproj.CRS, optional
         The coordinate reference system of the world coordinates (EPSG:n, WKT or
         PROJJSON; metre axes), stated in the file (see the module notes). Needs pyproj;
-        checked before the writer opens (``sensors.crs.CRSError``).
+        checked before the writer opens (``sensors.io.crs.CRSError``).
     thread : bool
         LAS/LAZ, PLY and NPZ: store the chunks on a writer thread
-        (``sensors.stream.Background``; default), so that the caller simulates the
+        (``sensors.io.stream.Background``; default), so that the caller simulates the
         next chunk while this one is compressed and written; the file's bytes are the
         same either way. The caller must then not change a chunk it has handed over.
     start_time_ns : int, optional

@@ -46,7 +46,7 @@ _EXPORTS = {
     "survey.adjust.drift": ("DriftCorrection", "fit_drift", "leave_one_out"),
     "survey.adjust.slam": ("slam_trajectory", "to_slam_frame", "DriftedRun", "SlamObservation",
                            "observe_slam", "observe_control"),
-    "survey.clouds.cloudio": ("annotate_las", "cloud_bounds", "iter_points", "map_cloud",
+    "sensors.io.clouds": ("annotate_las", "cloud_bounds", "iter_points", "map_cloud",
                               "read_points", "read_reference",
                               "write_points_las"),
     "survey.clouds.preprocess": ("VoxelGrid", "radius_outliers", "statistical_outliers",
@@ -107,12 +107,12 @@ _EXPORTS = {
     "survey.report.epochs": ("chords_csv", "convergence_markdown", "m3c2_markdown",
                              "plot_m3c2_histogram", "plot_radial", "radial_csv"),
     "survey.export.gazebo": ("export_gazebo", "lidar_sdf"),
-    "survey.errors": ("TunnelsimError", "AlignmentError", "CloudFileError", "ClusterError",
+    "survey.errors": ("TunnelsimError", "AlignmentError", "ClusterError",
                       "CompareError",
                       "ControlPointError", "DeformationError", "DriftError", "FeatureError",
                       "GazeboExportError", "HelmertError", "OdometryError", "PipelineError",
                       "PlanningError", "PreprocessError", "ProfileError",
-                      "ReconstructionError", "StudyError", "TunnelError", "TunnelFileError",
+                      "ReconstructionError", "StudyError", "TunnelError",
                       "TunnelsimCLIError"),
 }
 
@@ -137,7 +137,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.adjust.drift import DriftCorrection, fit_drift, leave_one_out
     from survey.adjust.slam import (slam_trajectory, to_slam_frame, DriftedRun,
         SlamObservation, observe_slam, observe_control)
-    from survey.clouds.cloudio import (read_points, read_reference, annotate_las,
+    from sensors.io.clouds import (read_points, read_reference, annotate_las,
         cloud_bounds, iter_points, map_cloud, write_points_las)
     from survey.clouds.preprocess import (VoxelGrid, radius_outliers, statistical_outliers,
         voxel_down_sample)
@@ -201,9 +201,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.report.epochs import (chords_csv, convergence_markdown, m3c2_markdown,
         plot_m3c2_histogram, plot_radial, radial_csv)
     from survey.export.gazebo import export_gazebo, lidar_sdf
-    from survey.errors import (TunnelsimError, AlignmentError, CloudFileError, CompareError,
-        ControlPointError, DeformationError, DriftError, FeatureError, GazeboExportError,
-        HelmertError, OdometryError, PipelineError, PlanningError, PreprocessError, ProfileError,
-        ReconstructionError, StudyError, TunnelError, TunnelFileError, TunnelsimCLIError)
+    from survey.errors import (TunnelsimError, AlignmentError, CompareError, ControlPointError, DeformationError, DriftError, FeatureError, GazeboExportError, HelmertError, OdometryError, PipelineError, PlanningError, PreprocessError, ProfileError, ReconstructionError, StudyError, TunnelError, TunnelsimCLIError)
+    from sensors.io.errors import PointFileError, TunnelFileError
 
 __getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS, modules=SUBPACKAGES)

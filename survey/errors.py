@@ -42,8 +42,6 @@ class PipelineError(TunnelsimError, ValueError):
     """A pipeline file is malformed or a step failed."""
 
 
-class CloudFileError(TunnelsimError, ValueError):
-    """A point cloud cannot be read or rewritten."""
 
 
 class PreprocessError(TunnelsimError, ValueError):
@@ -74,20 +72,18 @@ class TunnelError(TunnelsimError, ValueError):
     """A tunnel cannot be generated from these parameters."""
 
 
-class TunnelFileError(TunnelsimError, ValueError):
-    """A tunnel file is missing, unreadable or not one of ours."""
 
 
 class ProfileError(TunnelsimError, ValueError):
     """A cross-section profile is unusable (self-intersecting, degenerate, bad size)."""
 
 
-__all__ = ["TunnelsimError", "AlignmentError", "CloudFileError", "ClusterError", "CompareError",
+__all__ = ["TunnelsimError", "AlignmentError", "ClusterError", "CompareError",
            "ControlPointError", "DeformationError", "DriftError", "FeatureError",
            "GazeboExportError", "HelmertError", "OdometryError", "PipelineError",
            "PlanningError",
            "PreprocessError", "ProfileError", "ReconstructionError", "StudyError",
-           "TunnelError", "TunnelFileError", "TunnelsimCLIError"]
+           "TunnelError", "TunnelsimCLIError"]
 
 
 class ClusterError(TunnelsimError, ValueError):

@@ -6,9 +6,13 @@ every import, module-level or inside a function, becomes an edge of the module g
 
 Layers, lowest first::
 
-    raytrace  <  sensors  <  survey
+    raytrace  <  sensors.io  <  sensors  <  survey
     inside survey:  errors, _kernels  <  world  <  adjust, clouds  <  analysis
-                    <  report, export  <  cli
+                    <  report, export, cluster  <  workflows  <  cli
+
+``sensors.io`` is the file-format layer: every reader and writer of a format, the one
+mesh loader and the file errors; it imports only ``raytrace`` and itself, and both
+``sensors`` and ``survey`` read and write files through it.
 
 A module may import its own layer or any lower one. The package façades
 (``survey/__init__.py`` etc.) only name what lies below them and are exempt from the
@@ -24,9 +28,11 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("raytrace", "sensors", "survey")
-PACKAGE_RANK = {"raytrace": 0, "sensors": 1, "survey": 2}
+PACKAGE_RANK = {"raytrace": 0, "sensors": 2, "survey": 3}
+FORMAT_LAYER = ("sensors", "io")   # rank 1: between raytrace and the rest of sensors
 SURVEY_RANK = {"errors": 0, "_kernels": 0, "world": 1, "adjust": 2, "clouds": 2,
-               "analysis": 3, "report": 4, "export": 4, "cluster": 4, "cli": 5}
+               "analysis": 3, "report": 4, "export": 4, "cluster": 4, "workflows": 5,
+               "cli": 6}
 
 
 def _modules() -> dict[str, Path]:
@@ -84,6 +90,8 @@ EDGES = {mod: _imports(mod) for mod in MODULES}
 
 def _rank(mod: str) -> tuple[int, int]:
     parts = mod.split(".")
+    if tuple(parts[:2]) == FORMAT_LAYER:
+        return 1, 0
     inner = SURVEY_RANK.get(parts[1], 0) if parts[0] == "survey" and len(parts) > 1 else 0
     return PACKAGE_RANK[parts[0]], inner
 
@@ -120,6 +128,16 @@ def test_the_cli_is_a_leaf():
     users = [f"{mod}:{line}" for mod, edges in EDGES.items() for t, _n, line in edges
              if t.startswith("survey.cli") and not mod.startswith("survey.cli")]
     assert not users, "only survey.cli may import survey.cli: " + ", ".join(users)
+
+
+def test_the_format_layer_reads_nothing_above_it():
+    """``sensors.io`` imports only ``raytrace`` and ``sensors.io`` (not even the
+    ``sensors`` façade, which would load the simulation)."""
+    bad = [f"{mod}:{line} imports {target}"
+           for mod, edges in EDGES.items() if tuple(mod.split(".")[:2]) == FORMAT_LAYER
+           for target, _name, line in edges
+           if not (target.startswith("raytrace") or target.startswith("sensors.io"))]
+    assert not bad, "\n".join(bad)
 
 
 def test_no_import_cycles():
@@ -184,7 +202,7 @@ def test_no_private_modules_across_packages():
     assert not bad, "\n".join(bad)
 
 
-@pytest.mark.parametrize("rule", ["cycle", "layer", "private"])
+@pytest.mark.parametrize("rule", ["cycle", "layer", "private", "format"])
 def test_the_rules_catch_a_violation(rule, monkeypatch):
     """Each rule fails on a module that breaks it (so a passing run means something)."""
     fake = {
@@ -192,12 +210,14 @@ def test_the_rules_catch_a_violation(rule, monkeypatch):
                   "survey.world.profiles": [("survey.world.alignment", None, 1)]},
         "layer": {"survey.world.alignment": [("survey.analysis.compare", "x", 1)]},
         "private": {"survey.world.alignment": [("survey.world.profiles", "_hidden", 1)]},
+        "format": {"sensors.io.las": [("sensors.spec", "load_sensor", 1)]},
     }[rule]
     edges = {m: list(e) for m, e in EDGES.items()}
     for m, extra in fake.items():
         edges[m] = edges[m] + extra
     monkeypatch.setattr(__import__(__name__, fromlist=["EDGES"]), "EDGES", edges)
     check = {"cycle": test_no_import_cycles, "layer": test_imports_point_down,
-             "private": test_no_private_names_across_modules}[rule]
+             "private": test_no_private_names_across_modules,
+             "format": test_the_format_layer_reads_nothing_above_it}[rule]
     with pytest.raises(AssertionError):
         check()

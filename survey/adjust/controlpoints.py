@@ -3,7 +3,7 @@ the three coordinates (``id,x,y,z``, ``Name,E,N,H``, ``Punkt;Rechtswert;Hochwert
 with decimal commas, ...; ``ALIASES``) or without a header (``id, E, N, H`` in that
 order), optionally ``sigma`` (one standard deviation for all three coordinates, m) or
 ``sx, sy, sz`` and ``time`` (s, when the point was observed in a moving system). The
-dialect (encoding, delimiter, decimal mark, header) is sniffed by ``sensors.tables``;
+dialect (encoding, delimiter, decimal mark, header) is sniffed by ``sensors.io.tables``;
 ``--columns`` maps the columns of any other header. Axis convention: x = Easting,
 y = Northing, z = height.
 
@@ -25,7 +25,7 @@ from raytrace.fileio import atomic_writer
 from survey.errors import ControlPointError
 
 if TYPE_CHECKING:
-    from sensors.tables import Dialect
+    from sensors.io.tables import Dialect
 
 __all__ = ["ALIASES", "COLUMN_FIELDS", "ControlPoints", "match", "parse_column_option",
            "read_control_points", "unmatched", "unmatched_message"]
@@ -35,7 +35,7 @@ __all__ = ["ALIASES", "COLUMN_FIELDS", "ControlPoints", "match", "parse_column_o
 class ControlPoints:
     """Named points: ids (n,) str; xyz (n, 3) float64, m (Easting, Northing, height);
     sigma (n, 3) float64 (m) or None; time (n,) float64 (s) or None; dialect: how the
-    file was written (``sensors.tables.Dialect``) when read from one, else None."""
+    file was written (``sensors.io.tables.Dialect``) when read from one, else None."""
 
     ids: list[str]
     xyz: NDArray[np.float64]
@@ -71,7 +71,7 @@ class ControlPoints:
 
 
 #: The header names each field may go by (compared after
-#: ``sensors.tables.normalise_name``: case, spaces, '_', '-', '.' and a unit in brackets
+#: ``sensors.io.tables.normalise_name``: case, spaces, '_', '-', '.' and a unit in brackets
 #: ignored). Axis convention: x = Easting, y = Northing, z = height.
 #: DECISION: German "Rechtswert" is the easting and "Hochwert" the northing. German
 #: geodesy also calls the easting Y and the northing X (Gauss-Krüger); a header with
@@ -103,7 +103,7 @@ def parse_column_option(text: str | None, flag: str = "--columns") -> dict[str, 
     (and sigma) in that order; named: ``id=Punkt,e=Y,n=X,h=Höhe`` (also ``x=``,
     ``y=``, ``z=``, ``sx=`` ... ``time=``). A column is a 1-based number or a header
     name."""
-    from sensors.tables import TableError, parse_columns
+    from sensors.io.tables import TableError, parse_columns
 
     if text is None:
         return None
@@ -124,7 +124,7 @@ def read_control_points(path: str | Path, *, columns: dict[str, str] | str | Non
     path : str or Path
         Delimited text (comma, semicolon, tab, '|' or white space; decimal point, or
         decimal comma with a delimiter other than the comma; UTF-8, UTF-16 with BOM,
-        Windows-1252 or Latin-1), sniffed by ``sensors.tables``. A header names the
+        Windows-1252 or Latin-1), sniffed by ``sensors.io.tables``. A header names the
         columns (``ALIASES``: ``id,x,y,z``, ``Name,E,N,H``,
         ``Punkt;Rechtswert;Hochwert;Höhe``, optionally ``sigma`` or ``sx,sy,sz`` in
         metres and ``time`` in seconds); a file without a header is ``id, E, N, H`` in
@@ -137,7 +137,7 @@ def read_control_points(path: str | Path, *, columns: dict[str, str] | str | Non
 
     Returns
     -------
-    ControlPoints, with ``dialect`` (``sensors.tables.Dialect``) telling what was read.
+    ControlPoints, with ``dialect`` (``sensors.io.tables.Dialect``) telling what was read.
 
     Raises
     ------
@@ -146,7 +146,7 @@ def read_control_points(path: str | Path, *, columns: dict[str, str] | str | Non
         a number, repeated ids, sigmas not positive. The message names the dialect found
         and the option (``--columns``).
     """
-    from sensors.tables import map_columns, normalise_name, read_table
+    from sensors.io.tables import map_columns, normalise_name, read_table
 
     path = Path(path)
     what = "control-point file"

@@ -14,7 +14,7 @@ Both are fed each scan frame in the sensor frame with per-point timestamps norma
 frame relative to the first frame. Which instant of the frame a pose belongs to differs:
 KISS-ICP 1.x deskews every point to the frame's *last* timestamp (its C++
 ``Preprocessor`` maps stamp s by exp((s - 1) log(delta))), GenZ-ICP 0.3 places the pose
-at *mid-frame*. Both facts were measured here (tests/survey/test_odometry.py): in a
+at *mid-frame*. Both facts were measured here (tests/survey/adjust/test_odometry.py): in a
 feature-rich room an ideal Airy moving at 2 m/s is tracked to about 1-2 cm only with
 those stamps; the others are off by 5-10 cm along the motion. ``STAMP`` records them.
 

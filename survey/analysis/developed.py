@@ -43,7 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from raytrace.checks import as_points, positive
 from survey.analysis.design import DesignProfile
-from survey.clouds.cloudfields import LAS_INTENSITY_SCALE, iter_field
+from sensors.io.cloudfields import LAS_INTENSITY_SCALE, iter_field
 from survey.errors import CompareError, ProfileError
 from survey.world.alignment import Alignment
 
@@ -225,7 +225,7 @@ def file_station_spacing(path: str | os.PathLike[str], alignment: Alignment, *,
     """``station_spacing`` of the first ``sample`` points of a cloud file (0.0 for a
     mesh, whose area samples are dense). Reads only the start of the file: a profile
     scanner writes profile after profile, so the start holds many stations."""
-    from survey.clouds.cloudio import iter_points
+    from sensors.io.clouds import iter_points
 
     if is_mesh_file(path):
         return 0.0
@@ -596,7 +596,7 @@ def is_mesh_file(path: str | os.PathLike[str]) -> bool:
     if kind in MESH_SUFFIXES:
         return True
     if kind == ".ply" and p.is_file():
-        from sensors.ply import read_ply_header
+        from sensors.io.ply import read_ply_header
 
         try:
             head = read_ply_header(p)
@@ -611,7 +611,7 @@ def file_chunks(path: str | os.PathLike[str], field: str, *, spacing_m: float
     """The chunks ``develop`` takes from a file: a mesh's area samples (``spacing_m``
     apart; the deviation only), or a cloud's points streamed, with ``field``'s values
     unless the field is the deviation."""
-    from survey.clouds.cloudio import iter_points, read_reference
+    from sensors.io.clouds import iter_points, read_reference
 
     if is_mesh_file(path):
         if field != "deviation":
@@ -634,7 +634,7 @@ def develop_file(path: str | os.PathLike[str], alignment: Alignment,
     """``develop`` on a file, streamed: a cloud chunk by chunk (``iter_points``, or
     ``iter_field`` for a per-point field such as an M3C2 ``distance`` or the
     ``intensity``), a mesh by area samples every ``mesh_spacing_m`` (default the cell
-    / ``MESH_SAMPLES_PER_CELL``). Raises ``CloudFileError`` for unreadable files and
+    / ``MESH_SAMPLES_PER_CELL``). Raises ``PointFileError`` for unreadable files and
     ``CompareError`` for a mesh with a field other than the deviation."""
     h = mesh_spacing_m if mesh_spacing_m is not None else \
         _positive(cell_m, "cell_m") / MESH_SAMPLES_PER_CELL

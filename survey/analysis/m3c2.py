@@ -26,7 +26,7 @@ Parameter names: py4dgeo ``normal_radii`` / ``cyl_radius`` / ``max_distance`` /
 and projection *scales* are diameters (``M3C2Params.from_cloudcompare`` halves them);
 its "max depth" is the same half-length as ``max_depth_m``.
 
-Differences from py4dgeo (``tests/survey/test_m3c2.py`` shows the equality):
+Differences from py4dgeo (``tests/survey/analysis/test_m3c2.py`` shows the equality):
 
 - The cylinder holds |t| <= L. py4dgeo cuts it into ceil(L / r) slabs and keeps
   |t - t_k| < L / N in each, so a point on a slab boundary is counted 0, 1 or 2

@@ -6,7 +6,7 @@ left, height above the centreline's elevation, metres). A mesh is cut by the sec
 plane itself (the vertical plane through the centreline point, normal to the plan
 tangent) and the cut polyline is sampled every ``spacing_m``.
 
-Streaming: a cloud file is read chunk by chunk (``survey.clouds.cloudio.iter_points``)
+Streaming: a cloud file is read chunk by chunk (``sensors.io.clouds.iter_points``)
 and only the points inside a band are kept, so memory is bounded by the band contents,
 and by ``max_points`` per section beyond that (a uniform random subset: every point
 gets a seeded random key and the ``max_points`` smallest keys are kept, bottom-k
@@ -292,13 +292,13 @@ def cut_file(path: str | os.PathLike[str], alignment: Alignment, chainages: Arra
              classes: Sequence[int] | None = None) -> list[SectionCut]:
     """Sections of a file: a mesh (PLY with faces, OBJ, STL, OFF) is cut by the section
     planes (``cut_mesh``; ``half_width_m`` unused), a cloud (every format of
-    ``survey.clouds.cloudio.iter_points``) is streamed chunk by chunk (``cut_cloud``).
+    ``sensors.io.clouds.iter_points``) is streamed chunk by chunk (``cut_cloud``).
     ``classes``: keep only the points of a cloud whose ``classification`` (LAS, or a
     PLY/NPZ/CSV field of that name; ``survey.clouds.segment`` writes lining 64 and
-    floor 2) is one of these codes. Raises ``CloudFileError`` for an unreadable file
+    floor 2) is one of these codes. Raises ``PointFileError`` for an unreadable file
     or a cloud without a classification, ``CompareError`` for classes with a mesh."""
-    from sensors.ply import read_ply_header
-    from survey.clouds.cloudio import iter_points, read_reference
+    from sensors.io.ply import read_ply_header
+    from sensors.io.clouds import iter_points, read_reference
 
     p = Path(path)
     kind = p.suffix.lower()
@@ -319,7 +319,7 @@ def cut_file(path: str | os.PathLike[str], alignment: Alignment, chainages: Arra
     if classes is None:
         return cut_cloud(iter_points(p), alignment, chainages, half_width_m,
                          max_points=max_points, seed=seed)
-    from survey.clouds.cloudfields import iter_field
+    from sensors.io.cloudfields import iter_field
 
     keep = np.asarray(sorted({int(c) for c in classes}), dtype=np.float64)
     chunks = (xyz[np.isin(c, keep)] for xyz, c in iter_field(p, "classification"))

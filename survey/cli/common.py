@@ -536,8 +536,8 @@ def report_options(c: Command) -> None:
 def crs_words(paths) -> str | None:
     """The CRS the first of ``paths`` that states one states, in words (None: none
     stated; the header says so)."""
-    from sensors.crs import crs_label, parse_crs, text_file_crs
-    from survey.clouds.cloudio import cloud_crs_text
+    from sensors.io.crs import crs_label, parse_crs, text_file_crs
+    from sensors.io.clouds import cloud_crs_text
 
     for p in paths:
         if p is None:

@@ -1,7 +1,7 @@
 """Point clouds: chunked file I/O, filters, segmentation, the tunnel axis and unrolling,
 reconstruction of the lining and of attachments, of spaces that are not tubes (solid), simulated drives read back for SLAM."""
 
-from .cloudio import annotate_las, cloud_bounds, iter_points, map_cloud, write_points_las, read_points, read_reference
+from sensors.io.clouds import annotate_las, cloud_bounds, iter_points, map_cloud, write_points_las, read_points, read_reference
 from .preprocess import VoxelGrid, radius_outliers, statistical_outliers, voxel_down_sample
 from .axis import (LiningExtent, estimate_axis, extend_chainage, lining_extent, tunnel_frame,
                    unroll, unroll_extended)

@@ -46,7 +46,7 @@ AXIS_SPAN_FACTOR = 1.5
 # ring is lining when enough of its sectors are. Beyond a portal the crown and the
 # walls are gone and the ground, the portal face and vegetation lie metres away from
 # the lining's radius: the share drops (the brief of issue 18; thresholds ASSUMED,
-# chosen with margin on the generated portal of tests/survey/test_portal.py, where a
+# chosen with margin on the generated portal of tests/survey/clouds/test_portal.py, where a
 # ring just outside keeps ~20 % of its sectors on the floor's radius).
 #: Angular sectors of a ring (10 deg).
 LINING_SECTORS = 36
@@ -388,7 +388,7 @@ def tunnel_frame(mesh_path: str | Path, scene: Scene | None = None
     """(Scene, reflectivity, Alignment, profile-centre height in m) of a mesh: the axis
     from the generated tunnel's JSON beside it, else estimated from the mesh vertices.
     With ``scene`` given, the mesh is not loaded again and reflectivity is None."""
-    from sensors.meshes import load_mesh
+    from sensors.io.meshes import load_mesh
 
     sc, refl = load_mesh(mesh_path) if scene is None else (scene, None)
     js = sidecar(mesh_path)
@@ -415,7 +415,7 @@ def sample_points(path: str | Path, n: int = AXIS_SAMPLE, *, seed: int = 0) -> F
     """A seeded uniform subset (at most ``n``, 3) float64 of a cloud file's points
     (streamed: bottom-k sampling, every point a random key, the n smallest kept), or
     a mesh's vertices (PLY with faces, OBJ, STL, OFF)."""
-    from survey.clouds.cloudio import iter_points, read_reference
+    from sensors.io.clouds import iter_points, read_reference
 
     p = Path(path)
     if p.suffix.lower() in (".ply", ".obj", ".stl", ".off"):

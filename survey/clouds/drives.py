@@ -4,7 +4,7 @@ LAS/LAZ file with full fields, a PLY or NPZ file (every field), or a ROS 2 bag
 (``drive -o drive.mcap``: one PointCloud2 per sweep in the sensor frame, the mount in
 /tf_static).
 
-Field names follow ``sensors.fields.FILE_FIELDS`` in every format (``sensor_x``,
+Field names follow ``sensors.io.fields.FILE_FIELDS`` in every format (``sensor_x``,
 ``gps_time``, ...); PLY and NPZ drives of earlier versions (``sx``, ``time``) read as
 well. A PLY drive records its sensor and mount in its ``tunnelsim {...}`` comment; an
 NPZ drive records none (the mount is then the identity). NPZ columns are loaded whole
@@ -36,11 +36,11 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from sensors import Mount, Trajectory
-from sensors.fields import point_field
-from sensors.las import LasSource
-from survey.clouds.cloudmap import map_cloud
-from survey.clouds.cloudread import CHUNK, INFO_USER, cloud_errors, ply_points
-from survey.errors import CloudFileError
+from sensors.io.fields import point_field
+from sensors.io.las import LasSource
+from sensors.io.cloudmap import map_cloud
+from sensors.io.cloudread import CHUNK, INFO_USER, cloud_errors, ply_points
+from sensors.io.errors import PointFileError
 
 __all__ = ["DRIVE_FIELDS", "TIME_FIELDS", "DriveFile", "ScanFrame", "frames_from_points",
            "iter_frames", "open_drive", "replace_drive"]
@@ -107,7 +107,7 @@ def open_drive(path: str | os.PathLike[str]) -> DriveFile:
 
     Raises
     ------
-    CloudFileError
+    PointFileError
         For a file that is not LAS/LAZ, has no points, lacks per-point times or
         sensor-frame fields (``DRIVE_FIELDS``), or whose times do not increase.
     """
@@ -115,40 +115,40 @@ def open_drive(path: str | os.PathLike[str]) -> DriveFile:
     if p.suffix.lower() == ".mcap" or (p.is_dir() and (p / "metadata.yaml").is_file()):
         return _open_bag(p)
     if p.suffix.lower() not in (".las", ".laz", ".ply", ".npz"):
-        raise CloudFileError(f"Expected a drive as .las/.laz (tunnelsim drive --fields full "
+        raise PointFileError(f"Expected a drive as .las/.laz (tunnelsim drive --fields full "
                              f"-o drive.laz), .ply, .npz or a ROS 2 bag (.mcap or a "
                              f"rosbag2 folder), got '{p}'.")
     if not p.is_file():
-        raise CloudFileError(f"Expected a drive file, got '{p}' which does not exist.")
+        raise PointFileError(f"Expected a drive file, got '{p}' which does not exist.")
     if p.suffix.lower() in (".ply", ".npz"):
         return _open_columns(p)
     with LasSource(p) as src:
         names = set(src.header.point_format.dimension_names)
         missing = [f for f in DRIVE_FIELDS if f not in names]
         if missing:
-            raise CloudFileError(
+            raise PointFileError(
                 f"Expected per-point times and sensor-frame fields {list(DRIVE_FIELDS)} in "
                 f"'{p}', got a file without {missing}; simulate the drive with "
                 "'tunnelsim drive --fields full'.")
         if src.point_count == 0:
-            raise CloudFileError(f"Expected points in '{p}', got a valid file with 0 points.")
+            raise PointFileError(f"Expected points in '{p}', got a valid file with 0 points.")
         info = _info(src)
     lo, hi, last, n = np.inf, -np.inf, -np.inf, 0
     try:
         for t in _las_times(p):
             if len(t) and (t[0] < last or (np.diff(t) < 0).any()):
-                raise CloudFileError(f"Expected points in time order in '{p}' (as a drive "
+                raise PointFileError(f"Expected points in time order in '{p}' (as a drive "
                                      "is written), got times that go back.")
             if len(t):
                 lo, hi, last = min(lo, t[0]), max(hi, t[-1]), t[-1]
             n += len(t)
-    except CloudFileError:
+    except PointFileError:
         raise
     except Exception as exc:   # lazrs and laspy raise many types for broken data
-        raise CloudFileError(f"Expected {src.point_count:,} points in '{p}', got data that "
+        raise PointFileError(f"Expected {src.point_count:,} points in '{p}', got data that "
                              f"failed to decompress after {n:,} ({exc}).") from exc
     if n != src.point_count:
-        raise CloudFileError(f"Expected {src.point_count:,} points in '{p}' (its header), "
+        raise PointFileError(f"Expected {src.point_count:,} points in '{p}' (its header), "
                              f"got {n:,}: the file is cut short.")
     lever = info.get("mount_lever_arm_m")
     quat = info.get("mount_boresight_xyzw")
@@ -227,17 +227,17 @@ def replace_drive(drive: DriveFile, dst: str | os.PathLike[str], trajectory: Tra
 
     Raises
     ------
-    CloudFileError
+    PointFileError
         When the trajectory does not span the drive's times.
     """
     if drive.kind != "las":
         what = "the ROS 2 bag" if drive.kind == "bag" else f"the {drive.kind.upper()} drive"
-        raise CloudFileError(f"Expected a LAS/LAZ drive to re-place, got {what} "
+        raise PointFileError(f"Expected a LAS/LAZ drive to re-place, got {what} "
                              f"'{drive.path}'; re-place the same drive written as LAZ "
                              "(--fields full).")
     a, b = drive.time_span_s
     if len(trajectory) < 2 or trajectory.start_s > a or trajectory.end_s < b:
-        raise CloudFileError(f"Expected a trajectory spanning the drive's times [{a:.6f}, "
+        raise PointFileError(f"Expected a trajectory spanning the drive's times [{a:.6f}, "
                              f"{b:.6f}] s, got [{trajectory.start_s:.6f}, "
                              f"{trajectory.end_s:.6f}] s.")
 
@@ -253,7 +253,7 @@ def replace_drive(drive: DriveFile, dst: str | os.PathLike[str], trajectory: Tra
 
 # ------------------------------------------------------------------ PLY and NPZ
 #: The POINT_DTYPE fields a PLY/NPZ drive needs (under their file names, or the
-#: names of earlier versions: ``sensors.fields.point_field``).
+#: names of earlier versions: ``sensors.io.fields.point_field``).
 _COLUMNS = ("sx", "sy", "sz", "time", "frame")
 
 
@@ -266,7 +266,7 @@ def _names(have: Iterable[str], p: Path) -> dict[str, str]:
             found[f] = name
     missing = [c for c in _COLUMNS if c not in found]
     if missing:
-        raise CloudFileError(f"Expected per-point times and sensor-frame fields "
+        raise PointFileError(f"Expected per-point times and sensor-frame fields "
                              f"{list(DRIVE_FIELDS)} in '{p}', got a file without them "
                              f"({sorted(have)}); simulate the drive with 'tunnelsim "
                              "drive'.")
@@ -285,13 +285,13 @@ def _column_chunks(p: Path, chunk: int = CHUNK
                 rec = np.load(p, allow_pickle=False)
                 files = list(rec.files)
             except Exception as exc:   # zipfile and format errors of numpy.load
-                raise CloudFileError(f"Expected an NPZ file numpy can read, got '{p}' "
+                raise PointFileError(f"Expected an NPZ file numpy can read, got '{p}' "
                                      f"which fails with: {exc}.") from exc
             names = _names(files, p)
             rec = {f: np.asarray(rec[n]).reshape(-1) for f, n in names.items()}
             names = {f: f for f in names}
             if len({len(v) for v in rec.values()}) != 1:
-                raise CloudFileError(f"Expected arrays of one length in '{p}', got "
+                raise PointFileError(f"Expected arrays of one length in '{p}', got "
                                      f"{ {n: len(v) for n, v in rec.items()} }.")
         n = len(rec[names["time"]])
         for i in range(0, n, chunk):
@@ -302,7 +302,7 @@ def _column_chunks(p: Path, chunk: int = CHUNK
 
 
 def _ply_info(p: Path) -> dict[str, Any]:
-    from sensors.ply import read_ply_header
+    from sensors.io.ply import read_ply_header
 
     tag = f"comment {INFO_USER} "
     for line in read_ply_header(p).comments:
@@ -319,13 +319,13 @@ def _open_columns(p: Path) -> DriveFile:
     lo, hi, last, n = np.inf, -np.inf, -np.inf, 0
     for _, _, t in _column_chunks(p):
         if len(t) and (t[0] < last or (np.diff(t) < 0).any()):
-            raise CloudFileError(f"Expected points in time order in '{p}' (as a drive "
+            raise PointFileError(f"Expected points in time order in '{p}' (as a drive "
                                  "is written), got times that go back.")
         if len(t):
             lo, hi, last = min(lo, t[0]), max(hi, t[-1]), t[-1]
         n += len(t)
     if n == 0:
-        raise CloudFileError(f"Expected points in '{p}', got a valid file with 0 points.")
+        raise PointFileError(f"Expected points in '{p}', got a valid file with 0 points.")
     kind = p.suffix.lower().lstrip(".")
     with cloud_errors():
         info = _ply_info(p) if kind == "ply" else {}
@@ -350,7 +350,7 @@ def _reader(p: Path) -> Any:
     try:
         from rosbags.highlevel import AnyReader
     except ImportError:
-        raise CloudFileError("Expected the rosbags package to read a ROS 2 bag, got it "
+        raise PointFileError("Expected the rosbags package to read a ROS 2 bag, got it "
                              "missing; install it with: pip install 'tunnelsim[ros]'.") \
             from None
     return AnyReader([p])
@@ -361,7 +361,7 @@ def _cloud(msg: Any, topic: str) -> tuple[NDArray[np.float64], NDArray[np.float6
     fields = {f.name: f for f in msg.fields}
     tname = next((n for n in TIME_FIELDS if n in fields), None)
     if not {"x", "y", "z"} <= set(fields) or tname is None:
-        raise CloudFileError(f"Expected x, y, z and a per-point time ({', '.join(TIME_FIELDS)}) "
+        raise PointFileError(f"Expected x, y, z and a per-point time ({', '.join(TIME_FIELDS)}) "
                              f"in the clouds of '{topic}', got fields {sorted(fields)}.")
     order = ">" if msg.is_bigendian else "<"
     names = ["x", "y", "z", tname]
@@ -386,11 +386,11 @@ def _open_bag(p: Path) -> DriveFile:
     """A bag's drive: its PointCloud2 topic (the one with most messages), the mount
     from /tf_static (base_link -> the clouds' frame), points and time span."""
     if not p.exists():
-        raise CloudFileError(f"Expected a ROS 2 bag, got '{p}' which does not exist.")
+        raise PointFileError(f"Expected a ROS 2 bag, got '{p}' which does not exist.")
     with _reader(p) as bag:
         clouds = [c for c in bag.connections if c.msgtype == "sensor_msgs/msg/PointCloud2"]
         if not clouds:
-            raise CloudFileError(f"Expected a sensor_msgs/msg/PointCloud2 topic in '{p}', "
+            raise PointFileError(f"Expected a sensor_msgs/msg/PointCloud2 topic in '{p}', "
                                  "got none.")
         best = max(clouds, key=lambda c: c.msgcount)
         n, lo, hi, frame = 0, np.inf, -np.inf, ""
@@ -410,7 +410,7 @@ def _open_bag(p: Path) -> DriveFile:
                     mount = Mount((tr.x, tr.y, tr.z), Rotation.from_quat([q.x, q.y, q.z, q.w]))
                     recorded = True
     if n == 0:
-        raise CloudFileError(f"Expected points in the clouds of '{best.topic}' in '{p}', "
+        raise PointFileError(f"Expected points in the clouds of '{best.topic}' in '{p}', "
                              "got none.")
     return DriveFile(p, frame or "unknown", mount, recorded, n, (lo, hi), "bag", best.topic)
 

@@ -250,8 +250,8 @@ def extra_dims(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The extra dimensions of a LAS/LAZ cloud {name: laspy ``ExtraBytesParams``}
     (type, description, scale and offset as the file has them; bytes no descriptor
     names are left out), in record order; {} for other formats."""
-    from sensors.las import LasSource
-    from survey.clouds.cloudread import cloud_errors, existing_cloud
+    from sensors.io.las import LasSource
+    from sensors.io.cloudread import cloud_errors, existing_cloud
 
     p = existing_cloud(path)
     if p.suffix.lower() not in (".las", ".laz"):
@@ -276,10 +276,10 @@ def iter_points_extra(path: str | os.PathLike[str], *, chunk: int = 1 << 20
                       ) -> Iterator[tuple[NDArray[np.float64], Fields]]:
     """(xyz (n, 3) float64, {name: (n,) stored values}) of a cloud, chunk by chunk:
     a LAS/LAZ file's extra dimensions (``extra_dims``) as stored (before their scale
-    and offset), {} for other formats (``survey.clouds.cloudread.iter_points``). The
+    and offset), {} for other formats (``sensors.io.cloudread.iter_points``). The
     same checks and errors as ``iter_points``."""
-    from sensors.las import LasSource
-    from survey.clouds.cloudread import (
+    from sensors.io.las import LasSource
+    from sensors.io.cloudread import (
         check_finite,
         check_las_scale,
         cloud_errors,
@@ -312,13 +312,13 @@ def write_preprocessed(path: str | os.PathLike[str], xyz: ArrayLike,
                        dims: Mapping[str, Any] | None = None,
                        classification: ArrayLike | None = None, *, crs: Any = None
                        ) -> Path:
-    """Write a preprocessed cloud as LAS/LAZ 1.4 (``sensors.las.write_las``): points
+    """Write a preprocessed cloud as LAS/LAZ 1.4 (``sensors.io.las.write_las``): points
     ``xyz`` (n, 3), ``voxel_count`` (n,) (input points per voxel, 1 without a grid),
     the input's extra dimensions ``extra`` {name: (n,) stored values} described by
     ``dims`` (``extra_dims``: type, description, scale, offset kept), classification
     codes (n,) and the CRS ``crs``. Atomic. Returns the path."""
-    from sensors.las import write_las
-    from survey.clouds.cloudread import cloud_errors
+    from sensors.io.las import write_las
+    from sensors.io.cloudread import cloud_errors
 
     dims = dict(dims or {})
     cols: dict[str, NDArray[Any]] = {"voxel_count": np.asarray(counts).astype(np.uint32)}

@@ -101,7 +101,7 @@ def to_world_extended(alignment: Alignment, chainage: ArrayLike, offset: ArrayLi
 #: How far beyond an estimated axis's ends points still count when no rings are given
 #: (m), along the end tangent: the estimate ends a slice or two (2 m each) inside the
 #: data, more at a portal where the slices holding the face were refused (4.8 m on
-#: the portal of tests/survey/test_portal.py); the lining's extent
+#: the portal of tests/survey/clouds/test_portal.py); the lining's extent
 #: (``lining_extent``) then decides where the mesh stops. ASSUMED: the tangent departs
 #: from a curve of radius 200 m by L^2 / 2R = 0.25 m over 10 m, which the rings (a
 #: median radius about their own centre) still follow.

@@ -15,7 +15,7 @@ Sources, tried in this order for each file:
    to each point (``survey.clouds.solid.nearest_scanner``). A merged cloud whose link
    to the stations was lost.
 
-Otherwise ``CloudFileError`` says what to pass. Memory: one chunk at a time (E57: one
+Otherwise ``PointFileError`` says what to pass. Memory: one chunk at a time (E57: one
 scan, as ``iter_points`` reads it).
 """
 
@@ -32,9 +32,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from sensors import Mount, Trajectory
 from sensors.errors import TrajectoryError
-from sensors.las import LasSource
-from sensors.ply import read_ply_header
-from survey.clouds.cloudread import (
+from sensors.io.las import LasSource
+from sensors.io.ply import read_ply_header
+from sensors.io.cloudread import (
     CHUNK,
     INFO_USER,
     check_finite,
@@ -48,7 +48,7 @@ from survey.clouds.cloudread import (
     ply_xyz,
 )
 from survey.clouds.solid import nearest_scanner
-from survey.errors import CloudFileError
+from sensors.io.errors import PointFileError
 
 __all__ = ["file_info", "iter_scanned", "read_positions", "station_position"]
 
@@ -78,7 +78,7 @@ def file_info(path: PathLike) -> dict[str, Any]:
     try:
         info = json.loads(text)
     except json.JSONDecodeError as exc:
-        raise CloudFileError(f"Expected JSON in the {INFO_USER} record of '{path}', got "
+        raise PointFileError(f"Expected JSON in the {INFO_USER} record of '{path}', got "
                              f"unreadable text ({exc}).") from exc
     return info if isinstance(info, dict) else {}
 
@@ -88,7 +88,7 @@ def station_position(path: PathLike) -> Floats | None:
     E57 scan pose), or None."""
     path = existing_cloud(path)
     if path.suffix.lower() == ".e57":
-        from sensors.e57 import read_e57_scan
+        from sensors.io.e57 import read_e57_scan
 
         with cloud_errors():
             return np.asarray(read_e57_scan(path).translation, dtype=np.float64)
@@ -98,10 +98,10 @@ def station_position(path: PathLike) -> Floats | None:
     try:
         p = np.asarray(pos, dtype=np.float64).reshape(3)
     except (TypeError, ValueError) as exc:
-        raise CloudFileError(f"Expected station_position (3,) in the {INFO_USER} record "
+        raise PointFileError(f"Expected station_position (3,) in the {INFO_USER} record "
                              f"of '{path}', got {pos!r}.") from exc
     if not np.isfinite(p).all():
-        raise CloudFileError(f"Expected a finite station_position in '{path}', got "
+        raise PointFileError(f"Expected a finite station_position in '{path}', got "
                              f"{p.tolist()}.")
     return p
 
@@ -113,12 +113,12 @@ def read_positions(path: PathLike) -> Floats:
     qy qz qw) gives its x, y, z columns."""
     p = Path(path)
     if not p.is_file():
-        raise CloudFileError(f"Expected a file of scanner positions, got '{p}' which does "
+        raise PointFileError(f"Expected a file of scanner positions, got '{p}' which does "
                              "not exist.")
     lines = [ln.strip() for ln in p.read_text(errors="replace").splitlines()]
     lines = [ln for ln in lines if ln and not ln.startswith("#")]
     if not lines:
-        raise CloudFileError(f"Expected scanner positions (x y z per row) in '{p}', got "
+        raise PointFileError(f"Expected scanner positions (x y z per row) in '{p}', got "
                              "none.")
     rows = [ln.replace(",", " ").split() for ln in lines]
     cols = (0, 1, 2)
@@ -127,7 +127,7 @@ def read_positions(path: PathLike) -> Floats:
     except ValueError:
         head = [w.lower() for w in rows.pop(0)]
         if not {"x", "y", "z"} <= set(head):
-            raise CloudFileError(f"Expected a header naming x, y and z in '{p}', got "
+            raise PointFileError(f"Expected a header naming x, y and z in '{p}', got "
                                  f"{head}.") from None
         cols = (head.index("x"), head.index("y"), head.index("z"))
     else:
@@ -136,10 +136,10 @@ def read_positions(path: PathLike) -> Floats:
     try:
         xyz = np.array([[float(r[c]) for c in cols] for r in rows], dtype=np.float64)
     except (ValueError, IndexError) as exc:
-        raise CloudFileError(f"Expected numeric x y z on every row of '{p}', got a row "
+        raise PointFileError(f"Expected numeric x y z on every row of '{p}', got a row "
                              f"that is not ({exc}).") from exc
     if len(xyz) == 0 or not np.isfinite(xyz).all():
-        raise CloudFileError(f"Expected finite scanner positions in '{p}', got "
+        raise PointFileError(f"Expected finite scanner positions in '{p}', got "
                              f"{len(xyz)} rows with NaN, inf or none.")
     return xyz
 
@@ -195,8 +195,8 @@ def _timed_chunks(path: Path, chunk: int) -> Iterator[tuple[Floats, Floats]]:
     raise _no_times(path)
 
 
-def _no_times(path: Path) -> CloudFileError:
-    return CloudFileError(f"Expected per-point times (gps_time) in '{path}' to place the "
+def _no_times(path: Path) -> PointFileError:
+    return PointFileError(f"Expected per-point times (gps_time) in '{path}' to place the "
                           "scanner on the trajectory, got a file without them; write the "
                           "drive as LAS/LAZ, PLY or NPZ, or pass --scanners instead.")
 
@@ -209,7 +209,7 @@ def iter_scanned(path: PathLike, *, trajectory: Trajectory | None = None,
 
     Raises
     ------
-    CloudFileError
+    PointFileError
         An unreadable file (as ``iter_points``), a file with no scanner source, point
         times outside the trajectory (with the hint ``Trajectory`` gives).
     """
@@ -220,14 +220,14 @@ def iter_scanned(path: PathLike, *, trajectory: Trajectory | None = None,
             try:
                 pos, _ = trajectory.sensor_poses(t, mount)
             except TrajectoryError as exc:
-                raise CloudFileError(f"Expected the point times of '{path}' within the "
+                raise PointFileError(f"Expected the point times of '{path}' within the "
                                      f"trajectory, got: {exc}") from exc
             yield xyz, pos
         return
     fixed = station_position(path)
     st = None if stations is None else np.asarray(stations, dtype=np.float64)
     if fixed is None and st is None:
-        raise CloudFileError(f"Expected scanner positions for '{path}', got a file that "
+        raise PointFileError(f"Expected scanner positions for '{path}', got a file that "
                              "records no station pose; pass --trajectory (a drive, with "
                              "point times) or --scanners (a file of x y z positions).")
     for xyz in iter_points(path, chunk=chunk):

@@ -151,7 +151,7 @@ def drive_window_job(job: _DriveJob) -> dict[str, Any]:
 
 def _merged(parts: list[Path]) -> Iterator[NDArray[np.void]]:
     """The windows' raw records, in order, ``MERGE_ROWS`` at a time (memory-mapped)."""
-    from sensors.fields import POINT_DTYPE
+    from sensors.io.fields import POINT_DTYPE
 
     for p in parts:
         if p.stat().st_size == 0:

@@ -31,7 +31,7 @@ metres, the ``map -> odom`` a drive's bag states for a robot starting there
 ``map_origin`` (at -origin: world = local + origin), and is recorded in
 ``model.config``, ``model.sdf`` (a ``tunnelsim:origin`` custom element) and README.
 When the tunnel states a coordinate reference system (its JSON's ``crs``, or a
-``<mesh>.prj`` sidecar; ``survey.clouds.cloudio.cloud_crs_text``), the same places name
+``<mesh>.prj`` sidecar; ``sensors.io.clouds.cloud_crs_text``), the same places name
 it (``tunnelsim:crs`` holds the WKT in model.sdf, the name in the frame).
 
 DECISION: no ``<spherical_coordinates>``. Gazebo places that origin on the WGS 84
@@ -411,9 +411,9 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
     import trimesh
 
     from sensors.bag import DEFAULT_IMU, GENERIC_DRIVER, POSE_RATE_HZ
-    from sensors.crs import crs_label, parse_crs
-    from sensors.meshes import load_mesh
-    from survey.clouds.cloudio import cloud_crs_text
+    from sensors.io.crs import crs_label, parse_crs
+    from sensors.io.meshes import load_mesh
+    from sensors.io.clouds import cloud_crs_text
 
     fl = flavour_of(flavour)
     out = Path(out_dir)

@@ -33,7 +33,7 @@ def cloud_c2m_rms(clouds: list[str | os.PathLike[str]], mesh: str | os.PathLike[
     distance, gives None.
     """
     from survey.analysis.compare import ReferenceMesh
-    from survey.clouds.cloudio import read_points
+    from sensors.io.clouds import read_points
     from survey.world.mesh import read_ply
 
     m = read_ply(mesh)

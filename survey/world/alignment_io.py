@@ -50,7 +50,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from survey.errors import AlignmentError, TunnelFileError, TunnelsimError
+from survey.errors import AlignmentError, TunnelsimError
+
+from sensors.io.errors import TunnelFileError
 from survey.world.alignment import Alignment, Element
 from survey.world.profiles import Profile
 

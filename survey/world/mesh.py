@@ -14,7 +14,7 @@ trimesh read it:
 The JSON beside it (same name, ``.json``) holds the alignment, profile, features,
 parameters, label names, reflectivity table, face counts, control points and the
 deformation fields: enough to rebuild the ``TunnelMesh``; with a coordinate reference
-system (``TunnelMesh.with_crs``), ``crs`` (WKT2:2019, ``sensors.crs.crs_wkt``) and
+system (``TunnelMesh.with_crs``), ``crs`` (WKT2:2019, ``sensors.io.crs.crs_wkt``) and
 ``crs_name`` (e.g. "EPSG:2056 (CH1903+ / LV95)"), which scans of the tunnel state in
 their files. Both files are written atomically.
 """
@@ -33,9 +33,10 @@ from typing import Any
 from numpy.typing import ArrayLike, NDArray
 
 from raytrace.fileio import write_json
-from sensors import ply as _ply
-from sensors.errors import PointFileError
-from survey.errors import TunnelError, TunnelFileError, TunnelsimError
+from sensors.io import ply as _ply
+from sensors.io.errors import PointFileError
+from survey.errors import TunnelError, TunnelsimError
+from sensors.io.errors import TunnelFileError
 from survey.world import deformation as _deform
 from survey.world.alignment import Alignment
 from survey.world.profiles import Profile
@@ -116,7 +117,7 @@ class TunnelMesh:
         not moved: the CRS says what they already are."""
         from dataclasses import replace
 
-        from sensors.crs import crs_label, crs_wkt, parse_crs
+        from sensors.io.crs import crs_label, crs_wkt, parse_crs
 
         meta = {k: v for k, v in self.metadata.items() if k not in ("crs", "crs_name")}
         if crs is not None:
@@ -191,7 +192,7 @@ def write_ply(path: str | os.PathLike[str], vertices: ArrayLike, faces: ArrayLik
     """Binary little-endian PLY with float64 vertices, optional per-face ``label``
     (uint8) and ``reflectivity`` (float32), per-vertex displacement ``dx dy dz`` and
     other per-vertex scalars ``vertex_fields`` {name: (n,) float64 array}; written
-    atomically by ``sensors.ply``."""
+    atomically by ``sensors.io.ply``."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:

@@ -11,7 +11,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from survey.errors import TunnelFileError
+from sensors.io.errors import TunnelFileError
 
 __all__ = ["read_meta", "sidecar", "tunnel_crs"]
 

@@ -511,7 +511,7 @@ def test_bad_input_is_refused_and_leaves_nothing(scene, traj, tmp_path, monkeypa
 
 
 def test_out_of_order_points_are_refused(tmp_path):
-    from sensors.fields import POINT_DTYPE
+    from sensors.io.fields import POINT_DTYPE
 
     pts = np.zeros(3, dtype=POINT_DTYPE)
     pts["frame"] = [1, 1, 0]
@@ -567,7 +567,7 @@ def test_cloud_bytes_decode_with_the_drivers_layout(n, seed, name):
     """Random records through cloud_points, to bytes, decoded with the layouts derived
     in this file from the drivers' definitions: every field where it belongs."""
     from sensors.bag import LAYOUTS, cloud_points
-    from sensors.fields import POINT_DTYPE
+    from sensors.io.fields import POINT_DTYPE
 
     spec = load_sensor(name)
     g = np.random.default_rng(seed)

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from raytrace import Scene
 from raytrace.shapes import tunnel_tube
 from sensors import Trajectory, load_sensor, simulate_drive
-from sensors.fields import RETURN_POINT_DTYPE
+from sensors.io.fields import RETURN_POINT_DTYPE
 from sensors.physics import Settings
 from sensors.pointcloud2 import returns_in_one_cloud
 from sensors.writers import open_writer
@@ -199,7 +199,7 @@ def test_dual_records_stripped_to_return_1_give_the_single_return_bytes(os1, tra
     """Return 1 of a dual drive written as POINT_DTYPE records (the single-return path)
     gives /ouster/points byte for byte as the dual bag does: the split changes
     nothing on the first topic."""
-    from sensors.fields import POINT_DTYPE
+    from sensors.io.fields import POINT_DTYPE
 
     run, pts, (clouds, _counts) = os1
     first = pts[pts["return_number"] == 1]

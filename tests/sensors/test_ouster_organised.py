@@ -206,7 +206,7 @@ def test_organise_puts_each_return_in_its_cell(height, width, seed, no_return):
     """Any set of (beam, column) returns, beams in any ring order: the grid holds each
     return at (ring, column) and the empty-cell pattern elsewhere (reference: a
     brute-force loop over the cells)."""
-    from sensors.fields import POINT_DTYPE
+    from sensors.io.fields import POINT_DTYPE
     from sensors.pointcloud2 import LAYOUTS, organise
 
     g = np.random.default_rng(seed)

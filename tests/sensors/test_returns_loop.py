@@ -12,7 +12,7 @@ from hypothesis import given, settings as hsettings, strategies as st
 from raytrace import Scene
 from sensors import Settings, Trajectory, load_sensor, simulate_drive
 from sensors.errors import SensorSpecError, SimulationError
-from sensors.fields import POINT_DTYPE, RETURN_POINT_DTYPE
+from sensors.io.fields import POINT_DTYPE, RETURN_POINT_DTYPE
 from sensors.spec import SPEC_DIR
 from sensors.waveform import DEFAULT_RETURNS
 

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from raytrace import Scene
 from raytrace.shapes import tunnel_tube
 from sensors import Trajectory, simulate_drive, simulate_station
-from sensors.fields import POINT_DTYPE
+from sensors.io.fields import POINT_DTYPE
 
 
 @pytest.fixture(scope="module")

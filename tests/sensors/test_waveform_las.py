@@ -10,7 +10,7 @@ import pytest
 
 from sensors import physics as ph
 from sensors import waveform as wf
-from sensors.fields import POINT_DTYPE
+from sensors.io.fields import POINT_DTYPE
 from sensors.writers import open_writer
 
 MODEL = wf.WaveformModel(pulse_fwhm_s=4e-9, threshold_power=1e-7)
@@ -81,7 +81,7 @@ def test_wave_packets_round_trip(tmp_path):
     (EVLR): laspy reads the points' wave packet fields and the descriptors back, and
     the samples at each point's offset are the pulse's waveform (to half a digitizer
     step), with the return's peak at its return point location."""
-    from sensors.las import WAVEFORM_EVLR, LasWriter
+    from sensors.io.las import WAVEFORM_EVLR, LasWriter
 
     _, w = ph.subray_offsets(7)
     # Pulse 0: two planes 1.5 m apart; pulse 1: one plane behind dust at 2 m.

@@ -19,7 +19,7 @@ from sensors import (
     simulate_station,
 )
 
-from sensors.fields import FILE_NAMES
+from sensors.io.fields import FILE_NAMES
 
 UTM = np.array([451_234.0, 5_352_876.0, 612.0])
 
@@ -52,7 +52,7 @@ def test_las_round_trip_keeps_a_tenth_of_a_millimetre(utm_scene, points, tmp_pat
         err = np.abs(np.asarray(las[axis]) - points[axis])
         assert err.max() <= 0.5e-4 + 1e-9               # half the 0.1 mm scale
     np.testing.assert_array_equal(las.gps_time, points["time"])
-    # range is float32 in LAS since issue 30 (sensors.fields): the nearest float32,
+    # range is float32 in LAS since issue 30 (sensors.io.fields): the nearest float32,
     # within half its 2^-23 relative step of the float64 value.
     assert las["range"].dtype == np.float32
     np.testing.assert_array_equal(las["range"], points["range"].astype(np.float32))
@@ -102,7 +102,7 @@ def test_ply_and_npz_round_trip(utm_scene, points, tmp_path):
                                                             points["z"]], 1))
     _station(utm_scene, chunk_pulses=100_000).write(tmp_path / "s.npz")  # other chunking
     back = np.load(tmp_path / "s.npz")
-    for name in points.dtype.names:            # under the file names (sensors.fields)
+    for name in points.dtype.names:            # under the file names (sensors.io.fields)
         np.testing.assert_array_equal(back[FILE_NAMES[name]], points[name])
 
 

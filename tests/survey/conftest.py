@@ -38,7 +38,7 @@ def tbm_20k(tmp_path_factory):
     return out
 
 
-CHECKER = Path(__file__).parent / "sdf" / "sdf_check.cpp"
+CHECKER = Path(__file__).parent / "export" / "sdf" / "sdf_check.cpp"
 
 
 @pytest.fixture(scope="session")

@@ -1,6 +1,6 @@
 """Commands of the surveyor's adjustment: adjust (Helmert), transform, correct (drift).
 
-Coordinate reference systems (``sensors.crs``): a control-point CSV states its CRS in
+Coordinate reference systems (``sensors.io.crs``): a control-point CSV states its CRS in
 a leading comment line ``# crs: EPSG:2056`` (or in a sidecar ``<file>.prj``); ``adjust``
 refuses two files that state different CRSs (unless ``--allow-crs-mismatch``: a datum
 transformation estimated on purpose) and records both in its JSON (``source_crs``,
@@ -189,7 +189,7 @@ def cmd_adjust(args) -> int:
 def _control_crs(args) -> tuple[str | None, str | None]:
     """The CRSs the two control-point files state (``# crs:`` line or sidecar), refused
     when they differ unless --allow-crs-mismatch."""
-    from sensors.crs import CRSError, crs_mismatch, mismatch_message, text_file_crs
+    from sensors.io.crs import CRSError, crs_mismatch, mismatch_message, text_file_crs
 
     crs_a, crs_b = text_file_crs(args.source), text_file_crs(args.target)
     if not args.allow_crs_mismatch:
@@ -204,13 +204,13 @@ def _control_crs(args) -> tuple[str | None, str | None]:
 
 
 def _wkt(crs: str | None) -> str | None:
-    from sensors.crs import crs_wkt
+    from sensors.io.crs import crs_wkt
 
     return None if crs is None else crs_wkt(crs)
 
 
 def _label(crs) -> str:
-    from sensors.crs import crs_label, parse_crs
+    from sensors.io.crs import crs_label, parse_crs
 
     return "none stated" if crs is None else crs_label(parse_crs(crs, metric=False))
 
@@ -227,8 +227,8 @@ def _transform_crs(args, d: dict, p):
     """The CRS the transformed cloud states: --crs, else the target (with --inverse the
     source) CRS the Helmert JSON records, else None. Refuses a cloud stating another
     CRS than the transform's source, and --crs against a recorded target."""
-    from sensors.crs import CRSError, mismatch_message, parse_crs, same_crs
-    from survey.clouds.cloudio import cloud_crs_text
+    from sensors.io.crs import CRSError, mismatch_message, parse_crs, same_crs
+    from sensors.io.clouds import cloud_crs_text
 
     src, dst = _json_crs(d, "source_crs", p), _json_crs(d, "target_crs", p)
     if args.inverse:
@@ -264,7 +264,7 @@ def _pose_mover(res, inverse: bool):
     DECISION: the attitude takes the Helmert's rotation only: a rotation has no scale,
     so the points of a similarity are the new pose applied to the sensor-frame points
     times (1 + s) (LAS/PLY keep the points' coordinates, E57 the scaled scan-frame
-    ones; ``survey.clouds.cloudio._map_e57``), as ``HelmertResult.apply_trajectory``
+    ones; ``sensors.io.clouds._map_e57``), as ``HelmertResult.apply_trajectory``
     treats attitudes."""
     import numpy as np
     from scipy.spatial.transform import Rotation
@@ -284,7 +284,7 @@ def cmd_transform(args) -> int:
     from pathlib import Path
 
     from survey.adjust.helmert import HelmertResult
-    from survey.clouds.cloudio import map_cloud
+    from sensors.io.clouds import map_cloud
 
     p = Path(args.helmert)
     if not p.is_file():
@@ -314,12 +314,12 @@ def cmd_correct(args) -> int:
     from sensors import Trajectory
     from survey.adjust.controlpoints import match, read_control_points
     from survey.adjust.drift import fit_drift, leave_one_out
-    from survey.clouds.cloudio import map_cloud
+    from sensors.io.clouds import map_cloud
     from survey.errors import ControlPointError
     from survey.report.adjustment import drift_report
 
-    from sensors.crs import text_file_crs
-    from survey.clouds.cloudio import KEEP_CRS
+    from sensors.io.crs import text_file_crs
+    from sensors.io.clouds import KEEP_CRS
 
     traj = Trajectory.read(args.trajectory)
     world = read_control_points(args.control, columns=args.columns)

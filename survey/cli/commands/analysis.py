@@ -195,7 +195,7 @@ def _waypoints(args):
 # ---------------------------------------------------------------------------- compare
 def _load_reference(path):
     from survey.analysis.compare import ReferenceCloud, ReferenceMesh
-    from survey.clouds.cloudio import read_reference
+    from sensors.io.clouds import read_reference
 
     v, f = read_reference(path)
     return (ReferenceMesh(v, f), "mesh") if f is not None else (ReferenceCloud(v), "cloud")
@@ -208,7 +208,7 @@ def _compared_boxes(args, compared, ref) -> list[int]:
     import numpy as np
 
     from survey.analysis.compare import check_overlap
-    from survey.clouds.cloudio import cloud_bounds
+    from sensors.io.clouds import cloud_bounds
     from survey.errors import CompareError
 
     total = []
@@ -230,8 +230,8 @@ def _check_crs(args, compared, ref_path) -> dict:
     """Refuse (unless --allow-crs-mismatch) inputs that state different coordinate
     reference systems, naming the first two; inputs stating none are not compared.
     Returns {path: CRS text or None} of the compared clouds (their outputs state it)."""
-    from sensors.crs import CRSError, crs_mismatch, mismatch_message
-    from survey.clouds.cloudio import cloud_crs_text
+    from sensors.io.crs import CRSError, crs_mismatch, mismatch_message
+    from sensors.io.clouds import cloud_crs_text
 
     stated = {c: cloud_crs_text(c) for c in [*compared, ref_path]}
     if not args.allow_crs_mismatch:
@@ -311,7 +311,7 @@ def _compare_tiled(args, compared, ref_path, crs) -> int:
     --max-dist (or the mesh sent once), each compared cloud spilled and compared tile by
     tile on the executor, then written in its own order (``survey.cluster.compare``)."""
     from survey.analysis.developed import is_mesh_file
-    from survey.clouds.cloudio import iter_points
+    from sensors.io.clouds import iter_points
 
     from survey.cluster import TaskProgress
     from survey.cluster.compare import spill_cloud, tiled_distances
@@ -375,7 +375,7 @@ def _distances(args, compared, ref, kind, out, progress, crs=None, tiled=None):
     import numpy as np
 
     from survey.analysis.compare import BLOCK, Distances, distance_stats
-    from survey.clouds.cloudio import annotate_las, iter_points, write_points_las
+    from sensors.io.clouds import annotate_las, iter_points, write_points_las
 
     rows, hist = {}, {}
     done = 0
@@ -446,7 +446,7 @@ def cmd_plan(args) -> int:
     th = Thresholds(args.spacing_mm / 1000.0, np.deg2rad(args.incidence_deg), args.range)
     along = _along(args)
     if along == "auto":
-        from sensors.meshes import load_mesh
+        from sensors.io.meshes import load_mesh
 
         wp = _waypoints(args)
         scene, _ = load_mesh(args.mesh)
@@ -531,7 +531,7 @@ def cmd_study(args) -> int:
               keep_points=40_000)
     route = None
     if _along(args) == "auto":
-        from sensors.meshes import load_mesh
+        from sensors.io.meshes import load_mesh
         from sensors.route import find_route
 
         wp = _waypoints(args)

@@ -86,7 +86,7 @@ def cmd_axis(args) -> int:
 
     from survey.analysis.design import read_design_profile
     from survey.clouds.axis import fit_profile
-    from survey.clouds.cloudio import cloud_crs_text
+    from sensors.io.clouds import cloud_crs_text
     from survey.world.profiles import Profile
 
     src = Path(args.input)

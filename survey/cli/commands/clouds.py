@@ -126,7 +126,7 @@ def _tunnel_axis(path):
 def cmd_preprocess(args) -> int:
     import numpy as np
 
-    from survey.clouds.cloudio import cloud_bounds
+    from sensors.io.clouds import cloud_bounds
     from survey.clouds.preprocess import (
         VoxelGrid,
         extra_dims,
@@ -330,7 +330,7 @@ def _read_reduced(clouds, voxel_m: float):
     """
     import numpy as np
 
-    from survey.clouds.cloudio import cloud_bounds, iter_points
+    from sensors.io.clouds import cloud_bounds, iter_points
     from survey.clouds.preprocess import VoxelGrid
     from survey.errors import ReconstructionError
 
@@ -459,7 +459,7 @@ def _mesh_solid(args, clouds, choice: dict) -> int:
     first, one pass each), then ``reconstruct_solid``."""
     import numpy as np
 
-    from survey.clouds.cloudio import cloud_bounds
+    from sensors.io.clouds import cloud_bounds
     from survey.clouds.scanners import iter_scanned, read_positions
     from survey.clouds.solid import ScannerVoxelGrid, reconstruct_solid
     from survey.errors import ReconstructionError

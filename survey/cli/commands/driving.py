@@ -28,7 +28,8 @@ from survey.cli.commands.simruns import (
     output_crs,
     run_settings,
 )
-from survey.errors import TunnelFileError, TunnelsimCLIError
+from survey.errors import TunnelsimCLIError
+from sensors.io.errors import TunnelFileError
 
 #: A drive returning fewer points than this share of its pulses is refused (unless
 #: --allow-outside). ASSUMED from measurements (1 s drives): inside a tunnel a platform
@@ -214,7 +215,7 @@ def cmd_drive(args) -> int:
     from pathlib import Path
 
     from sensors import Mount, Trajectory, load_sensor, simulate_drive
-    from sensors.meshes import load_mesh
+    from sensors.io.meshes import load_mesh
 
     if args.window_s is not None and args.slam_drift:
         raise TunnelsimCLIError("Expected --window-s without --slam-drift (the drifted "
@@ -582,7 +583,7 @@ def _slam_files(args, run, traj, meta, *, full=None, crs=None):
     obs.observed.write(f"{stem}_cp_observed.csv")
     world_csv = obs.world.write(f"{stem}_cp_world.csv")
     if crs is not None:     # the world points are in the mesh's CRS: say so
-        from sensors.crs import crs_comment
+        from sensors.io.crs import crs_comment
 
         world_csv.write_text(crs_comment(crs) + "\n" + world_csv.read_text())
     if not args.quiet:

@@ -115,8 +115,8 @@ def register(commands: CommandSet) -> None:
 def _check_crs(args, paths) -> str | None:
     """Refuse (unless --allow-crs-mismatch) inputs stating different CRSs; returns the
     first stated CRS text (the outputs state it)."""
-    from sensors.crs import CRSError, crs_mismatch, mismatch_message
-    from survey.clouds.cloudio import cloud_crs_text
+    from sensors.io.crs import CRSError, crs_mismatch, mismatch_message
+    from sensors.io.clouds import cloud_crs_text
 
     stated = [(str(p), cloud_crs_text(p)) for p in paths]
     if not args.allow_crs_mismatch:
@@ -141,7 +141,7 @@ def _tunnel(path):
 
 def _epoch_points(path):
     """Points of an epoch: a cloud, or a mesh's vertices."""
-    from survey.clouds.cloudio import read_reference
+    from sensors.io.clouds import read_reference
 
     return read_reference(path)[0]
 
@@ -160,7 +160,7 @@ def cmd_m3c2(args) -> int:
     import numpy as np
 
     from survey.analysis.m3c2 import CHUNK, M3C2, M3C2Result, subsample, towards_axis
-    from survey.clouds.cloudio import annotate_las, iter_points, write_points_las
+    from sensors.io.clouds import annotate_las, iter_points, write_points_las
 
     out = Path(args.output)
     if out.suffix.lower() not in (".las", ".laz"):
@@ -222,7 +222,7 @@ def _m3c2_tiled(args, out: Path, prm, orient: str, vector, axis, crs) -> int:
     import numpy as np
 
     from survey.analysis.m3c2 import CHUNK, towards_axis
-    from survey.clouds.cloudio import annotate_las, write_points_las
+    from sensors.io.clouds import annotate_las, write_points_las
     from survey.cluster.execution import TaskProgress
     from survey.cluster.m3c2_tiles import m3c2_files
 

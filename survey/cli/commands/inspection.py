@@ -141,7 +141,7 @@ def _design(args, prof):
 
 def _setup(args):
     """(alignment, design, chainage range or None, crs) after checking the input."""
-    from survey.clouds.cloudio import cloud_crs_text
+    from sensors.io.clouds import cloud_crs_text
 
     if not Path(args.input).is_file():
         raise TunnelsimCLIError(f"Expected an input cloud or mesh, got '{args.input}' "

@@ -97,7 +97,7 @@ def cmd_scan(args) -> int:
     from scipy.spatial.transform import Rotation
 
     from sensors import load_sensor, simulate_station
-    from sensors.meshes import load_mesh
+    from sensors.io.meshes import load_mesh
 
     warn_radian_like(args.heading_deg, "--heading-deg")
     warn_radian_like(args.azimuth_deg, "--azimuth-deg")
@@ -170,7 +170,7 @@ def _scan_campaign(args, heading_deg: float) -> int:
     import numpy as np
 
     from sensors import load_sensor
-    from sensors.meshes import load_mesh
+    from sensors.io.meshes import load_mesh
     from survey.cluster import TaskProgress, scan_stations
 
     if args.plan_name is not None and args.plan is None:

@@ -176,7 +176,7 @@ def _cuts(args, al, chainages):
 
     if args.width is None or not args.width >= 0:
         raise TunnelsimCLIError(f"Expected --width >= 0 m, got {args.width}.")
-    from survey.errors import CloudFileError
+    from sensors.io.errors import PointFileError
 
     classes = None
     if args.classes is not None:
@@ -193,7 +193,7 @@ def _cuts(args, al, chainages):
     try:
         cuts = cut_file(args.input, al, chainages, args.width, max_points=args.max_points,
                         seed=args.seed, classes=classes)
-    except CloudFileError as e:
+    except PointFileError as e:
         if classes is None or "classification" not in str(e):
             raise
         raise TunnelsimCLIError(f"Expected a per-point classification in "

@@ -18,8 +18,8 @@ def crs_option(c) -> None:
 def output_crs(args):
     """The CRS the output states: --crs, else the mesh's (its tunnel JSON's ``crs``, or
     a ``<mesh>.prj`` sidecar), else None; --crs against the mesh's own is refused."""
-    from sensors.crs import CRSError, mismatch_message, parse_crs, same_crs
-    from survey.clouds.cloudio import cloud_crs_text
+    from sensors.io.crs import CRSError, mismatch_message, parse_crs, same_crs
+    from sensors.io.clouds import cloud_crs_text
     from survey.world.mesh import read_meta, tunnel_crs
 
     js = getattr(args, "tunnel_json", None)
@@ -91,7 +91,7 @@ def write_robot_bag(path, run, robot, *, progress=None, crs=None, **bag) -> dict
     the run's, in the sensor frame, as ``Run.write`` writes them. Returns the run's
     stats plus the path."""
     from sensors.bag import DEFAULT_WHEEL_ODOMETRY, RosbagStream
-    from sensors.crs import file_wkt, parse_crs
+    from sensors.io.crs import file_wkt, parse_crs
     from sensors.writers import format_of
 
     spec = run.sensor

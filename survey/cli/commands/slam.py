@@ -75,7 +75,7 @@ def _control(path):
     """(ids, (k, 3) xyz) of the control points in a tunnel JSON."""
     import numpy as np
 
-    from survey.errors import TunnelFileError
+    from sensors.io.errors import TunnelFileError
     from survey.world.mesh import read_meta
 
     cps = read_meta(path).get("control_points")

@@ -162,7 +162,7 @@ def cmd_tunnel(args) -> int:
         numbers(args.origin, "--origin as E,N,H in metres", 3)
     crs = None
     if args.crs is not None:   # checked before the mesh is made (seconds)
-        from sensors.crs import area_warning, parse_crs
+        from sensors.io.crs import area_warning, parse_crs
 
         crs = parse_crs(args.crs, what="--crs")
         where = area_warning(crs, origin, what="--origin" if args.origin else
