@@ -316,7 +316,7 @@ class Run:
         ``start_time_ns`` and ``ros_distro``: a ROS 2 bag's epoch at the scan's start
         and metadata layout (``sensors.bag.RosbagStream``); only passed on when given.
         Returns ``stats`` plus the path."""
-        from .io.writers import open_writer
+        from .writers import open_writer
 
         span = None if self.station is not None else (self.t0, self.t0 + self.duration_s)
         bag: dict[str, Any] = {}
