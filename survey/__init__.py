@@ -32,7 +32,7 @@ _EXPORTS = {
     "survey.world.profiles": ("Profile", "arched_rectangle", "circle", "horseshoe"),
     "survey.world.features": ("Bolts", "Cable", "Drainage", "Niche", "Prisms", "WetFloor"),
     "survey.world.deformation": ("Bulge", "Convergence", "Ovalisation"),
-    "survey.world.mesh": ("LABELS", "REFLECTIVITY", "TunnelMesh", "read_axis", "read_ply",
+    "survey.world.mesh": ("LABELS", "REFLECTIVITY", "TunnelMesh", "read_axis",
                           "read_tunnel", "write_ply", "write_tunnel"),
     "survey.world.generator": ("edge_length_for", "make_tunnel"),
     "survey.world.presets": ("PRESETS", "preset"),
@@ -123,7 +123,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.world.profiles import Profile, arched_rectangle, circle, horseshoe
     from survey.world.features import Bolts, Cable, Drainage, Niche, Prisms, WetFloor
     from survey.world.deformation import Bulge, Convergence, Ovalisation
-    from survey.world.mesh import (LABELS, REFLECTIVITY, TunnelMesh, read_axis, read_ply,
+    from survey.world.mesh import (LABELS, REFLECTIVITY, TunnelMesh, read_axis,
         read_tunnel, write_ply, write_tunnel)
     from survey.world.generator import edge_length_for, make_tunnel
     from survey.world.presets import PRESETS, preset

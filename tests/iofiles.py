@@ -250,3 +250,13 @@ def report_body(path) -> list[str]:
 
     return [ln for ln in Path(path).read_text(encoding="utf-8").splitlines()
             if "computed (UTC)" not in ln]
+
+
+def mesh_fields(path) -> dict:
+    """A mesh file as one dict: ``vertices``, ``faces`` and every vertex and face
+    property by name (the shape the mesh tests compare), read by the one mesh loader
+    ``sensors.io.meshes.read_mesh``."""
+    from sensors.io.meshes import read_mesh
+
+    m = read_mesh(path)
+    return {"vertices": m.vertices, "faces": m.faces, **m.vertex_fields, **m.face_fields}

@@ -221,3 +221,17 @@ def test_the_rules_catch_a_violation(rule, monkeypatch):
              "format": test_the_format_layer_reads_nothing_above_it}[rule]
     with pytest.raises(AssertionError):
         check()
+
+
+def test_one_mesh_loader():
+    """Mesh files are read in one place, ``sensors.io.meshes`` (issue 32: five places
+    called ``trimesh.load`` and two defined ``read_ply``)."""
+    bad = []
+    for mod, path in MODULES.items():
+        if mod == "sensors.io.meshes":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Attribute) and node.attr in ("load", "load_mesh") \
+                    and isinstance(node.value, ast.Name) and node.value.id == "trimesh":
+                bad.append(f"{mod}:{node.lineno} calls trimesh.{node.attr}")
+    assert not bad, "\n".join(bad)

@@ -124,8 +124,8 @@ def _sensors_ply(p):
 
 
 def _mesh_ply(p):
-    from survey.world.mesh import read_ply
-    return read_ply(p)
+    from sensors.io.meshes import read_mesh
+    return read_mesh(p)
 
 
 def _reference(p):

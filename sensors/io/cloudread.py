@@ -252,33 +252,22 @@ def read_reference(path: PathLike
     (``iter_points``). Raises ``PointFileError`` for an unreadable, cut-short or empty
     file and for a NaN coordinate.
     """
-    from survey.world.mesh import read_ply
+    from .meshes import read_mesh
 
     path = existing_cloud(path)
     kind = path.suffix.lower()
+    mesh_file = kind in TRIMESH_SUFFIXES
     if kind == ".ply":
         with cloud_errors():
             head = read_ply_header(path)
-        if any(e.name == "face" and e.count > 0 for e in head.elements):
-            try:
-                mesh = read_ply(path)
-            except TunnelsimError as exc:
-                raise PointFileError(str(exc)) from exc
-            check_finite(mesh["vertices"], path, 0)
-            return mesh["vertices"], mesh["faces"]
-    elif kind in TRIMESH_SUFFIXES:
-        import trimesh
-
+        mesh_file = any(e.name == "face" and e.count > 0 for e in head.elements)
+    if mesh_file:
         try:
-            m: Any = trimesh.load(str(path), force="mesh", process=False)
-            v, f = np.asarray(m.vertices, dtype=np.float64), np.asarray(m.faces, np.int64)
-        except Exception as exc:   # trimesh raises many types for unreadable files
-            raise PointFileError(f"Expected a mesh trimesh can read, got '{path}' which "
-                                 f"fails with: {exc}") from exc
-        if len(f) == 0:
-            raise PointFileError(f"Expected triangles in '{path}', got none.")
-        check_finite(v, path, 0)
-        return v, f
+            mesh = read_mesh(path)
+        except TunnelsimError as exc:
+            raise PointFileError(str(exc)) from exc
+        check_finite(mesh.vertices, path, 0)
+        return mesh.vertices, mesh.faces
     return read_points(path), None
 
 
@@ -358,7 +347,7 @@ def _geotiff_wkt(header: Any, path: Path) -> str | None:
 
 def _tunnel_crs(path: Path) -> str | None:
     """The ``crs`` of a tunnel PLY's JSON (when the JSON beside it is a tunnel's)."""
-    from survey.world.mesh import FORMAT, read_meta, sidecar
+    from .tunnel_json import FORMAT, read_meta, sidecar
 
     js = sidecar(path)
     if not js.is_file():

@@ -397,11 +397,7 @@ def tunnel_frame(mesh_path: str | Path, scene: Scene | None = None
         if "alignment" in meta and "profile" in meta:
             al, hc = read_axis(js)
             return sc, refl, al, hc
-    import trimesh
-
-    mesh: Any = trimesh.load(str(mesh_path), force="mesh", process=False)
-    v = np.asarray(mesh.vertices)
-    al, hc = estimate_axis(v)
+    al, hc = estimate_axis(np.asarray(sc.vertices))
     return sc, refl, al, hc
 
 

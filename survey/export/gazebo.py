@@ -421,9 +421,7 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
     crs_wkt = cloud_crs_text(mesh_path) if Path(mesh_path).is_file() else None
     crs_name = None if crs_wkt is None else crs_label(parse_crs(crs_wkt, metric=False))
     scene, refl = load_mesh(mesh_path)
-    mesh: Any = trimesh.load(str(mesh_path), force="mesh", process=False)
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    f = np.asarray(mesh.faces, dtype=np.int64)
+    v, f = scene.vertices, scene.faces
     warns = unit_warnings(v)
     for w in warns:
         warnings.warn(w, UserWarning, stacklevel=2)

@@ -34,10 +34,10 @@ def cloud_c2m_rms(clouds: list[str | os.PathLike[str]], mesh: str | os.PathLike[
     """
     from survey.analysis.compare import ReferenceMesh
     from sensors.io.clouds import read_points
-    from survey.world.mesh import read_ply
+    from sensors.io.meshes import read_mesh
 
-    m = read_ply(mesh)
-    ref = ReferenceMesh(m["vertices"], m["faces"])
+    m = read_mesh(mesh)
+    ref = ReferenceMesh(m.vertices, m.faces)
     pts = [read_points(c) for c in clouds]
     n = len(pts[0])
     idx = np.random.default_rng(seed).choice(n, min(sample, n), replace=False) \

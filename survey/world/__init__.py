@@ -5,7 +5,7 @@ from .alignment import Alignment, Element, arc, clothoid, curve, straight
 from .profiles import Profile, arched_rectangle, circle, horseshoe
 from .features import Bolts, Cable, Drainage, Niche, Prisms, WetFloor
 from .deformation import Bulge, Convergence, Ovalisation
-from .mesh import LABELS, REFLECTIVITY, TunnelMesh, read_axis, read_ply, read_tunnel, write_ply, write_tunnel
+from .mesh import LABELS, REFLECTIVITY, TunnelMesh, read_axis, read_tunnel, write_ply, write_tunnel
 from .generator import edge_length_for, make_tunnel
 from .presets import PRESETS, preset
 from .rock import RockRelief
@@ -14,6 +14,6 @@ from .junction import Branch, branch_alignment, make_junction_tunnel
 __all__ = ["Alignment", "Element", "arc", "clothoid", "curve", "straight", "Profile",
            "arched_rectangle", "circle", "horseshoe", "Bolts", "Cable", "Drainage", "Niche",
            "Prisms", "WetFloor", "Bulge", "Convergence", "Ovalisation", "LABELS",
-           "REFLECTIVITY", "TunnelMesh", "read_axis", "read_ply", "read_tunnel",
+           "REFLECTIVITY", "TunnelMesh", "read_axis", "read_tunnel",
            "write_ply", "write_tunnel", "edge_length_for", "make_tunnel", "PRESETS",
            "preset", "RockRelief", "Branch", "branch_alignment", "make_junction_tunnel"]

@@ -109,7 +109,7 @@ class TunnelAxis:
     @property
     def crs(self) -> str | None:
         """The CRS (WKT) a tunnel JSON states, or None."""
-        from survey.world.tunnel_json import tunnel_crs
+        from sensors.io.tunnel_json import tunnel_crs
 
         return tunnel_crs(self.meta)
 
@@ -139,7 +139,7 @@ def load_tunnel(path: str | Path, *, option: str = "--tunnel") -> TunnelAxis:
         return TunnelAxis(read_landxml(p, name=name), None, {}, "LandXML")
     if kind in (".csv", ".txt"):
         return TunnelAxis(read_alignment_csv(p), None, {}, "station CSV")
-    from survey.world.tunnel_json import read_meta, sidecar
+    from sensors.io.tunnel_json import read_meta, sidecar
 
     js = sidecar(p) if kind == ".ply" else p
     meta = read_meta(js)

@@ -33,20 +33,18 @@ from typing import Any
 from numpy.typing import ArrayLike, NDArray
 
 from raytrace.fileio import write_json
-from sensors.io import ply as _ply
-from sensors.io.errors import PointFileError
-from survey.errors import TunnelError, TunnelsimError
 from sensors.io.errors import TunnelFileError
+from sensors.io.meshes import read_mesh, write_mesh
+from survey.errors import TunnelError, TunnelsimError
 from survey.world import deformation as _deform
 from survey.world.alignment import Alignment
 from survey.world.profiles import Profile
-from survey.world.tunnel_json import read_meta, sidecar, tunnel_crs
+from sensors.io.tunnel_json import FORMAT, read_meta, sidecar, tunnel_crs
 
 __all__ = ["FORMAT", "LABEL", "LABELS", "REFLECTIVITY", "TunnelMesh", "read_axis",
-           "read_meta", "read_ply", "read_tunnel", "sidecar", "tunnel_crs", "write_ply",
+           "read_meta", "read_tunnel", "sidecar", "tunnel_crs", "write_ply",
            "write_tunnel"]
 
-FORMAT = "tunnelsim-tunnel/1"
 
 #: Face labels (uint8 PLY face property ``label``) and their names.
 LABELS = ("lining", "floor", "wet_floor", "drainage", "niche", "cable", "bolt", "prism",
@@ -189,83 +187,26 @@ def write_ply(path: str | os.PathLike[str], vertices: ArrayLike, faces: ArrayLik
               labels: ArrayLike | None = None, reflectivity: ArrayLike | None = None,
               displacement: ArrayLike | None = None,
               vertex_fields: Mapping[str, ArrayLike] | None = None) -> Path:
-    """Binary little-endian PLY with float64 vertices, optional per-face ``label``
-    (uint8) and ``reflectivity`` (float32), per-vertex displacement ``dx dy dz`` and
-    other per-vertex scalars ``vertex_fields`` {name: (n,) float64 array}; written
-    atomically by ``sensors.io.ply``."""
+    """A tunnel's binary little-endian PLY: float64 vertices, optional per-face
+    ``label`` (uint8) and ``reflectivity`` (float32), per-vertex displacement
+    ``dx dy dz`` (float32) and other per-vertex scalars ``vertex_fields`` {name: (n,)
+    float64 array}; written atomically by ``sensors.io.meshes.write_mesh``, read back by
+    ``sensors.io.meshes.read_mesh``."""
     v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-        raise TunnelFileError(f"Expected vertices (n, 3) and faces (m, 3), got {v.shape} "
-                              f"and {f.shape}.")
-    if len(v) >= 2**31:
-        raise TunnelFileError(f"Expected fewer than 2**31 vertices for PLY int indices, "
-                              f"got {len(v)}.")
-    vfields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    vf: dict[str, np.ndarray] = {}
     if displacement is not None:
-        vfields += [("dx", "<f4"), ("dy", "<f4"), ("dz", "<f4")]
-    vertex_fields = vertex_fields or {}
-    vfields += [(name, "<f8") for name in vertex_fields]
-    vrec = np.empty(len(v), dtype=vfields)
-    vrec["x"], vrec["y"], vrec["z"] = v.T
-    if displacement is not None:
-        d = np.asarray(displacement, dtype=np.float64)
-        vrec["dx"], vrec["dy"], vrec["dz"] = d.T
-    for name, arr in vertex_fields.items():
-        vrec[name] = arr
-    ffields: list[tuple[Any, ...]] = [("vertex_indices", "<i4", (3,))]
+        d = np.asarray(displacement, dtype=np.float64).reshape(-1, 3)
+        vf.update(dx=d[:, 0].astype("<f4"), dy=d[:, 1].astype("<f4"),
+                  dz=d[:, 2].astype("<f4"))
+    for name, arr in (vertex_fields or {}).items():
+        vf[name] = np.asarray(arr, dtype="<f8")
+    ff: dict[str, np.ndarray] = {}
     if labels is not None:
-        ffields.append(("label", "u1"))
+        ff["label"] = np.asarray(labels).astype("u1")
     if reflectivity is not None:
-        ffields.append(("reflectivity", "<f4"))
-    frec = np.empty(len(f), dtype=ffields)
-    frec["vertex_indices"] = f
-    if labels is not None:
-        frec["label"] = labels
-    if reflectivity is not None:
-        frec["reflectivity"] = reflectivity
-    try:
-        return _ply.write_ply(path, {"vertex": vrec, "face": frec},
-                              comments=["written by tunnelsim"])
-    except PointFileError as exc:
-        raise TunnelFileError(str(exc)) from exc
-
-
-def read_ply(path: str | os.PathLike[str]) -> dict[str, Any]:
-    """Read a binary triangle PLY (as written by ``write_ply``).
-
-    Returns a dict with ``vertices`` (n, 3) float64, ``faces`` (m, 3) int64 and any
-    extra vertex/face properties by name. Raises ``TunnelFileError`` for a missing,
-    corrupt or cut-short file, a file without faces, faces that are not triangles and
-    vertex indices out of range. ASCII PLY: convert it first (trimesh, CloudCompare).
-    """
-    try:
-        elements = _ply.read_ply(path)
-    except PointFileError as exc:
-        raise TunnelFileError(str(exc)) from exc
-    vert = elements.get("vertex")
-    if vert is None or not {"x", "y", "z"} <= set(vert.dtype.names or ()) or \
-            "face" not in elements:
-        raise TunnelFileError(f"Expected a triangle mesh ('vertex' with x, y, z, and "
-                              f"'face') in '{path}', got elements {list(elements)}.")
-    out: dict[str, Any] = {"vertices": np.stack([vert["x"], vert["y"], vert["z"]],
-                                                1).astype(np.float64)}
-    for name, rec in elements.items():
-        lists = [n for n in rec.dtype.names or () if rec.dtype[n].shape]
-        if name == "face":
-            if len(lists) != 1 or rec.dtype[lists[0]].shape != (3,):
-                raise TunnelFileError(f"Expected triangles only (one list of 3 vertex "
-                                      f"indices per face) in '{path}'.")
-            faces = rec[lists[0]].astype(np.int64)
-            if len(faces) and (faces.min() < 0 or faces.max() >= len(vert)):
-                raise TunnelFileError(f"Expected vertex indices in [0, {len(vert)}) in "
-                                      f"'{path}', got {faces.min()} to {faces.max()}; "
-                                      "the file is corrupt.")
-            out["faces"] = faces
-        for fname in rec.dtype.names or ():
-            if fname not in lists and not (name == "vertex" and fname in ("x", "y", "z")):
-                out[fname] = rec[fname]
-    return out
+        ff["reflectivity"] = np.asarray(reflectivity).astype("<f4")
+    return write_mesh(path, v, np.asarray(faces), vertex_fields=vf, face_fields=ff,
+                      comments=("written by tunnelsim",))
 
 
 def write_tunnel(tunnel: TunnelMesh, path: str | Path) -> tuple[Path, Path]:
@@ -311,7 +252,8 @@ def read_tunnel(path: str | Path) -> TunnelMesh:
     if meta.get("format") != FORMAT:
         raise TunnelFileError(f"Expected format {FORMAT!r} in '{js}', got "
                               f"{meta.get('format')!r}.")
-    ply = read_ply(path)
+    mesh = read_mesh(path)
+    ply = {**mesh.vertex_fields, **mesh.face_fields}
     missing = [k for k in ("label", "chainage", "profile_t") if k not in ply]
     if missing:
         raise TunnelFileError(f"Expected the tunnel PLY properties label, chainage and "
@@ -321,7 +263,7 @@ def read_tunnel(path: str | Path) -> TunnelMesh:
     disp = None
     if "dx" in ply:
         disp = np.stack([ply["dx"], ply["dy"], ply["dz"]], 1).astype(np.float64)
-    return TunnelMesh(ply["vertices"], ply["faces"], ply["label"].astype(np.uint8),
+    return TunnelMesh(mesh.vertices, mesh.faces, ply["label"].astype(np.uint8),
                       ply["chainage"], ply["profile_t"], al, prof, meta, disp)
 
 

@@ -15,7 +15,7 @@ from survey.adjust.controlpoints import ControlPoints, read_control_points
 from survey.adjust.slam import CONTROL_SIGMA_M, PRISM_SIGMA_MLS_M
 from survey.analysis.compare import cloud_to_mesh
 from survey.cli.main import main
-from survey.world.mesh import read_ply
+from tests.iofiles import mesh_fields as read_ply
 
 #: Per-axis noise (m) of one control point's world-minus-observed difference: the prism
 #: picked in the cloud and the total-station coordinate, independent.

@@ -69,7 +69,9 @@ def test_tunnel_writes_mesh_metadata_and_epoch(tmp_path, capsys):
     assert "wrote" in text and str(out) in text
     import json
 
-    from survey.world.mesh import read_ply, read_tunnel
+    from survey.world.mesh import read_tunnel
+
+    from tests.iofiles import mesh_fields as read_ply
     a, b = read_tunnel(out), read_tunnel(ep)
     assert json.loads(out.with_suffix(".json").read_text())["face_counts"]["cable"] > 0
     mid = np.isclose(a.vertex_chainage, 50.0)  # lining and attached features alike
@@ -319,7 +321,8 @@ def test_mesh_reconstructs_a_generated_tunnel(tbm, tmp_path, capsys):
     rebuilds it, with support per vertex, using the tunnel's own alignment."""
     from sensors.io.clouds import write_points_las
     from survey.world.mesh import LABEL
-    from survey.world.mesh import read_ply, read_tunnel
+    from survey.world.mesh import read_tunnel
+    from tests.iofiles import mesh_fields as read_ply
     tun = read_tunnel(tbm)
     rng = np.random.default_rng(0)
     lin = tun.faces[np.isin(tun.labels, [LABEL["lining"], LABEL["floor"]])]
@@ -371,7 +374,8 @@ def test_mesh_budget_crop_and_coarse_las(tbm, tmp_path, capsys):
 
     from sensors.io.clouds import write_points_las
     from survey.world.mesh import LABEL
-    from survey.world.mesh import read_ply, read_tunnel
+    from survey.world.mesh import read_tunnel
+    from tests.iofiles import mesh_fields as read_ply
     tun = read_tunnel(tbm)
     rng = np.random.default_rng(2)
     lin = tun.faces[np.isin(tun.labels, [LABEL["lining"], LABEL["floor"]])]
@@ -402,7 +406,8 @@ def test_mesh_detail_layer_keeps_the_cable(tbm, tmp_path, capsys):
     import trimesh
 
     from sensors.io.clouds import write_points_las
-    from survey.world.mesh import read_ply, read_tunnel
+    from survey.world.mesh import read_tunnel
+    from tests.iofiles import mesh_fields as read_ply
     tun = read_tunnel(tbm)
     rng = np.random.default_rng(3)
     window = np.flatnonzero((tun.vertex_chainage[tun.faces[:, 0]] > 30.0) &

@@ -78,7 +78,7 @@ def test_detail_layer_is_the_lining_plus_the_tubes(lining):
 
 
 def test_detail_layer_writes_its_support(lining, tmp_path):
-    from survey.world.mesh import read_ply
+    from tests.iofiles import mesh_fields as read_ply
 
     tun, pts = lining
     rec = reconstruct_tunnel(pts, alignment=tun.alignment, centre_height_m=2.5, cell_m=0.5,

@@ -61,7 +61,7 @@ def bumpy_sphere(subdivisions=3, bump=0.1, seed=0):
 @pytest.fixture(scope="module")
 def tube_runs(tmp_path_factory):
     """The tunnel route on a tube: as it is, under a budget, and under an error bound."""
-    from survey.world.mesh import read_ply
+    from tests.iofiles import mesh_fields as read_ply
 
     d = tmp_path_factory.mktemp("dec")
     cloud = str(tube_cloud(d / "tube.laz"))

@@ -145,7 +145,7 @@ def test_auto_falls_back_to_solid_on_a_branching_mine(mine, auto_run):
     axis), rejects its result with the numbers, meshes solid under the budget, and the
     result lies within 5 mm median / 30 mm at 95 % of the truth over the seen surface,
     both ways."""
-    from survey.world.mesh import read_ply
+    from tests.iofiles import mesh_fields as read_ply
 
     v, f, _ = mine
     rc, printed, q, out = auto_run
@@ -173,7 +173,7 @@ def test_the_rejected_tunnel_mesh_is_bad_and_judged_by_its_own_figures(mine, aut
                                                                        tmp_path):
     """What auto rejected is really wrong against the truth (so the fallback is needed),
     and the judgement's extrapolated share is the tunnel mesh's own."""
-    from survey.world.mesh import read_ply
+    from tests.iofiles import mesh_fields as read_ply
 
     v, f, paths = mine
     out, js = tmp_path / "t.ply", tmp_path / "t.json"

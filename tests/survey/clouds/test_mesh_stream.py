@@ -77,7 +77,7 @@ def test_mesh_command_streams_through_the_voxel_grid(tmp_path, capsys):
     """`tunnelsim mesh` with the default voxel grid and with --voxel 0 (every point in
     memory): both within noise of the true lobed tube, and of each other."""
     from sensors.io.clouds import write_points_las
-    from survey.world.mesh import read_ply
+    from tests.iofiles import mesh_fields as read_ply
 
     rng = np.random.default_rng(3)
     al, pts = _tube(rng, 300_000, length_m=40.0, noise_m=0.002)

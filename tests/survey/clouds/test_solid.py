@@ -342,7 +342,7 @@ def test_cli_mesh_auto_meshes_a_cavern_solid(station_files, tmp_path, capsys):
     """No tunnel axis in a cavern: auto runs the solid route on the station files and
     writes the support property; the mesh lies on the truth."""
     from survey.analysis.compare import cloud_to_mesh
-    from survey.world.mesh import read_ply
+    from tests.iofiles import mesh_fields as read_ply
 
     v, f, paths = station_files
     out = tmp_path / "m.ply"

@@ -14,7 +14,7 @@ from survey.world.profiles import horseshoe
 from survey.world.mesh import LABEL
 from survey.errors import TunnelError
 from survey.world.generator import make_tunnel
-from survey.world.mesh import read_ply
+from tests.iofiles import mesh_fields as read_ply
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,8 @@ from survey.world.profiles import Profile, arched_rectangle, circle, horseshoe
 from survey.world.mesh import LABEL, LABELS
 from survey.world.generator import ROUGHNESS_CLIP, edge_length_for, make_tunnel
 from survey.errors import TunnelError
-from survey.world.mesh import read_ply, read_tunnel
+from survey.world.mesh import read_tunnel
+from tests.iofiles import mesh_fields as read_ply
 from tests.naive import naive_cast
 
 ROUGH = 0.002

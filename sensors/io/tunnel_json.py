@@ -1,7 +1,9 @@
 """The JSON of a tunnel: reading it, and where it lies beside a tunnel's PLY.
 
-Shared by ``survey.world.mesh`` (the tunnel files) and ``survey.world.alignment_io``
-(every file a ``--tunnel`` option reads), which both import it.
+The format layer's part of a tunnel file (``FORMAT``, the sidecar's place, its JSON
+object and CRS); ``survey.world.mesh`` (the tunnel files) and
+``survey.world.alignment_io`` (every file a ``--tunnel`` option reads) build the
+alignment and profile from it.
 """
 
 from __future__ import annotations
@@ -13,7 +15,10 @@ from typing import Any
 
 from sensors.io.errors import TunnelFileError
 
-__all__ = ["read_meta", "sidecar", "tunnel_crs"]
+__all__ = ["FORMAT", "read_meta", "sidecar", "tunnel_crs"]
+
+#: The ``format`` key of a tunnel JSON written by ``tunnelsim tunnel``.
+FORMAT = "tunnelsim-tunnel/1"
 
 
 def sidecar(path: str | Path) -> Path:
