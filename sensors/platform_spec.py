@@ -11,16 +11,15 @@ PlatformSpec(ground_robot: wheeled, mast 0.5 m, up to 1 m/s, 60 deg/s)
 
 from __future__ import annotations
 
-import difflib
 import math
 import os
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Final
+from typing import Final
 
 from .errors import PlatformError
+from .specfile import Catalogue, SpecTable, read_toml
 
 __all__ = ["MOTIONS", "PLATFORM_DIR", "TABLE_KEYS", "Gait", "Limits", "PlatformSpec",
            "Traversability", "list_platforms", "load_platform"]
@@ -149,69 +148,16 @@ class PlatformSpec:
 
 
 # ---------------------------------------------------------------------- loading
-class _Table:
-    """One TOML table of a platform file: typed reads, errors naming file and key."""
+def _pos(t: SpecTable, key: str) -> float:
+    return t.num(key, positive=True, what="a finite number > 0")
 
-    def __init__(self, data: Any, file: str, table: str, valid: tuple[str, ...]) -> None:
-        if not isinstance(data, dict):
-            raise PlatformError(f"Expected [{table}] in {file} to be a table, got "
-                                f"{data!r}; fix the platform file.")
-        unknown = [k for k in data if k not in valid]
-        if unknown:
-            named = []
-            for k in unknown:
-                near = difflib.get_close_matches(k, valid, n=1)
-                named.append(f"`{k}`" + (f" (did you mean `{near[0]}`?)" if near else ""))
-            where = f"table [{table}]" if table else "the top level"
-            raise PlatformError(f"Expected only known keys in {where} of {file}, got "
-                                f"unknown {', '.join(named)}; valid keys there: "
-                                f"{', '.join(valid)}.")
-        missing = [k for k in valid if k not in data]
-        if missing:
-            what = "table" if not table else "key"
-            raise PlatformError(f"Expected a {what} `{missing[0]}` in "
-                                f"{f'[{table}] of ' if table else ''}{file}, got none; "
-                                "add it to the platform file.")
-        self.data, self.file, self.table = data, file, table
 
-    def num(self, key: str, *, positive: bool = True) -> float:
-        v = self.data[key]
-        ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) \
-            and (v > 0 if positive else v >= 0)
-        if not ok:
-            raise PlatformError(f"Expected `{self.table}.{key}` in {self.file} to be a "
-                                f"finite number {'> 0' if positive else '>= 0'}, got "
-                                f"{v!r}; fix the platform file.")
-        return float(v)
-
-    def vec3(self, key: str) -> tuple[float, float, float]:
-        v = self.data[key]
-        ok = isinstance(v, list) and len(v) == 3 and all(
-            isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
-            for x in v)
-        if not ok:
-            raise PlatformError(f"Expected `{self.table}.{key}` in {self.file} to be 3 "
-                                f"finite numbers [x, y, z], got {v!r}; fix the platform "
-                                "file.")
-        return (float(v[0]), float(v[1]), float(v[2]))
-
-    def text(self, key: str) -> str:
-        v = self.data[key]
-        if not isinstance(v, str) or not v:
-            raise PlatformError(f"Expected `{self.table}.{key}` in {self.file} to be a "
-                                f"non-empty string, got {v!r}; fix the platform file.")
-        return v
+def _nonneg(t: SpecTable, key: str) -> float:
+    return t.num(key, lo=0.0, what="a finite number >= 0")
 
 
 def _load(path: Path) -> PlatformSpec:
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise PlatformError(f"Expected valid TOML in {path}, got a syntax error: {exc}; "
-                            "fix the platform file.") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise PlatformError(f"Expected a readable UTF-8 text file at '{path}', got "
-                            f"{type(exc).__name__}: {exc}.") from exc
+    data = read_toml(path, PlatformError, "platform")
     f = path.name
     head = data.get("platform")
     motion = head.get("motion") if isinstance(head, dict) else None
@@ -224,8 +170,9 @@ def _load(path: Path) -> PlatformSpec:
     # its IMU stays at the platform frame); when present, all its keys are required.
     if "mounts" in data:
         keys["mounts"] = mount_keys
-    _Table(data, f, "", tuple(keys))
-    t = {name: _Table(data[name], f, name, valid) for name, valid in keys.items()}
+    SpecTable(data, f, "", PlatformError, "platform", valid=tuple(keys), required=True)
+    t = {name: SpecTable(data[name], f, name, PlatformError, "platform", valid=valid,
+                         required=True, schema=keys) for name, valid in keys.items()}
     src = t["platform"].data["sources"]
     if not isinstance(src, list) or not src or not all(isinstance(s, str) for s in src):
         raise PlatformError(f"Expected `platform.sources` in {f} to be a non-empty list "
@@ -236,26 +183,27 @@ def _load(path: Path) -> PlatformSpec:
     if "limits" in t:
         lim = t["limits"]
         deg = math.radians
-        limits = Limits(lim.num("max_speed_mps")) if motion == "rail" else Limits(
-            lim.num("max_speed_mps"), lim.num("max_accel_mps2"), lim.num("max_jerk_mps3"),
-            deg(lim.num("max_yaw_rate_dps")), deg(lim.num("max_yaw_accel_dps2")))
+        limits = Limits(_pos(lim, "max_speed_mps")) if motion == "rail" else Limits(
+            _pos(lim, "max_speed_mps"), _pos(lim, "max_accel_mps2"),
+            _pos(lim, "max_jerk_mps3"), deg(_pos(lim, "max_yaw_rate_dps")),
+            deg(_pos(lim, "max_yaw_accel_dps2")))
     if "gait" in t:
         g = t["gait"]
-        gait = Gait(g.num("step_hz"), g.num("bob_m", positive=False),
-                    g.num("sway_m", positive=False),
-                    math.radians(g.num("roll_deg", positive=False)),
-                    math.radians(g.num("pitch_deg", positive=False)))
+        gait = Gait(_pos(g, "step_hz"), _nonneg(g, "bob_m"),
+                    _nonneg(g, "sway_m"),
+                    math.radians(_nonneg(g, "roll_deg")),
+                    math.radians(_nonneg(g, "pitch_deg")))
     trav = None
     if "traversability" in t:
         tv = t["traversability"]
-        slope, roll = (tv.num(k) for k in ("max_slope_deg", "max_roll_deg"))
+        slope, roll = (_pos(tv, k) for k in ("max_slope_deg", "max_roll_deg"))
         for key, deg_v in (("max_slope_deg", slope), ("max_roll_deg", roll)):
             if deg_v >= 90.0:
                 raise PlatformError(f"Expected `traversability.{key}` in {f} below 90, "
                                     f"got {deg_v:g}; fix the platform file.")
         trav = Traversability(math.radians(slope), math.radians(roll),
-                              tv.num("max_step_m"), tv.num("ground_clearance_m"),
-                              tv.num("footprint_width_m"), tv.num("footprint_length_m"))
+                              _pos(tv, "max_step_m"), _pos(tv, "ground_clearance_m"),
+                              _pos(tv, "footprint_width_m"), _pos(tv, "footprint_length_m"))
     imu_xyz: tuple[float, float, float] | None = None
     imu_rpy = (0.0, 0.0, 0.0)
     wheel_r = 0.0
@@ -265,28 +213,21 @@ def _load(path: Path) -> PlatformSpec:
         roll, pitch, yaw = m.vec3("imu_rpy_deg")
         imu_rpy = (math.radians(roll), math.radians(pitch), math.radians(yaw))
         if wheeled:
-            wheel_r = m.num("wheel_radius_m")
+            wheel_r = _pos(m, "wheel_radius_m")
     return PlatformSpec(t["platform"].text("name"), t["platform"].text("description"),
-                        motion, tuple(src), body.num("mast_height_m"),
-                        body.num("wheelbase_m") if wheeled else 0.0,
-                        body.num("track_m") if wheeled else 0.0, limits, gait, str(path),
+                        motion, tuple(src), _pos(body, "mast_height_m"),
+                        _pos(body, "wheelbase_m") if wheeled else 0.0,
+                        _pos(body, "track_m") if wheeled else 0.0, limits, gait, str(path),
                         trav, imu_xyz, imu_rpy, wheel_r)
 
 
-def _registry() -> dict[str, str]:
-    out: dict[str, str] = {}
-    for f in sorted(PLATFORM_DIR.glob("*.toml")):
-        spec = _load(f)
-        if spec.name in out:
-            raise PlatformError(f"Expected unique platform names, got {spec.name!r} in "
-                                f"both {Path(out[spec.name]).name} and {f.name}.")
-        out[spec.name] = str(f)
-    return out
+#: The shipped platform files (``sensors/platforms/*.toml``) by name.
+CATALOGUE: Final = Catalogue(PLATFORM_DIR, _load, PlatformError, "platform")
 
 
 def list_platforms() -> list[str]:
     """Names of the shipped platforms, sorted."""
-    return sorted(_registry())
+    return CATALOGUE.names()
 
 
 def load_platform(name_or_path: str | os.PathLike[str]) -> PlatformSpec:
@@ -298,20 +239,7 @@ def load_platform(name_or_path: str | os.PathLike[str]) -> PlatformSpec:
         For an unknown name, a missing file, or a file that is not a valid platform
         (bad TOML, a missing, malformed or unknown key).
     """
-    if not isinstance(name_or_path, str | os.PathLike) or not str(name_or_path).strip():
-        raise PlatformError(f"Expected a platform name in {list_platforms()} or a .toml "
-                            f"path, got {name_or_path!r}.")
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        if not p.is_file():
-            raise PlatformError(f"Expected a platform TOML file, got '{p}' which does not "
-                                "exist.")
-        return _load(p)
-    reg = _registry()
-    if str(name_or_path) not in reg:
-        raise PlatformError(f"Expected a platform name in {sorted(reg)} or a .toml path, "
-                            f"got {str(name_or_path)!r}.")
-    return _load(Path(reg[str(name_or_path)]))
+    return CATALOGUE.load(name_or_path)
 
 
 # ---------------------------------------------------------------------- motion

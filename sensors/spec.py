@@ -21,19 +21,17 @@ SensorSpec(velodyne_vlp16: Velodyne VLP-16, spinning, 16 channels at 10 Hz, 0.5-
 
 from __future__ import annotations
 
-import difflib
 import os
 import re
-import tomllib
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
-from numpy.typing import NDArray
 
 from .errors import SensorSpecError
+from .specfile import Catalogue, SpecTable, read_toml
 # The data types live in ``sensors.spec_types``; they are re-exported here, where
 # users have always imported them from.
 from .spec_types import (KINDS, NO_RETURN, POINT_LAYOUTS, RING_ORDERS,
@@ -73,115 +71,9 @@ TABLE_KEYS: Final[Mapping[str, tuple[str, ...]]] = {
 }
 
 
-class _Table:
-    """Typed access to one TOML table, with errors naming the file, table and field,
-    and a check that the table holds no key its loader does not know."""
-
-    def __init__(self, data: dict[str, Any], file: str, table: str) -> None:
-        self.data, self.file, self.table = data, file, table
-        valid = TABLE_KEYS.get(table)
-        if valid is not None:
-            _refuse_unknown(data, valid, file, table)
-
-    def where(self, key: str) -> str:
-        return f"{self.table}.{key}" if self.table else key
-
-    def err(self, key: str, what: str, got: object) -> SensorSpecError:
-        return SensorSpecError(f"Expected `{self.where(key)}` in {self.file} to be {what}, "
-                               f"got {got!r}; fix the sensor file.")
-
-    def raw(self, key: str) -> Any:
-        if key not in self.data:
-            raise SensorSpecError(f"Expected a field `{self.where(key)}` in {self.file}, "
-                                  "got none; add it to the sensor file.")
-        return self.data[key]
-
-    def num(self, key: str, lo: float | None = None, hi: float | None = None,
-            positive: bool = False) -> float:
-        v = self.raw(key)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-            raise self.err(key, "a finite number", v)
-        if positive and v <= 0:
-            raise self.err(key, "positive", v)
-        if lo is not None and v < lo or hi is not None and v > hi:
-            raise self.err(key, f"within [{lo}, {hi}]", v)
-        return float(v)
-
-    def whole(self, key: str, lo: int) -> int:
-        v = self.raw(key)
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
-            raise self.err(key, f"a whole number >= {lo}", v)
-        return v
-
-    def text(self, key: str) -> str:
-        v = self.raw(key)
-        if not isinstance(v, str) or not v:
-            raise self.err(key, "a non-empty string", v)
-        return v
-
-    def texts(self, key: str) -> tuple[str, ...]:
-        v = self.raw(key)
-        if not isinstance(v, list) or not v or not all(isinstance(s, str) and s for s in v):
-            raise self.err(key, "a non-empty list of strings", v)
-        return tuple(v)
-
-    def nums(self, key: str, n: int | None = None) -> NDArray[np.float64]:
-        v = self.raw(key)
-        ok = isinstance(v, list) and all(isinstance(x, (int, float)) and
-                                         not isinstance(x, bool) and np.isfinite(x)
-                                         for x in v)
-        if not ok or (n is not None and len(v) != n) or not v:
-            raise self.err(key, f"a list of {n or 'some'} finite numbers", v)
-        return np.asarray(v, dtype=np.float64)
-
-    def flag(self, key: str) -> bool:
-        v = self.raw(key)
-        if not isinstance(v, bool):
-            raise self.err(key, "true or false", v)
-        return v
-
-    def sub(self, key: str) -> _Table:
-        v = self.raw(key)
-        if not isinstance(v, dict):
-            raise self.err(key, "a table", v)
-        return _Table(v, self.file, self.where(key))
-
-    def either(self, one: str, other: Sequence[str]) -> bool:
-        """True if the table uses ``one``, False if it uses every key of ``other``;
-        an error if it mixes them (the unused ones would be silently ignored)."""
-        mixed = [k for k in other if k in self.data]
-        if one in self.data and mixed:
-            raise SensorSpecError(f"Expected either `{self.where(one)}` or "
-                                  f"{' + '.join(f'`{self.where(k)}`' for k in other)} in "
-                                  f"{self.file}, got both; remove one.")
-        return one in self.data
-
-
-def _refuse_unknown(data: Mapping[str, Any], valid: Sequence[str], file: str,
-                    table: str) -> None:
-    """pbrt's ReportUnused: every key must be one the loader reads. The message names
-    each unknown key with the likeliest intended one (in this table, or in another
-    one for a key put under the wrong header) and lists the table's valid keys."""
-    unknown = [k for k in data if k not in valid]
-    if not unknown:
-        return
-    named = [f"`{k}`{_guess(k, valid, table)}" for k in unknown]
-    where = f"table [{table}]" if table else "the top level"
-    raise SensorSpecError(
-        f"Expected only known keys in {where} of {file}, got unknown "
-        f"key{'s' if len(unknown) > 1 else ''} {', '.join(named)}; valid keys there: "
-        f"{', '.join(valid)}.")
-
-
-def _guess(key: str, valid: Sequence[str], table: str) -> str:
-    near = difflib.get_close_matches(key, valid, n=1)
-    if near:
-        return f" (did you mean `{near[0]}`?)"
-    for other, keys in TABLE_KEYS.items():
-        near = difflib.get_close_matches(key, keys, n=1, cutoff=0.8)
-        if other != table and near:
-            return f" (did you mean `{near[0]}` in [{other}]?)"
-    return ""
+def _table(data: dict[str, Any], file: str) -> SpecTable:
+    """The top level of a sensor file, its tables checked against ``TABLE_KEYS``."""
+    return SpecTable(data, file, "", SensorSpecError, "sensor", schema=TABLE_KEYS)
 
 
 def with_rate(spec: SensorSpec, rate_hz: float) -> SensorSpec:
@@ -205,7 +97,7 @@ def with_rate(spec: SensorSpec, rate_hz: float) -> SensorSpec:
 
 
 # ---------------------------------------------------------------------- loading
-def _physics(root: _Table) -> Physics:
+def _physics(root: SpecTable) -> Physics:
     rng, det, noi, beam = (root.sub(k) for k in ("range", "detection", "noise", "beam"))
     rmin = rng.num("min_m", lo=0.0)
     rmax = rng.num("max_m", positive=True)
@@ -227,7 +119,7 @@ def _physics(root: _Table) -> Physics:
     )
 
 
-def _tls(p: _Table) -> TLSPattern:
+def _tls(p: SpecTable) -> TLSPattern:
     res = p.sub("resolutions_deg")
     resolutions = {k: float(np.deg2rad(res.num(k, positive=True))) for k in res.data}
     if not resolutions:
@@ -241,7 +133,7 @@ def _tls(p: _Table) -> TLSPattern:
                       p.num("measurement_rate_hz", positive=True), resolutions, default)
 
 
-def _spinning(p: _Table) -> SpinningPattern:
+def _spinning(p: SpecTable) -> SpinningPattern:
     if p.either("elevations_deg", ("elevation_uniform_deg", "channels")):
         el = p.nums("elevations_deg")
     else:
@@ -266,7 +158,7 @@ def _spinning(p: _Table) -> SpinningPattern:
                            np.deg2rad(az), off, p.flag("clockwise"))
 
 
-def _profiler(p: _Table) -> ProfilerPattern:
+def _profiler(p: SpecTable) -> ProfilerPattern:
     b0, b1 = (float(b) for b in np.deg2rad(p.nums("blind_sector_deg", 2)))
     return ProfilerPattern(p.num("profile_rate_hz", positive=True),
                            p.whole("points_per_profile", 8), (b0, b1))
@@ -275,7 +167,7 @@ def _profiler(p: _Table) -> ProfilerPattern:
 _ROS_NAME = re.compile(r"^/?[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z_][A-Za-z0-9_]*)*$")
 
 
-def _driver(root: _Table) -> Driver | None:
+def _driver(root: SpecTable) -> Driver | None:
     if "driver" not in root.data:
         return None
     d = root.sub("driver")
@@ -315,8 +207,8 @@ def _driver(root: _Table) -> Driver | None:
                   signal, suffix)
 
 
-def _returns(root: _Table, file: str) -> ReturnsSpec:
-    """The ``[returns]`` table (keys checked by ``_Table``), errors naming the file."""
+def _returns(root: SpecTable, file: str) -> ReturnsSpec:
+    """The ``[returns]`` table (keys checked by ``SpecTable``), errors naming the file."""
     table = root.sub("returns")
     try:
         return ReturnsSpec.from_table(table.data, file)
@@ -327,15 +219,8 @@ def _returns(root: _Table, file: str) -> ReturnsSpec:
 
 
 def _load(path: Path) -> SensorSpec:
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise SensorSpecError(f"Expected valid TOML in {path}, got a syntax error: {exc}; "
-                              "fix the sensor file.") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SensorSpecError(f"Expected a readable UTF-8 text file at '{path}', got "
-                              f"{type(exc).__name__}: {exc}.") from exc
-    root = _Table(data, path.name, "")
+    data = read_toml(path, SensorSpecError, "sensor")
+    root = _table(data, path.name)
     dev = root.sub("device")
     kind = dev.text("kind")
     if kind not in KINDS:
@@ -361,20 +246,13 @@ def _load(path: Path) -> SensorSpec:
                       pattern, str(path), _driver(root), returns)
 
 
-def _registry() -> dict[str, str]:
-    out: dict[str, str] = {}
-    for f in sorted(SPEC_DIR.glob("*.toml")):
-        spec = _load(f)
-        if spec.name in out:
-            raise SensorSpecError(f"Expected unique sensor names, got {spec.name!r} in both "
-                                  f"{Path(out[spec.name]).name} and {f.name}.")
-        out[spec.name] = str(f)
-    return out
+#: The shipped sensor files (``sensors/specs/*.toml``) by name.
+CATALOGUE: Final = Catalogue(SPEC_DIR, _load, SensorSpecError, "sensor")
 
 
 def list_sensors() -> list[str]:
     """Names of the shipped sensor models, sorted."""
-    return sorted(_registry())
+    return CATALOGUE.names()
 
 
 def load_sensor(name_or_path: str | os.PathLike[str]) -> SensorSpec:
@@ -386,20 +264,4 @@ def load_sensor(name_or_path: str | os.PathLike[str]) -> SensorSpec:
         For an unknown name, a missing file, or a file that is not a valid sensor
         description (bad TOML, a missing, malformed or unknown key).
     """
-    if not isinstance(name_or_path, (str, os.PathLike)):
-        raise SensorSpecError(f"Expected a sensor name or a path to a .toml file, got "
-                              f"{type(name_or_path).__name__}; see list_sensors().")
-    if not str(name_or_path).strip():
-        raise SensorSpecError(f"Expected a sensor name in {list_sensors()} or a .toml path, "
-                              "got an empty string.")
-    p = Path(name_or_path)
-    if p.suffix == ".toml" or p.exists():
-        if not p.is_file():
-            raise SensorSpecError(f"Expected a sensor TOML file, got '{p}' which does not "
-                                  "exist.")
-        return _load(p)
-    reg = _registry()
-    if name_or_path not in reg:
-        raise SensorSpecError(f"Expected a sensor name in {sorted(reg)} or a .toml path, "
-                              f"got {str(name_or_path)!r}.")
-    return _load(Path(reg[str(name_or_path)]))
+    return CATALOGUE.load(name_or_path)

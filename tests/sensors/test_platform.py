@@ -32,12 +32,12 @@ def test_every_shipped_platform_loads_with_a_unique_name():
 
 
 @pytest.mark.parametrize("edit, match", [
-    (("wheelbase_m", "wheel_base"), r"unknown `wheel_base` \(did you mean `wheelbase_m`\?\)"),
-    (("[limits]", "[limit]"), "unknown `limit`"),
+    (("wheelbase_m", "wheel_base"), r"unknown key `wheel_base` \(did you mean `wheelbase_m`\?\)"),
+    (("[limits]", "[limit]"), "unknown key `limit`"),
     (("max_jerk_mps3 = 1.0", "max_jerk_mps3 = -1.0"), "`limits.max_jerk_mps3` .* > 0"),
     (("track_m = 0.175", ""), "a key `track_m` in \\[body\\]"),
     (('motion = "wheeled"', 'motion = "flying"'), "`platform.motion` .* one of"),
-    (("[body]", "[gait]\nstep_hz = 2\n[body]"), "unknown `gait`"),
+    (("[body]", "[gait]\nstep_hz = 2\n[body]"), "unknown key `gait`"),
     (("[platform]", "[platform"), "valid TOML"),
 ])
 def test_bad_platform_files_are_refused(edit, match, tmp_path):

@@ -48,10 +48,10 @@ def test_traversability_loads_in_si_units():
 
 
 @pytest.mark.parametrize("edit, match", [
-    (("max_step_m", "max_stepm"), r"unknown `max_stepm` \(did you mean `max_step_m`\?\)"),
+    (("max_step_m", "max_stepm"), r"unknown key `max_stepm` \(did you mean `max_step_m`\?\)"),
     (("max_slope_deg = 25.0", "max_slope_deg = 95.0"), "max_slope_deg` .* below 90"),
     (("max_roll_deg = 20.0", "max_roll_deg = -5.0"), "max_roll_deg` .* > 0"),
-    (("[traversability]", "[traverse]"), "unknown `traverse`"),
+    (("[traversability]", "[traverse]"), "unknown key `traverse`"),
 ])
 def test_bad_traversability_is_refused(edit, match, tmp_path):
     text = (PLATFORM_DIR / "ground_robot.toml").read_text()

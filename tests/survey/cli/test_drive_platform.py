@@ -210,7 +210,7 @@ def test_centreline_follows_the_grade_unless_level(tmp_path, sensor):
 
 
 @pytest.mark.parametrize("what, match", [
-    ("key", "unknown `wheel_base` (did you mean `wheelbase_m`?)"),
+    ("key", "unknown key `wheel_base` (did you mean `wheelbase_m`?)"),
     ("plane", "encloses free space"),
     ("waypoint", "waypoint 2 (9, 4) inside the passage"),
     ("trajectory", "--platform with --along, got it with --trajectory"),
