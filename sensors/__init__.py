@@ -13,34 +13,15 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from raytrace.lazy import lazy_exports
+from raytrace.lazy import lazy_exports_of
 
 __version__ = "0.2.0"
 
 # Public names are imported on first use: ``import sensors.errors`` (which every
 # command-line start does) must not compile or load Numba.
-_EXPORTS = {
-    "sensors.errors": ("TunnelsimError", "SensorSpecError", "SimulationError",
-                       "TrajectoryError", "PlatformError", "RouteError"),
-    "sensors.io.errors": ("FileFormatError", "MeshFileError", "PointFileError",
-                          "TableFileError", "TunnelFileError"),
-    "sensors.patterns": ("ProfileScan", "Pulses", "SpinningScan", "TLSScan", "scan_for"),
-    "sensors.physics": ("Settings",),
-    "sensors.io.fields": ("POINT_DTYPE",),
-    "sensors.simulate": ("Run", "simulate_drive", "simulate_station"),
-    "sensors.writers": ("PointWriter", "open_writer"),
-    "sensors.io.copc": ("CopcWriter",),
-    "sensors.spec": ("SensorSpec", "list_sensors", "load_sensor"),
-    "sensors.trajectory": ("Mount", "Trajectory"),
-    "sensors.io.meshes": ("load_mesh",),
-    "sensors.freespace": ("FreeSpace", "free_space"),
-    "sensors.route": ("Route", "find_route", "read_waypoints"),
-    "sensors.platform_spec": ("PlatformSpec", "list_platforms", "load_platform"),
-    "sensors.platform": ("platform_trajectory",),
-}
-
-
-if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
+# The one list of public names: type checkers and IDEs import them here; the
+# façade reads this block (raytrace.lazy.lazy_exports_of) and imports each on first use.
+if TYPE_CHECKING:
     from sensors.errors import (TunnelsimError, SensorSpecError, SimulationError, TrajectoryError, PlatformError, RouteError)
     from sensors.io.errors import (FileFormatError, MeshFileError, PointFileError,
         TableFileError, TunnelFileError)
@@ -58,4 +39,4 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from sensors.platform_spec import PlatformSpec, list_platforms, load_platform
     from sensors.platform import platform_trajectory
 
-__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)
+__getattr__, __dir__, __all__ = lazy_exports_of(__name__, __file__)

@@ -19,106 +19,16 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from raytrace.lazy import lazy_exports
+from raytrace.lazy import lazy_exports_of
 
 __version__ = "0.2.0"
 
 SUBPACKAGES = ("world", "adjust", "clouds", "analysis", "report", "export", "cluster",
                "errors")
 
-_EXPORTS = {
-    "survey.world.alignment": ("Alignment", "Element", "arc", "clothoid", "curve",
-                               "straight"),
-    "survey.world.profiles": ("Profile", "arched_rectangle", "circle", "horseshoe"),
-    "survey.world.features": ("Bolts", "Cable", "Drainage", "Niche", "Prisms", "WetFloor"),
-    "survey.world.deformation": ("Bulge", "Convergence", "Ovalisation"),
-    "survey.world.mesh": ("LABELS", "REFLECTIVITY", "TunnelMesh", "read_axis",
-                          "read_tunnel", "write_ply", "write_tunnel"),
-    "survey.world.generator": ("edge_length_for", "make_tunnel"),
-    "survey.world.presets": ("PRESETS", "preset"),
-    "survey.world.rock": ("RockRelief",),
-    "survey.world.junction": ("Branch", "branch_alignment", "make_junction_tunnel"),
-    "survey.adjust.helmert": ("HelmertResult", "fit_helmert", "from_parameters"),
-    "survey.adjust.controlpoints": ("ControlPoints", "match", "read_control_points",
-                                    "unmatched", "unmatched_message"),
-    "survey.adjust.snooping": ("Snooping", "SnoopStep", "data_snooping"),
-    "survey.adjust.odometry": ("OdometryResult", "platform_trajectory", "run_odometry"),
-    "survey.adjust.drift": ("DriftCorrection", "fit_drift", "leave_one_out"),
-    "survey.adjust.slam": ("slam_trajectory", "to_slam_frame", "DriftedRun", "SlamObservation",
-                           "observe_slam", "observe_control"),
-    "sensors.io.clouds": ("annotate_las", "cloud_bounds", "iter_points", "map_cloud",
-                              "read_points", "read_reference",
-                              "write_points_las"),
-    "survey.clouds.preprocess": ("VoxelGrid", "radius_outliers", "statistical_outliers",
-                                 "voxel_down_sample"),
-    "survey.clouds.axis": ("LiningExtent", "estimate_axis", "extend_chainage",
-                           "lining_extent", "tunnel_frame", "unroll", "unroll_extended"),
-    "survey.clouds.segment": ("CLASS_NAMES", "TERRAIN", "segment_tunnel"),
-    "survey.clouds.reconstruct": ("ReconstructedTunnel", "poisson_tunnel",
-                                  "reconstruct_tunnel", "reconstruct_within_budget"),
-    "survey.clouds.detail": ("attachment_tubes", "DetailedMesh", "with_detail_layer"),
-    "survey.clouds.drives": ("DriveFile", "ScanFrame", "frames_from_points", "iter_frames",
-                             "open_drive", "replace_drive"),
-    "survey.analysis.compare": ("Distances", "ReferenceCloud", "ReferenceMesh",
-                                "cloud_to_cloud", "cloud_to_mesh", "distance_stats"),
-    "survey.analysis.planning": ("Plan", "Planner", "RoutePlanner", "Thresholds",
-                                 "axis_stations", "lining_cells"),
-    "survey.analysis.surface": ("RouteFrame", "Surface", "mesh_surface"),
-    "survey.analysis.study": ("Study", "StudyRow"),
-    "survey.analysis.trajectory": ("RelativeError", "TrajectoryErrors", "align_origin",
-                                   "path_pairs", "trajectory_errors"),
-    "survey.report.adjustment": ("drift_report", "helmert_report"),
-    "survey.report.compare": ("plot_histogram", "stats_csv", "stats_markdown"),
-    "survey.report.planning": ("plan_csv", "plan_markdown", "plot_coverage", "plan_summary"),
-    "survey.report.study": ("plot_study", "study_csv", "study_markdown"),
-    "survey.report.reconstruct": ("plot_support",),
-    "survey.report.demo": ("demo_summary", "summary_markdown", "cloud_c2m_rms"),
-    "survey.report.slam": ("plot_slam", "slam_report"),
-    "survey.analysis.design": ("DesignProfile", "read_design_profile"),
-    "survey.analysis.sections": ("SectionCut", "cut_cloud", "cut_file", "cut_mesh",
-                                 "section_chainages"),
-    "survey.analysis.overbreak": ("Section", "SectionReport", "Volume", "compare_sections"),
-    "survey.analysis.rings": ("CircleFit", "EllipseFit", "RingFit", "fit_circle",
-                              "fit_ellipse", "fit_rings"),
-    "survey.analysis.convergence": ("Chords", "RadialChange", "chords", "radial_change",
-                                    "sections_every"),
-    "survey.analysis.m3c2": ("M3C2", "M3C2Params", "M3C2Result", "lod95", "m3c2",
-                             "subsample", "towards_axis"),
-    "survey.report.sections": ("plot_rings", "plot_section", "rings_csv", "rings_markdown",
-                               "sections_csv", "sections_markdown", "volumes_csv"),
-    "survey.analysis.developed": ("DevelopedFrame", "DevelopedGrid", "DevelopedRaster",
-                                  "RasterAccumulator", "develop", "develop_file",
-                                  "mesh_samples"),
-    "survey.analysis.clearance": ("ClearanceResult", "ViolationRegion", "Violations",
-                                  "box_envelope", "clearance", "clearance_file",
-                                  "read_envelope"),
-    "survey.report.developed": ("clearance_markdown", "plot_developed", "regions_csv",
-                                "violations_csv", "write_developed"),
-    "survey.cluster": ("Campaign", "Station", "open_executor", "read_plan", "scan_stations",
-                       "simulate_windows"),
-    "survey.clouds.solid": ("ScannerVoxelGrid", "SolidMesh", "nearest_scanner",
-                            "reconstruct_solid"),
-    "survey.clouds.scanners": ("iter_scanned", "read_positions", "station_position"),
-    "survey.analysis.detectability": ("DetectLayout", "DetectRow", "DetectTarget",
-                                      "Detectability", "TargetScore", "ahat_a95",
-                                      "detection_limit", "with_noise"),
-    "survey.report.detectability": ("detect_csv", "detect_markdown", "detect_summary",
-                                    "plot_detectability", "targets_csv"),
-    "survey.report.epochs": ("chords_csv", "convergence_markdown", "m3c2_markdown",
-                             "plot_m3c2_histogram", "plot_radial", "radial_csv"),
-    "survey.export.gazebo": ("export_gazebo", "lidar_sdf"),
-    "survey.errors": ("TunnelsimError", "AlignmentError", "ClusterError",
-                      "CompareError",
-                      "ControlPointError", "DeformationError", "DriftError", "FeatureError",
-                      "GazeboExportError", "HelmertError", "OdometryError", "PipelineError",
-                      "PlanningError", "PreprocessError", "ProfileError",
-                      "ReconstructionError", "StudyError", "TunnelError",
-                      "TunnelsimCLIError"),
-}
-
-
-
-if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
+# The one list of public names: type checkers and IDEs import them here; the
+# façade reads this block (raytrace.lazy.lazy_exports_of) and imports each on first use.
+if TYPE_CHECKING:
     from survey.world.alignment import Alignment, Element, arc, clothoid, curve, straight
     from survey.world.profiles import Profile, arched_rectangle, circle, horseshoe
     from survey.world.features import Bolts, Cable, Drainage, Niche, Prisms, WetFloor
@@ -201,7 +111,8 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from survey.report.epochs import (chords_csv, convergence_markdown, m3c2_markdown,
         plot_m3c2_histogram, plot_radial, radial_csv)
     from survey.export.gazebo import export_gazebo, lidar_sdf
-    from survey.errors import (TunnelsimError, AlignmentError, CompareError, ControlPointError, DeformationError, DriftError, FeatureError, GazeboExportError, HelmertError, OdometryError, PipelineError, PlanningError, PreprocessError, ProfileError, ReconstructionError, StudyError, TunnelError, TunnelsimCLIError)
-    from sensors.io.errors import PointFileError, TunnelFileError
+    from survey.errors import (TunnelsimError, AlignmentError, ClusterError, CompareError, ControlPointError, DeformationError, DriftError, FeatureError, GazeboExportError, HelmertError, OdometryError, PipelineError, PlanningError, PreprocessError, ProfileError, ReconstructionError, StudyError, TunnelError, TunnelsimCLIError)
+    from sensors.io.errors import (FileFormatError, MeshFileError, PointFileError,
+        TableFileError, TunnelFileError)
 
-__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS, modules=SUBPACKAGES)
+__getattr__, __dir__, __all__ = lazy_exports_of(__name__, __file__, modules=SUBPACKAGES)

@@ -75,15 +75,16 @@ def test_every_public_error_is_exported_from_its_package_and_the_root():
     import survey
     from raytrace.errors import TunnelsimError
 
-    for pkg in PACKAGES:
+    for pkg in (*PACKAGES, "sensors.io"):
         errors = importlib.import_module(f"{pkg}.errors")
         classes = [c for _n, c in inspect.getmembers(errors, inspect.isclass)
                    if issubclass(c, TunnelsimError)]
         assert len(classes) >= 2
         for c in classes:
             assert issubclass(c, ValueError) or c is TunnelsimError, c
-            assert getattr(importlib.import_module(pkg), c.__name__) is c, (pkg, c)
-            if pkg == "survey":
+            assert getattr(importlib.import_module(pkg.split(".")[0]), c.__name__) is c, \
+                (pkg, c)
+            if pkg.startswith(("survey", "sensors.io")):
                 assert getattr(survey, c.__name__) is c
 
 
@@ -102,3 +103,32 @@ def test_lazy_names_are_the_defining_modules_objects():
     assert survey.cloud_to_mesh is cloud_to_mesh
     with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
         survey.nonexistent  # noqa: B018
+
+
+FACADES = sorted(str(p.relative_to(ROOT)) for pkg in PACKAGES
+                 for p in (ROOT / pkg).rglob("__init__.py")
+                 if "TYPE_CHECKING" in p.read_text())
+
+
+def test_facades_are_found():
+    assert {"survey/__init__.py", "sensors/__init__.py", "survey/world/__init__.py",
+            "survey/analysis/__init__.py"} <= set(FACADES)
+
+
+@pytest.mark.parametrize("path", FACADES)
+def test_a_facade_lists_its_names_once(path):
+    """Issue 32: a package's public names are written once, as the imports of its
+    ``if TYPE_CHECKING:`` block; ``__all__`` is built from them (no second list to
+    fall out of step), and each name is the defining module's object."""
+    from raytrace.lazy import type_checking_imports
+
+    mod = str(Path(path).parent).replace("/", ".")
+    tree = ast.parse((ROOT / path).read_text())
+    literal_lists = [n.lineno for n in tree.body if isinstance(n, (ast.Assign, ast.AnnAssign))
+                     and "__all__" in ast.unparse(n) and isinstance(n.value, (ast.List,
+                                                                              ast.Tuple))]
+    assert not literal_lists, f"{path}:{literal_lists[0]} spells __all__ out a second time"
+    listed = {n for names in type_checking_imports(mod, ROOT / path).values() for n in names}
+    m = importlib.import_module(mod)
+    assert listed <= set(m.__all__)
+    assert set(m.__all__) - listed <= {"__version__", *getattr(m, "SUBPACKAGES", ())}

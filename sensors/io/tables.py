@@ -34,15 +34,11 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from sensors.io.errors import TunnelsimError
+from sensors.io.errors import TableFileError
 
-__all__ = ["DELIMITER_NAMES", "Dialect", "Table", "TableError", "decode_text",
+__all__ = ["DELIMITER_NAMES", "Dialect", "Table", "decode_text",
            "map_columns", "normalise_name", "numeric_columns", "parse_columns",
            "read_table", "sniff", "to_float"]
-
-
-class TableError(TunnelsimError, ValueError):
-    """A text table cannot be read or its columns cannot be mapped."""
 
 
 #: Delimiters tried, in order of preference when several split the lines alike.
@@ -218,7 +214,7 @@ def sniff(lines: Sequence[str]) -> tuple[str, str, bool]:
 
 
 def read_table(path: str | Path, *, what: str = "table",
-               error: type[Exception] = TableError, hash_header: bool = False) -> Table:
+               error: type[Exception] = TableFileError, hash_header: bool = False) -> Table:
     """Read a delimited text table, sniffing its dialect.
 
     Parameters
@@ -303,22 +299,22 @@ def parse_columns(text: str, order: Sequence[str], *, flag: str = "--columns"
     caller). A column is a 1-based number or a header name."""
     items = [s.strip() for s in text.split(",")]
     if not text.strip() or any(not s for s in items):
-        raise TableError(f"Expected {flag} as a comma list ({','.join(order)}), got "
+        raise TableFileError(f"Expected {flag} as a comma list ({','.join(order)}), got "
                          f"{text!r}.")
     if all("=" in s for s in items):
         out = {}
         for s in items:
             k, v = (p.strip() for p in s.split("=", 1))
             if k.lower() not in order:
-                raise TableError(f"Expected {flag} fields among {', '.join(order)}, got "
+                raise TableFileError(f"Expected {flag} fields among {', '.join(order)}, got "
                                  f"{k!r}.")
             out[k.lower()] = v
         return out
     if any("=" in s for s in items):
-        raise TableError(f"Expected {flag} either all positional or all field=column, "
+        raise TableFileError(f"Expected {flag} either all positional or all field=column, "
                          f"got {text!r}.")
     if len(items) > len(order):
-        raise TableError(f"Expected at most {len(order)} columns in {flag} "
+        raise TableFileError(f"Expected at most {len(order)} columns in {flag} "
                          f"({','.join(order)}), got {len(items)}: {text!r}.")
     return dict(zip(order, items))
 
@@ -326,7 +322,7 @@ def parse_columns(text: str, order: Sequence[str], *, flag: str = "--columns"
 def map_columns(table: Table, aliases: Mapping[str, Sequence[str]],
                 required: Sequence[str], *, columns: Mapping[str, str] | None = None,
                 headerless: Sequence[str] = (), what: str = "table",
-                flag: str = "--columns", error: type[Exception] = TableError,
+                flag: str = "--columns", error: type[Exception] = TableFileError,
                 labels: Mapping[str, str] | None = None, unknown: str = "ignore"
                 ) -> dict[str, int]:
     """The column index of each field.
@@ -419,7 +415,7 @@ def map_columns(table: Table, aliases: Mapping[str, Sequence[str]],
 
 def numeric_columns(table: Table, columns: Mapping[str, int], fields: Sequence[str], *,
                     what: str = "table", flag: str = "--columns",
-                    error: type[Exception] = TableError) -> NDArray[np.float64]:
+                    error: type[Exception] = TableFileError) -> NDArray[np.float64]:
     """(n, len(fields)) float64: the columns ``columns[f]`` of ``fields`` as numbers in
     the table's decimal mark; a field that is not a number fails naming its column,
     line, the dialect found and ``flag``."""

@@ -103,14 +103,15 @@ def parse_column_option(text: str | None, flag: str = "--columns") -> dict[str, 
     (and sigma) in that order; named: ``id=Punkt,e=Y,n=X,h=Höhe`` (also ``x=``,
     ``y=``, ``z=``, ``sx=`` ... ``time=``). A column is a 1-based number or a header
     name."""
-    from sensors.io.tables import TableError, parse_columns
+    from sensors.io.errors import TableFileError
+    from sensors.io.tables import parse_columns
 
     if text is None:
         return None
     try:
         raw = parse_columns(text, tuple(_FIELD_OF) if "=" in text else COLUMN_FIELDS,
                             flag=flag)
-    except TableError as exc:
+    except TableFileError as exc:
         raise ControlPointError(str(exc)) from None
     return {_FIELD_OF[k]: v for k, v in raw.items()}
 

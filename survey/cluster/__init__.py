@@ -7,22 +7,22 @@ dask.distributed is optional (the extra ``cluster``) and imported only when a cl
 is asked for.
 """
 
-from .execution import (CLUSTER_HINT, ClusterError, DaskExecutor, Executor, InProcess,
-                        SceneRef, Shared, TaskProgress, call_shared,
-                        numba_threads_per_worker, open_executor)
-from .campaign import (MANIFEST_FORMAT, MANIFEST_NAME, Campaign, Station, read_plan,
-                       scan_stations, sha256_of, station_file, station_seed)
-from .windows import DRIVE_MANIFEST_FORMAT, Window, drive_windows, simulate_windows
-from .tiles import TileData, TileRef, TileSpill, tile_key_text
-from .m3c2_tiles import HALO_MARGIN_M, M3C2Store, halo_of, iter_subsample, m3c2_files
-from .compare import TiledDistances, spill_cloud, tiled_distances
+from __future__ import annotations
 
-__all__ = ["CLUSTER_HINT", "ClusterError", "DaskExecutor", "Executor", "InProcess",
-           "SceneRef", "Shared", "TaskProgress", "call_shared", "numba_threads_per_worker",
-           "open_executor",
-           "MANIFEST_FORMAT", "MANIFEST_NAME", "Campaign", "Station", "read_plan",
-           "scan_stations", "sha256_of", "station_file", "station_seed",
-           "DRIVE_MANIFEST_FORMAT", "Window", "drive_windows", "simulate_windows",
-           "TileData", "TileRef", "TileSpill", "tile_key_text",
-           "HALO_MARGIN_M", "M3C2Store", "halo_of", "iter_subsample", "m3c2_files",
-           "TiledDistances", "spill_cloud", "tiled_distances"]
+from typing import TYPE_CHECKING
+
+from raytrace.lazy import lazy_exports_of
+
+# The one list of public names (imported on first use; type checkers read it).
+if TYPE_CHECKING:
+    from .execution import (CLUSTER_HINT, ClusterError, DaskExecutor, Executor, InProcess,
+                            SceneRef, Shared, TaskProgress, call_shared,
+                            numba_threads_per_worker, open_executor)
+    from .campaign import (MANIFEST_FORMAT, MANIFEST_NAME, Campaign, Station, read_plan,
+                           scan_stations, sha256_of, station_file, station_seed)
+    from .windows import DRIVE_MANIFEST_FORMAT, Window, drive_windows, simulate_windows
+    from .tiles import TileData, TileRef, TileSpill, tile_key_text
+    from .m3c2_tiles import HALO_MARGIN_M, M3C2Store, halo_of, iter_subsample, m3c2_files
+    from .compare import TiledDistances, spill_cloud, tiled_distances
+
+__getattr__, __dir__, __all__ = lazy_exports_of(__name__, __file__, extra=())

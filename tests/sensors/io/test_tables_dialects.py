@@ -13,7 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sensors.io.tables import TableError, decode_text, parse_columns, sniff, to_float
+from sensors.io.errors import TableFileError
+from sensors.io.tables import decode_text, parse_columns, sniff, to_float
 from survey.adjust.controlpoints import read_control_points
 from survey.adjust.helmert import from_parameters
 from survey.cli.main import main
@@ -193,7 +194,7 @@ def test_reader_pieces():
     assert sniff(["A\t1,5\t2,5\t3,5", "B\t1,5\t2,5\t3,5"]) == ("\t", ",", False)
     assert parse_columns("1,3,2,4", ("id", "e", "n", "h")) == {
         "id": "1", "e": "3", "n": "2", "h": "4"}
-    with pytest.raises(TableError, match="--columns"):
+    with pytest.raises(TableFileError, match="--columns"):
         parse_columns("1,,2", ("id", "e", "n", "h"))
 
 
@@ -242,5 +243,5 @@ def test_pose_table_dialects_with_the_trajectory_aliases(tmp_path):
     bad = tmp_path / "b.csv"
     bad.write_text("t,x,y,z,qx,qy,qz,qw,speed\n" + "0,1,2,3,0,0,0,1,5\n")
     tab = read_table(bad, hash_header=True)
-    with pytest.raises(TableError, match="unknown 'speed'"):
+    with pytest.raises(TableFileError, match="unknown 'speed'"):
         map_columns(tab, CSV_COLUMNS, tuple(CSV_COLUMNS), unknown="error")
