@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from pyproj import CRS, Transformer
 
 from raytrace import Scene
 from raytrace.shapes import tunnel_tube
@@ -37,6 +36,11 @@ from sensors.io.crs import (
     write_sidecar,
 )
 from sensors.io.las import CRS_USER, las_crs_wkt, set_las_crs, write_las
+
+pyproj = pytest.importorskip("pyproj", reason="CRS handling needs pyproj (pip install "
+                              "'tunnelsim[crs]'); every test here uses it")
+CRS = pyproj.CRS
+Transformer = pyproj.Transformer
 
 LV95 = CRS("EPSG:2056")
 #: A station's surroundings in LV95 (Bern, near the projection's origin).

@@ -16,7 +16,6 @@ import xml.etree.ElementTree as ET
 import laspy
 import numpy as np
 import pytest
-from pyproj import CRS
 from scipy.spatial.transform import Rotation
 
 from sensors import simulate_station
@@ -26,6 +25,10 @@ from survey.cli.main import main
 from sensors.io.clouds import KEEP_CRS, cloud_crs, cloud_crs_text, map_cloud
 from survey.world.alignment import Alignment
 from survey.world.mesh import read_meta
+
+pyproj = pytest.importorskip("pyproj", reason="CRS handling needs pyproj (pip install "
+                              "'tunnelsim[crs]'); every test here uses it")
+CRS = pyproj.CRS
 
 LV95 = CRS("EPSG:2056")
 UTM32 = CRS("EPSG:32632")
