@@ -22,7 +22,7 @@ __version__ = "0.2.0"
 # The one list of public names: type checkers and IDEs import them here; the
 # façade reads this block (raytrace.lazy.lazy_exports_of) and imports each on first use.
 if TYPE_CHECKING:
-    from sensors.errors import (TunnelsimError, SensorSpecError, SimulationError, TrajectoryError, PlatformError, RouteError)
+    from sensors.errors import (TunnelsimError, CameraSpecError, SensorSpecError, SimulationError, TrajectoryError, PlatformError, RouteError)
     from sensors.io.errors import (FileFormatError, MeshFileError, PointFileError,
         TableFileError, TunnelFileError)
     from sensors.patterns import ProfileScan, Pulses, SpinningScan, TLSScan, scan_for
@@ -38,5 +38,6 @@ if TYPE_CHECKING:
     from sensors.route import Route, find_route, read_waypoints
     from sensors.platform_spec import PlatformSpec, list_platforms, load_platform
     from sensors.platform import platform_trajectory
+    from sensors.camera import CameraSpec, list_cameras, load_camera
 
 __getattr__, __dir__, __all__ = lazy_exports_of(__name__, __file__)

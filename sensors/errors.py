@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from raytrace.errors import TunnelsimError
 
-__all__ = ["PlatformError", "RouteError", "SensorSpecError",
+__all__ = ["CameraSpecError", "PlatformError", "RouteError", "SensorSpecError",
            "SimulationError", "TrajectoryError", "TunnelsimError"]
 
 
@@ -27,6 +27,11 @@ class PlatformError(TunnelsimError, ValueError):
     """A platform specification (TOML) is missing, malformed or holds a key the loader
     does not know, or a platform cannot follow the path asked (a speed above its
     limit, a floor it cannot find)."""
+
+
+class CameraSpecError(TunnelsimError, ValueError):
+    """A camera description (TOML) is missing, malformed or holds a key the loader does
+    not read; or camera-frame input has the wrong shape."""
 
 
 class SimulationError(TunnelsimError, ValueError):
