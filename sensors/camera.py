@@ -68,7 +68,7 @@ TABLE_KEYS: Final = {
     "image": ("width", "height", "frame_rate_hz"),
     "lens": ("model", "hfov_deg", "distortion"),
     "sensor": ("exposure_ms", "read_noise_e", "full_well_e", "bit_depth",
-               "line_time_us", "shutter"),
+               "line_time_us", "shutter", "pixel_um", "f_number", "quantum_efficiency"),
     "depth": ("min_m", "max_m"),
     "thermal": ("band_um", "netd_mk"),
 }
@@ -94,6 +94,9 @@ class CameraSpec:
         ``k1 k2 p1 p2 k3`` (pinhole) or ``k1 k2 k3 k4`` (fisheye).
     exposure_s, read_noise_e, full_well_e : float
         Exposure time, read noise and full-well capacity (electrons).
+    pixel_m, f_number, quantum_efficiency : float
+        Pixel pitch, the lens's f-number and the sensor's quantum efficiency: the
+        exposure's electrons per luminance (``sensors.shading.expose``).
     bit_depth : int
         Bits of the digitised value (8 for the colour PNG, 16 for depth and thermal).
     line_time_s : float
@@ -124,6 +127,9 @@ class CameraSpec:
     exposure_s: float
     read_noise_e: float
     full_well_e: float
+    pixel_m: float
+    f_number: float
+    quantum_efficiency: float
     bit_depth: int
     line_time_s: float
     depth_range_m: tuple[float, float] | None
@@ -140,7 +146,13 @@ class CameraSpec:
 
     @property
     def global_shutter(self) -> bool:
+        """No rolling shutter: every row exposed at once."""
         return self.line_time_s == 0.0
+
+    @property
+    def pixel_area_m2(self) -> float:
+        """Area of one pixel (square pixels)."""
+        return self.pixel_m * self.pixel_m
 
     def __repr__(self) -> str:
         return (f"CameraSpec({self.name}: {self.vendor} {self.model_name}, {self.kind}, "
@@ -201,7 +213,9 @@ def _load(path: Path) -> CameraSpec:
                       (w - 1) / 2.0, (h - 1) / 2.0, dist,
                       sen.num("exposure_ms", positive=True) * 1e-3,
                       sen.num("read_noise_e", lo=0.0), sen.num("full_well_e", positive=True),
-                      bits, line, depth, band, netd, dev.texts("sources"), str(path))
+                      sen.num("pixel_um", positive=True) * 1e-6,
+                      sen.num("f_number", positive=True),
+                      sen.num("quantum_efficiency", lo=0.0, hi=1.0), bits, line, depth, band, netd, dev.texts("sources"), str(path))
 
 
 #: The shipped camera files by name.

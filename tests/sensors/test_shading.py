@@ -1,0 +1,106 @@
+"""Shading and exposure (issue 35) against closed forms: a floor under a point lamp
+(inverse square and cosine laws), a shadow cast by a square plate (its projection),
+the spot profile, Stefan-Boltzmann for the band radiance, and the noise statistics of
+the exposure."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from raytrace import Scene
+from sensors.camera import load_camera
+from sensors.errors import SimulationError
+from sensors.render import camera_pose, render_depth
+from sensors.shading import (K_V, Lamp, _band_radiance, apparent_temperature, expose,
+                             luminance)
+
+
+def _floor(half=20.0, z=0.0):
+    v = np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]])
+    return v, np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def _small(cam_name="realsense_d435_color"):
+    cam = load_camera(cam_name)
+    return replace(cam, width=160, height=120, fx=100.0, fy=100.0, cx=79.5, cy=59.5)
+
+
+def test_a_point_lamp_over_a_floor_is_inverse_square_and_cosine():
+    v, f = _floor()
+    scene = Scene(v, f)
+    cam = _small()
+    T = camera_pose([0.0, 0.0, 3.0], 0.0, -math.pi / 2)     # looking straight down
+    fr = render_depth(scene, cam, T)
+    lamp = Lamp([0.5, -0.3, 2.0], [0, 0, -1], 800.0)
+    L = luminance(scene, fr, [lamp], np.array([0.4, 0.5, 0.6]))
+    p = fr.points[fr.hit]
+    d = np.linalg.norm(lamp.position - p, axis=1)
+    E = 800.0 * (2.0 / d) / d ** 2                          # cos = h / d
+    for c, rho in enumerate((0.4, 0.5, 0.6)):
+        np.testing.assert_allclose(L[fr.hit][:, c], rho * E / math.pi, rtol=1e-12)
+
+
+def test_a_plate_casts_its_projected_shadow():
+    v, f = _floor()
+    # A 1 m square plate 1 m above the floor, under a lamp 2 m up: its shadow is the
+    # plate scaled by 2 about the lamp's foot.
+    pv = np.array([[-0.5, -0.5, 1.0], [0.5, -0.5, 1.0], [0.5, 0.5, 1.0], [-0.5, 0.5, 1.0]])
+    scene = Scene(np.vstack([v, pv]), np.vstack([f, np.array([[4, 5, 6], [4, 6, 7]])]))
+    cam = _small()
+    T = camera_pose([3.0, 0.0, 3.0], math.pi, -math.radians(50))
+    fr = render_depth(scene, cam, T)
+    L = luminance(scene, fr, [Lamp([0, 0, 2.0], [0, 0, -1], 500.0)], np.array([1.0]))
+    on_floor = fr.hit & (np.abs(fr.points[..., 2]) < 1e-9)
+    x, y = fr.points[..., 0], fr.points[..., 1]
+    inside = on_floor & (np.abs(x) < 0.99) & (np.abs(y) < 0.99)
+    outside = on_floor & ((np.abs(x) > 1.01) | (np.abs(y) > 1.01))
+    assert inside.sum() > 50 and outside.sum() > 50
+    assert np.all(L[inside] == 0.0) and np.all(L[outside] > 0.0)
+
+
+def test_spot_profile_is_full_inside_and_zero_outside():
+    lamp = Lamp([0, 0, 0], [0, 0, -1], 1.0, math.radians(20), math.radians(30))
+    cos = np.cos(np.radians([0, 19.9, 25, 30.1, 90]))
+    f = lamp.profile(cos)
+    assert f[0] == f[1] == 1.0 and 0 < f[2] < 1 and f[3] == f[4] == 0.0
+
+
+def test_band_radiance_over_all_wavelengths_is_stefan_boltzmann():
+    sigma = 5.670374419e-8
+    for T in (250.0, 300.0, 400.0):
+        got = _band_radiance(np.array([T]), (0.5e-6, 2000e-6), n=4000)[0]
+        assert got == pytest.approx(sigma * T ** 4 / math.pi, rel=2e-3)
+
+
+@settings(max_examples=30, deadline=None)
+@given(T=st.floats(200.0, 600.0), eps=st.floats(0.05, 1.0), amb=st.floats(200.0, 400.0))
+def test_apparent_temperature_lies_between_surface_and_surroundings(T, eps, amb):
+    cam = load_camera("lwir_640")
+    got = apparent_temperature(cam, np.array([T]), eps, amb, noise=False)[0]
+    lo, hi = min(T, amb), max(T, amb)
+    assert lo - 1e-6 <= got <= hi + 1e-6
+    if eps == 1.0:
+        assert got == pytest.approx(T, abs=1e-6)
+
+
+def test_a_colour_camera_gives_no_temperature():
+    with pytest.raises(SimulationError, match="thermal camera"):
+        apparent_temperature(load_camera("realsense_d435_color"), np.array([300.0]))
+
+
+def test_exposure_is_the_formula_and_its_noise_poisson_plus_read():
+    cam = replace(load_camera("realsense_d435_color"), full_well_e=1e9, bit_depth=16)
+    lum = np.full((200, 200, 1), 30.0)
+    e_mean = cam.quantum_efficiency * K_V * cam.pixel_area_m2 * 30.0 * cam.exposure_s * \
+        math.pi / (4 * cam.f_number ** 2)
+    scale = (2 ** 16 - 1) / cam.full_well_e
+    np.testing.assert_allclose(expose(cam, lum, noise=False), e_mean * scale, rtol=1e-12)
+    noisy = expose(cam, lum, seed=3) / scale
+    assert noisy.mean() == pytest.approx(e_mean, rel=0.01)
+    assert noisy.var() == pytest.approx(e_mean + cam.read_noise_e ** 2, rel=0.05)
