@@ -1,8 +1,10 @@
 """Closest-point benchmark: signed cloud-to-mesh distances of a simulated TLS station
 against the mesh it scanned, ours against CloudCompare's C2M and Open3D, in one run.
 
-* ``ours``: ``survey.analysis.compare.ReferenceMesh`` (tree build) and its
-  ``distances`` (exact nearest triangle, float64, signed), all threads.
+* ``ours``: ``survey.analysis.compare.ReferenceMesh`` (the engine's ``raytrace.Scene``
+  build) and its ``distances`` (``Scene.closest``: exact nearest triangle, float64,
+  signed), all threads; also the bare ``Scene.closest`` query (``ours_scene``) and its
+  work per point (nodes visited and triangles tested, ``--profile``).
 * ``cloudcompare``: headless ``CloudCompare -SILENT ... -C2M_DIST`` (Debian's package,
   2.11); its own timing line ``[ComputeDistances] Time`` (the distance computation,
   octree included) and the whole process's wall time. Skipped where it is not installed.
@@ -64,17 +66,131 @@ def _best(fn, repeat=3):
 
 
 def _brute(points, v, f):
-    """Unsigned float64 distances, every triangle a candidate."""
-    from survey._kernels.closest import nearest_triangles
+    """Unsigned float64 distances, every triangle a candidate (NumPy, vectorised over
+    the triangles; Ericson 2005, 5.1.5, as ``tests/raytrace/test_closest.py`` spells
+    it)."""
+    # The scene's local origin (the box centre in whole metres, raytrace.Scene): in the
+    # same frame the arithmetic is the kernel's, so the distances agree bit for bit.
+    org = np.round(0.5 * (v.min(axis=0) + v.max(axis=0)))
+    loc = v - org
+    a = loc[f[:, 0]]
+    ab = loc[f[:, 1]] - a
+    ac = loc[f[:, 2]] - a
+    out = np.empty(len(points))
 
-    org = v.mean(axis=0)
-    tris = np.ascontiguousarray((v - org)[f])
-    p = np.ascontiguousarray(points - org)
-    start = np.arange(len(p) + 1, dtype=np.int64) * len(tris)
-    cand = np.tile(np.arange(len(tris), dtype=np.int64), len(p))
-    t, q = np.empty(len(p), dtype=np.int64), np.empty((len(p), 3))
-    nearest_triangles(p, tris, start, cand, t, q)
-    return np.linalg.norm(p - q, axis=1)
+    def dot(u, w):
+        return u[:, 0] * w[:, 0] + u[:, 1] * w[:, 1] + u[:, 2] * w[:, 2]
+
+    for i, p in enumerate(points - org):
+        ap = p - a
+        d1, d2 = dot(ab, ap), dot(ac, ap)
+        bp = ap - ab
+        d3, d4 = dot(ab, bp), dot(ac, bp)
+        cp = ap - ac
+        d5, d6 = dot(ab, cp), dot(ac, cp)
+        vc, vb, va = d1 * d4 - d3 * d2, d5 * d2 - d1 * d6, d3 * d6 - d5 * d4
+        with np.errstate(divide="ignore", invalid="ignore"):
+            den = 1.0 / (va + vb + vc)
+            e = ap - ab * (vb * den)[:, None] - ac * (vc * den)[:, None]
+            cases = [((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),
+                      bp - ((d4 - d3) / ((d4 - d3) + (d5 - d6)))[:, None] * (ac - ab)),
+                     ((vb <= 0) & (d2 >= 0) & (d6 <= 0), ap - (d2 / (d2 - d6))[:, None] * ac),
+                     ((d6 >= 0) & (d5 <= d6), cp),
+                     ((vc <= 0) & (d1 >= 0) & (d3 <= 0), ap - (d1 / (d1 - d3))[:, None] * ab),
+                     ((d3 >= 0) & (d4 <= d3), bp), ((d1 <= 0) & (d2 <= 0), ap)]
+            for m, o in cases:                      # the first region (last here) wins
+                e = np.where(m[:, None], o, e)
+        out[i] = np.sqrt(np.nanmin(dot(e, e)))
+    return out
+
+
+def _profile(points, v, f):
+    """Mean BVH records visited and triangles tested per point of ``Scene.closest`` (a
+    counting copy of the kernel's loop, one thread)."""
+    from numba import njit
+
+    from raytrace import Scene
+    from raytrace._kernels.closest import BOUND_SLACK, offset_to_triangle
+    from raytrace._kernels.simd import LANES
+    from raytrace._kernels.traverse import CHILD, COUNT
+
+    @njit
+    def count(nodes, links, tris, ids, pts, stack_size):
+        visits = 0
+        tests = 0
+        st_node = np.empty(stack_size, dtype=np.int64)
+        st_dist = np.empty(stack_size)
+        cd = np.empty(LANES)
+        cl = np.empty(LANES, dtype=np.int64)
+        cn = np.empty(LANES, dtype=np.int64)
+        prev = -1
+        for r in range(pts.shape[0]):
+            px, py, pz = pts[r, 0], pts[r, 1], pts[r, 2]
+            best, best_id, best_slot = np.inf, 2 ** 62, -1
+            if prev >= 0:
+                ex, ey, ez = offset_to_triangle(tris, prev, px, py, pz)
+                best, best_id, best_slot = ex * ex + ey * ey + ez * ez, ids[prev], prev
+                tests += 1
+            sp, cur = 0, 0
+            while cur >= 0:
+                visits += 1
+                cull = best * BOUND_SLACK
+                k = 0
+                for lane in range(LANES):
+                    if nodes[cur, lane] > nodes[cur, 3 * LANES + lane]:
+                        continue
+                    d = 0.0
+                    for ax in range(3):
+                        lo = np.float64(nodes[cur, ax * LANES + lane])
+                        hi = np.float64(nodes[cur, (3 + ax) * LANES + lane])
+                        g = max(lo - pts[r, ax], pts[r, ax] - hi, 0.0)
+                        d += g * g
+                    if d > cull:
+                        continue
+                    q = k
+                    while q > 0 and cd[q - 1] > d:
+                        cd[q], cl[q] = cd[q - 1], cl[q - 1]
+                        q -= 1
+                    cd[q], cl[q] = d, lane
+                    k += 1
+                n_int = 0
+                for q in range(k):
+                    if cd[q] > best * BOUND_SLACK:
+                        continue
+                    lane = cl[q]
+                    cnt = links[cur, COUNT + lane]
+                    if cnt > 0:
+                        first = links[cur, CHILD + lane]
+                        for j in range(first, first + cnt):
+                            tests += 1
+                            ex, ey, ez = offset_to_triangle(tris, j, px, py, pz)
+                            d2 = ex * ex + ey * ey + ez * ez
+                            if d2 < best or (d2 == best and ids[j] < best_id):
+                                best, best_id, best_slot = d2, ids[j], j
+                    else:
+                        cn[n_int], cd[n_int] = links[cur, CHILD + lane], cd[q]
+                        n_int += 1
+                cur = -1
+                cur_d = 0.0
+                for q in range(n_int - 1, -1, -1):
+                    if cd[q] > best * BOUND_SLACK:
+                        continue
+                    if cur >= 0:
+                        st_node[sp], st_dist[sp] = cur, cur_d
+                        sp += 1
+                    cur, cur_d = cn[q], cd[q]
+                while cur < 0 and sp > 0:
+                    sp -= 1
+                    if st_dist[sp] <= best * BOUND_SLACK:
+                        cur = st_node[sp]
+            prev = best_slot
+        return visits / pts.shape[0], tests / pts.shape[0]
+
+    scene = Scene(v, f)
+    local = np.ascontiguousarray(points - scene.origin_offset)
+    nodes = scene._nodes
+    return count(nodes, nodes.view(np.int32), scene._tris, scene._ids, local,
+                 scene._stack_size)
 
 
 def _ours(points, v, f):
@@ -84,6 +200,15 @@ def _ours(points, v, f):
     build, ref = _best(lambda: ReferenceMesh(v, f), 2)
     query, d = _best(lambda: ref.distances(points))
     return {"build_s": build, "query_s": query}, np.abs(d.distance)
+
+
+def _ours_scene(points, v, f):
+    from raytrace import Scene
+
+    Scene(v[:50], np.array([[0, 1, 2]])).closest(points[:10])            # compile
+    build, scene = _best(lambda: Scene(v, f), 2)
+    query, near = _best(lambda: scene.closest(points))
+    return {"build_s": build, "query_s": query}, near.distance
 
 
 def _open3d(points, v, f):
@@ -144,7 +269,9 @@ def main() -> int:
     ap.add_argument("--resolution", default="preview", help="the station's resolution")
     ap.add_argument("--every", type=int, default=5, help="keep every N-th return")
     ap.add_argument("--check", type=int, default=300, help="points checked by brute force")
-    ap.add_argument("--engines", default="ours,cloudcompare,open3d")
+    ap.add_argument("--engines", default="ours,ours_scene,cloudcompare,open3d")
+    ap.add_argument("--profile", action="store_true",
+                    help="also count BVH records visited and triangles tested per point")
     ap.add_argument("--json", help="write the figures to this file")
     a = ap.parse_args()
 
@@ -155,7 +282,8 @@ def main() -> int:
     sample = rng.choice(len(p), min(a.check, len(p)), replace=False)
     truth = _brute(p[sample], v, f)
     res = {"triangles": len(f), "points": len(p), "edge_m": a.edge, "engines": {}}
-    runners = {"ours": _ours, "cloudcompare": _cloudcompare, "open3d": _open3d}
+    runners = {"ours": _ours, "ours_scene": _ours_scene, "cloudcompare": _cloudcompare,
+               "open3d": _open3d}
     for name in a.engines.split(","):
         try:
             fig, d = runners[name](p, v, f)
@@ -181,6 +309,11 @@ def main() -> int:
     if "cloudcompare" in res["engines"]:
         print(f"cloudcompare whole process (load, octree, C2M, save): "
               f"{res['engines']['cloudcompare']['process_s']:.2f} s")
+    if a.profile:
+        visits, tests = _profile(p, v, f)
+        res["visits_per_point"], res["tests_per_point"] = visits, tests
+        print(f"Scene.closest work per point: {visits:.1f} 8-wide records visited, "
+              f"{tests:.1f} triangles tested")
     if a.json:
         Path(a.json).write_text(json.dumps(res, indent=1))
     return 0

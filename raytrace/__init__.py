@@ -24,6 +24,7 @@ __version__ = "0.2.0"
 _EXPORTS = {
     "raytrace.scene": ("Scene",),
     "raytrace.hits": ("Hits",),
+    "raytrace.closest": ("ClosestPoints",),
     "raytrace.errors": ("TunnelsimError", "ConfigError", "MeshError", "RayError",
                         "SceneFileError"),
     "raytrace.config": ("max_threads", "set_threads", "threading_info", "threads"),
@@ -33,6 +34,7 @@ _EXPORTS = {
 if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
     from raytrace.scene import Scene
     from raytrace.hits import Hits
+    from raytrace.closest import ClosestPoints
     from raytrace.errors import (TunnelsimError, ConfigError, MeshError, RayError,
         SceneFileError)
     from raytrace.config import max_threads, set_threads, threading_info, threads

@@ -21,8 +21,9 @@ route finder (``sensors.route`` does steps 3 and 4, the path and its smoothing).
    to their 26-neighbours one voxel up or down at most (floors steeper than 45 degrees
    are not driven).
 
-Exact point-to-mesh distances (``FreeSpace.distance``) take the closest point on each
-nearby triangle (Ericson 2005, "Real-Time Collision Detection", 5.1.5).
+Exact point-to-mesh distances (``FreeSpace.distance``) are the engine's closest-point
+query, ``raytrace.Scene.closest`` (Ericson 2005, "Real-Time Collision Detection", 5.1.5,
+by branch and bound over the scene's BVH).
 
 >>> from raytrace.shapes import tunnel_tube
 >>> space = free_space(tunnel_tube(1500, length_m=10.0), voxel_m=0.1)
@@ -72,7 +73,6 @@ FLOOR_OFFSET_VOX = 2.0
 #: into strips whose dead ends would pass for the passage's ends (ASSUMED: 0.3 m).
 SWEEP_STEP_M = 0.3
 _SQRT3 = float(np.sqrt(3.0))
-_QUERY_CHUNK = 64          # route points per exact-distance batch (memory)
 _SAMPLE_CHUNK = 200_000    # sub-triangles per sampling batch (memory)
 
 
@@ -94,10 +94,9 @@ class FreeSpace:
     """
 
     def __init__(self, scene: Scene, voxel_m: float, origin: NDArray[np.float64],
-                 free: NDArray[np.bool_], clearance_m: NDArray[np.float32],
-                 surface: _Surface) -> None:
+                 free: NDArray[np.bool_], clearance_m: NDArray[np.float32]) -> None:
         self.scene, self.voxel_m, self.origin = scene, voxel_m, origin
-        self.free, self.clearance_m, self._surface = free, clearance_m, surface
+        self.free, self.clearance_m = free, clearance_m
 
     def centres(self, ijk: ArrayLike) -> NDArray[np.float64]:
         """World positions (n, 3) of voxel centres given by indices (n, 3)."""
@@ -109,75 +108,14 @@ class FreeSpace:
         return np.floor((p - self.origin) / self.voxel_m).astype(np.int64)
 
     def distance(self, points: ArrayLike) -> NDArray[np.float64]:
-        """Exact distance (n,) float64 of world points (n, 3) to the mesh (m)."""
+        """Exact distance (n,) float64 of world points (n, 3) to the mesh (m)
+        (``raytrace.Scene.closest``)."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        return self._surface.distance(p - self.scene.origin_offset)
+        return np.asarray(self.scene.closest(p).distance)
 
     def __repr__(self) -> str:
         return (f"FreeSpace({int(self.free.sum()):,} free voxels of {self.free.size:,}, "
                 f"voxel {self.voxel_m:.3g} m)")
-
-
-class _Surface:
-    """The mesh as small sub-triangles (local frame) with a k-d tree of their centroids:
-    exact point-to-mesh distances looking only at nearby sub-triangles."""
-
-    def __init__(self, tri: NDArray[np.float64]) -> None:
-        self.tri = tri
-        c = tri.mean(axis=1)
-        self.reach = float(np.linalg.norm(tri - c[:, None], axis=2).max())
-        self.tree = cKDTree(c)
-
-    def distance(self, p: NDArray[np.float64]) -> NDArray[np.float64]:
-        out = np.full(len(p), np.inf)
-        if not len(p):
-            return out
-        # The nearest centroid is a surface point: an upper bound on the distance, so
-        # only sub-triangles whose centroid lies within it plus their reach can be nearer.
-        ub, _ = self.tree.query(p)
-        for a in range(0, len(p), _QUERY_CHUNK):
-            q = p[a:a + _QUERY_CHUNK]
-            near = self.tree.query_ball_point(q, ub[a:a + _QUERY_CHUNK] + self.reach)
-            counts = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(q))
-            pi = np.repeat(np.arange(len(q)), counts)
-            ti = np.concatenate([np.asarray(x, dtype=np.int64) for x in near])
-            d = np.linalg.norm(q[pi] - _closest_on_triangles(q[pi], self.tri[ti]), axis=1)
-            np.minimum.at(out, a + pi, d)
-        return out
-
-
-def _dot(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.einsum("ij,ij->i", a, b)
-
-
-def _closest_on_triangles(p: NDArray[np.float64], tri: NDArray[np.float64]
-                          ) -> NDArray[np.float64]:
-    """Closest point (n, 3) on triangle tri[i] (n, 3, 3) to p[i] (n, 3): Ericson 2005,
-    5.1.5, the Voronoi regions of the vertices, edges and face, vectorised (the regions
-    are applied from the face up, so that the vertex regions take precedence)."""
-    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
-    ab, ac = b - a, c - a
-    d1, d2 = _dot(ab, p - a), _dot(ac, p - a)
-    d3, d4 = _dot(ab, p - b), _dot(ac, p - b)
-    d5, d6 = _dot(ab, p - c), _dot(ac, p - c)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        den = va + vb + vc
-        out = a + ab * (vb / den)[:, None] + ac * (vc / den)[:, None]
-        w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-        out[m] = (b + (c - b) * w[:, None])[m]
-        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-        out[m] = (a + ac * (d2 / (d2 - d6))[:, None])[m]
-        m = (d6 >= 0) & (d5 <= d6)
-        out[m] = c[m]
-        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-        out[m] = (a + ab * (d1 / (d1 - d3))[:, None])[m]
-    m = (d3 >= 0) & (d4 <= d3)
-    out[m] = b[m]
-    m = (d1 <= 0) & (d2 <= 0)
-    out[m] = a[m]
-    return out
 
 
 def _split_triangles(tri: NDArray[np.float64], max_edge: float) -> NDArray[np.float64]:
@@ -298,7 +236,7 @@ def free_space(mesh: Scene | tuple[ArrayLike, ArrayLike], *, voxel_m: float | No
                                   f"{point_text(p + scene.origin_offset)}, which is outside it or "
                                   "within two voxels of the surface.")
     return FreeSpace(scene, s, origin + scene.origin_offset, labels == keep,
-                     dvox * np.float32(s), _Surface(sub))
+                     dvox * np.float32(s))
 
 
 def _label_near(labels: NDArray[np.int32], ijk: NDArray[np.int64], reach: int = 2) -> int:

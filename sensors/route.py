@@ -22,9 +22,9 @@ are ``sensors.freespace``'s.
    (``smoothing_m``; its ends kept by point reflection), cut where the floor ends under
    an oblique open end, resampled every ``spacing_m``, set on the floor by rays cast
    down (``Scene.cast``) and lifted by ``height_m``. Every point's exact distance to the
-   mesh (closest point on a triangle, Ericson 2005, "Real-Time Collision Detection"
-   5.1.5) is measured; where one is below ``clearance_m`` the smoothing is halved, then
-   dropped.
+   mesh (``Scene.closest``: closest point on a triangle, Ericson 2005, "Real-Time
+   Collision Detection" 5.1.5) is measured; where one is below ``clearance_m`` the
+   smoothing is halved, then dropped.
 5. **The platform** (issue 29, with ``platform``). Where the passage is narrower than
    ``clearance_m`` the route is sought again on the floor where the sensor keeps
    ``MIN_SENSOR_CLEARANCE_M``, and a narrow spot is passed with a warning naming it.
@@ -429,7 +429,8 @@ def _shapes(space: FreeSpace, fl: FloorGraph, legs: list[NDArray[np.int64]],
                              f"{int((~hit).sum())} of its {len(hit)} points; is the mesh "
                              "upside down or open below? Check --mesh.")
         pts = floor + [0.0, 0.0, height_m]
-        yield pts, floor, space.distance(pts), np.asarray(at, dtype=np.int64)
+        clear = space.scene.closest(pts).distance
+        yield pts, floor, clear, np.asarray(at, dtype=np.int64)
 
 
 def _trim_ends(pts: NDArray[np.float64], floor: NDArray[np.float64],

@@ -11,9 +11,9 @@ per scan (the seed's Table 1), a histogram and the distance as a LAS scalar fiel
   ``k`` nearest reference points (CloudCompare's local model "least square plane"),
   which removes the reference's sampling from the distance.
 - ``cloud_to_mesh``: signed distance to the exact closest point of the mesh (Ericson
-  2005, 5.1.5), found by branch and bound in a tree over the triangles
-  (``survey._kernels.closest_bvh``; ties to the lower triangle index, equal to brute
-  force bit for bit). Sign as CloudCompare: positive on the side the closest
+  2005, 5.1.5), found by the engine's one closest-point query (``raytrace.Scene.closest``:
+  branch and bound over the scene's BVH, ties to the lower triangle index, equal to
+  brute force bit for bit). Sign as CloudCompare: positive on the side the closest
   triangle's right-hand normal (b - a) x (c - a) points to.
 
 Two clouds far apart are not compared: ``check_overlap`` refuses bounding boxes more
@@ -264,10 +264,21 @@ class ReferenceMesh:
     ----------
     vertices : (v, 3) array_like of float, or structured array with x, y, z
     faces : (m, 3) array_like of int, vertex indices
+
+    Attributes
+    ----------
+    scene : raytrace.Scene
+        The engine's scene of the mesh; ``distances`` is its ``closest`` query, signed.
+    bounds : (2, 3) float64
+        (min, max) rows of the vertices used by a face, m.
+    origin : (3,) float64
+        The scene's local origin (``Scene.origin_offset``), m.
     """
 
     def __init__(self, vertices: ArrayLike, faces: ArrayLike) -> None:
-        from survey._kernels.closest_bvh import build_tree
+        import warnings
+
+        from raytrace import MeshError, Scene
 
         v, _ = as_points(vertices, "vertices", CompareError)
         f = np.asarray(faces)
@@ -288,38 +299,45 @@ class ReferenceMesh:
         seen[f.ravel()] = True
         used = v[seen]
         self.bounds = np.stack([used.min(axis=0), used.max(axis=0)])
-        self.origin = v.mean(axis=0)
-        self.tris = np.ascontiguousarray((v - self.origin)[f])          # (m, 3, 3)
-        n = np.cross(self.tris[:, 1] - self.tris[:, 0], self.tris[:, 2] - self.tris[:, 0])
-        ln = np.linalg.norm(n, axis=1)
-        self.normals = n / np.where(ln > 0, ln, 1.0)[:, None]
-        # A tree over the triangles' boxes (survey._kernels.closest_bvh): exact nearest
-        # triangles by branch and bound.
-        self._tree = build_tree(self.tris)
+        self.vertices = v
+        self.faces = f.astype(np.int64, copy=False)
+        # The engine's scene (raytrace.Scene): its BVH answers the closest-point query.
+        # DECISION: zero-area faces are left out without the Scene's warning: they have
+        # no side (no normal) for the sign, and a sliver's points lie on its neighbours'
+        # edges; a mesh of nothing but zero-area faces is refused.
+        try:
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message="Dropped .* zero-area",
+                                        category=UserWarning)
+                self.scene = Scene(self.vertices, self.faces)
+        except MeshError as exc:
+            raise CompareError(f"Expected a reference mesh with at least one triangle of "
+                               f"non-zero area, got {len(f)} degenerate faces; check the "
+                               "mesh's faces and units.") from exc
+        #: Local origin of the scene's triangles (whole metres), m.
+        self.origin = np.asarray(self.scene.origin_offset)
+
+    @property
+    def tris(self) -> NDArray[np.float64]:
+        """(m, 3, 3) float64: the triangles (vertices of each face) relative to
+        ``origin``, m."""
+        return np.asarray((self.vertices - self.origin)[self.faces])
 
     def __repr__(self) -> str:
-        return f"ReferenceMesh({len(self.tris):,} triangles)"
+        return f"ReferenceMesh({len(self.faces):,} triangles)"
 
     def distances(self, compared: ArrayLike, *,
                   max_distance_m: float | None = None) -> Distances:
         """Signed distances from each compared point (n, 3) or (3,) to this mesh;
         ``max_distance_m`` clamps |d| keeping the sign."""
-        from survey._kernels.closest_bvh import nearest_in_tree
-
-        p = as_points(compared, "compared", CompareError)[0] - self.origin
+        p = as_points(compared, "compared", CompareError)[0]
         max_d = _max_distance(max_distance_m)
         dist = np.empty(len(p))
         tri = np.empty(len(p), dtype=np.int64)
         for b in range(0, len(p), BLOCK):
-            q = np.ascontiguousarray(p[b:b + BLOCK])
-            out_t = np.empty(len(q), dtype=np.int64)
-            out_q = np.empty((len(q), 3))
-            nearest_in_tree(q, self.tris, *self._tree, out_t, out_q)
-            diff = q - out_q
-            dd = np.linalg.norm(diff, axis=1)
-            sign = np.where(np.einsum("ni,ni->n", diff, self.normals[out_t]) < 0, -1.0, 1.0)
-            dist[b:b + BLOCK] = sign * dd
-            tri[b:b + BLOCK] = out_t
+            near = self.scene.closest(p[b:b + BLOCK])
+            dist[b:b + BLOCK] = near.signed_distance
+            tri[b:b + BLOCK] = near.triangle
         if max_d is not None:
             far = np.abs(dist) > max_d
             dist[far] = np.sign(dist[far]) * max_d

@@ -10,7 +10,7 @@ distance to the original surface, so the error is measured on the result
 (``decimation_error``): the distances from sample points of the original mesh (its
 vertices and face centroids) to the decimated mesh, and back from the decimated mesh's
 vertices and face centroids to the original, each exact point-to-triangle distances
-(the BVH kernel of ``survey._kernels.closest_bvh``). The larger of the two maxima is a
+(the engine's query, ``raytrace.Scene.closest``). The larger of the two maxima is a
 sampled symmetric Hausdorff distance.
 
 A geometric bound (``max_error_m``) is met by search: halve the triangle count while the
@@ -73,22 +73,28 @@ def _open3d() -> Any:
 def point_mesh_distances(points: ArrayLike, vertices: ArrayLike, faces: ArrayLike
                          ) -> Floats:
     """Exact distance (m) from each point (n, 3) to the nearest triangle of the mesh
-    (vertices (v, 3) float, faces (m, 3) int). Returns (n,) float64; empty points give
-    an empty array."""
-    from survey._kernels.closest_bvh import build_tree, nearest_in_tree
+    (vertices (v, 3) float, faces (m, 3) int), by the engine's closest-point query
+    (``raytrace.Scene.closest``). Returns (n,) float64; empty points give an empty
+    array. Zero-area faces are left out (they lie on their neighbours' edges)."""
+    import warnings
 
-    p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    from raytrace import MeshError, Scene
+
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     if len(p) == 0:
         return np.empty(0)
     if len(f) == 0:
         raise ReconstructionError("Expected a mesh with at least one triangle, got none.")
-    tris = np.ascontiguousarray(v[f])
-    out_t = np.empty(len(p), dtype=np.int64)
-    out_q = np.empty((len(p), 3))
-    nearest_in_tree(p, tris, *build_tree(tris), out_t, out_q)
-    return np.asarray(np.linalg.norm(p - out_q, axis=1))
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Dropped .* zero-area",
+                                    category=UserWarning)
+            scene = Scene(v, f)
+    except MeshError as exc:
+        raise ReconstructionError(str(exc)) from exc
+    return np.asarray(scene.closest(p).distance)
 
 
 def _samples(v: Floats, f: Ints) -> Floats:

@@ -391,16 +391,11 @@ def reconstruct_solid(points: ArrayLike, *, scanners: ArrayLike | None = None,
 
 def _quality(q: Floats, v: Floats, f: NDArray[np.int64]) -> dict[str, Any]:
     """Distances (m) from a seeded sample of the points to the mesh: the exact nearest
-    triangle (the BVH kernel ``survey.analysis.compare`` uses; that module sits above
-    this one)."""
-    from survey._kernels.closest_bvh import build_tree, nearest_in_tree
+    triangle (the engine's closest-point query, ``raytrace.Scene.closest``)."""
+    from survey.clouds.decimate import point_mesh_distances
 
     if len(q) > QUALITY_SAMPLE:
         q = q[np.random.default_rng(0).choice(len(q), QUALITY_SAMPLE, replace=False)]
-    tris = np.ascontiguousarray(v[f])
-    out_t = np.empty(len(q), dtype=np.int64)
-    out_q = np.empty((len(q), 3))
-    nearest_in_tree(np.ascontiguousarray(q), tris, *build_tree(tris), out_t, out_q)
-    d = np.linalg.norm(q - out_q, axis=1)
+    d = point_mesh_distances(q, v, f)
     return {"mean_m": float(d.mean()), "median_m": float(np.median(d)),
             "p95_m": float(np.percentile(d, 95)), "max_m": float(d.max())}
