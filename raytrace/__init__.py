@@ -15,23 +15,15 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from raytrace.lazy import lazy_exports
+from raytrace.lazy import lazy_exports_of
 
 __version__ = "0.2.0"
 
 # Public names are imported on first use: ``import raytrace.errors`` (which every
 # command-line start does) must not compile or load Numba.
-_EXPORTS = {
-    "raytrace.scene": ("Scene",),
-    "raytrace.hits": ("Hits",),
-    "raytrace.closest": ("ClosestPoints",),
-    "raytrace.errors": ("TunnelsimError", "ConfigError", "MeshError", "RayError",
-                        "SceneFileError"),
-    "raytrace.config": ("max_threads", "set_threads", "threading_info", "threads"),
-}
-
-
-if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
+# The one list of public names: type checkers and IDEs import them here; the
+# façade reads this block (raytrace.lazy.lazy_exports_of) and imports each on first use.
+if TYPE_CHECKING:
     from raytrace.scene import Scene
     from raytrace.hits import Hits
     from raytrace.closest import ClosestPoints
@@ -39,4 +31,4 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers and IDEs
         SceneFileError)
     from raytrace.config import max_threads, set_threads, threading_info, threads
 
-__getattr__, __dir__, __all__ = lazy_exports(__name__, _EXPORTS)
+__getattr__, __dir__, __all__ = lazy_exports_of(__name__, __file__)

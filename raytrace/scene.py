@@ -194,49 +194,6 @@ class Scene:
         _release_freed_memory()
 
     # ------------------------------------------------------------------ construction
-    @classmethod
-    def from_file(cls, path: str | os.PathLike[str], **kwargs: Any) -> Scene:
-        """Load any mesh trimesh reads (PLY, OBJ, STL, OFF, GLB, DAE) and build a scene.
-
-        Multi-part files (scenes) are concatenated in their world placement. Collada
-        (.dae) needs the optional ``pycollada`` (``pip install 'tunnelsim[collada]'``).
-
-        Parameters
-        ----------
-        path : str or path-like
-            The mesh file.
-        **kwargs
-            Passed to ``Scene`` (``copy_data``, build constants).
-
-        Raises
-        ------
-        MeshError
-            No such file, a file trimesh cannot read, or one without triangles.
-        """
-        import trimesh
-
-        path = Path(path)
-        if not path.is_file():
-            raise MeshError(f"Expected a mesh file, got no file at '{path}'; check the path.")
-        if path.suffix.lower() == ".dae":
-            try:
-                import collada  # noqa: F401  (trimesh reads Collada through pycollada)
-            except ImportError:
-                raise MeshError(f"Expected pycollada to read the Collada file '{path}', "
-                                "got it missing; pip install 'tunnelsim[collada]'.") from None
-        try:
-            mesh = trimesh.load(str(path), force="mesh", process=False)
-        except Exception as exc:  # trimesh raises many types for unreadable files
-            raise MeshError(
-                f"Expected a mesh file trimesh can read, got '{path}' which failed with "
-                f"{type(exc).__name__}: {exc}; convert it to PLY or OBJ."
-            ) from exc
-        faces = getattr(mesh, "faces", None)
-        if faces is None or len(faces) == 0:
-            raise MeshError(f"Expected triangles in '{path}', got none; is it a point cloud?")
-        return cls(np.asarray(getattr(mesh, "vertices"), dtype=np.float64),  # noqa: B009
-                   np.asarray(faces, dtype=np.int64), **kwargs)
-
     # ------------------------------------------------------------------ queries
     def cast(self, origins: ArrayLike, directions: ArrayLike, *, t_min: ArrayLike = 0.0,
              t_max: ArrayLike = np.inf, method: Method = "auto") -> Hits:

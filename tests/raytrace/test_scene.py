@@ -206,33 +206,6 @@ def test_bad_rays():
         scene.cast(np.zeros(3), [[0, 0, 0]])
 
 
-def test_from_file_formats(tmp_path):
-    trimesh = pytest.importorskip("trimesh")
-    v, f = tunnel_tube(2_000, length_m=10.0)
-    mesh = trimesh.Trimesh(v, f, process=False)
-    o = np.array([5.0, 0.0, 1.5])
-    d = np.random.default_rng(1).standard_normal((2000, 3))
-    ref = Scene(v, f).cast(o, d)
-    exts = ["ply", "obj", "stl", "off", "glb"]
-    try:
-        import collada  # noqa: F401
-        exts.append("dae")
-    except ImportError:  # pragma: no cover - the test extra installs it
-        pass
-    for ext in exts:
-        path = tmp_path / f"t.{ext}"
-        mesh.export(path)
-        h = Scene.from_file(path).cast(o, d)
-        np.testing.assert_array_equal(h.hit, ref.hit)
-        # STL/GLB store float32 vertices: compare distances, not exact bits.
-        np.testing.assert_allclose(h.t[h.hit], ref.t[ref.hit], atol=1e-5)
-    with pytest.raises(MeshError, match="no file"):
-        Scene.from_file(tmp_path / "nope.ply")
-    (tmp_path / "junk.ply").write_text("this is not a mesh")
-    with pytest.raises(MeshError):
-        Scene.from_file(tmp_path / "junk.ply")
-
-
 def test_stats_are_consistent(small_tunnel):
     v, f = small_tunnel
     s = Scene(v, f).stats
