@@ -1,5 +1,6 @@
 """What every ``tunnelsim`` command shares: the parser class and its one-line usage
-errors, option parsing helpers, output files and folders, the progress bar, and the
+errors, option parsing helpers, output files and folders, the progress bar (the
+library's ``survey.report.progress.Progress``, loaded on first use), and the
 command registry.
 
 The registry records, per command, the options it registered (their names, whether they
@@ -20,7 +21,6 @@ import math
 import re
 import shutil
 import sys
-import time
 import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -461,40 +461,24 @@ def warn_radian_like(value_deg: float | None, flag: str) -> None:
                       UserWarning, stacklevel=2)
 
 
-class Progress:
-    """A one-line progress bar on stderr (only on a terminal), counting ``unit`` (rays
-    for simulations, points for comparisons); call it with (done, total) after each
-    chunk and ``close`` it at the end."""
-
-    def __init__(self, quiet: bool, unit: str = "rays") -> None:
-        self.on = not quiet and sys.stderr.isatty()
-        self.t0 = time.perf_counter()
-        self.unit = unit
-
-    def __call__(self, done: int, total: int) -> None:
-        if not self.on:
-            return
-        dt = time.perf_counter() - self.t0
-        frac = done / max(total, 1)
-        eta = dt / frac - dt if frac > 0 else 0.0
-        bar = "#" * int(30 * frac)
-        u = self.unit
-        sys.stderr.write(f"\r[{bar:<30}] {100 * frac:5.1f} %  {done / 1e6:.1f}M/"
-                         f"{total / 1e6:.1f}M {u}  {done / max(dt, 1e-9) / 1e6:.2f} "
-                         f"M{u}/s  ETA {eta:.0f} s ")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.on:
-            sys.stderr.write("\n")
-
-
 __all__ = ["EXIT_INTERRUPTED", "EXIT_USAGE", "NUMBER_LIST", "RADIAN_TOL", "Command",
            "CommandSet", "cluster_options", "open_cluster", "radian_like",
            "warn_radian_like",
            "Option", "Parser", "Progress", "UsageError", "floats", "numbers", "out_dir", "pair",
            "parse_window", "physics_options", "removed_on_failure", "run_command", "say",
-           "version", "write_json", "write_text", "xyz", "report_header", "report_options"]
+           "version", "write_json", "write_text", "xyz", "report_header", "report_options",
+           "crs_words", "header_values", "write_headed_report"]
+
+
+def __getattr__(name: str) -> Any:
+    """``Progress``: the one progress reporter (``survey.report.progress.Progress``),
+    imported when a command first asks for it, so that starting ``tunnelsim`` does not
+    load the library."""
+    if name == "Progress":
+        from survey.report.progress import Progress
+
+        return Progress
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def cluster_options(c: Command, needs: tuple[str, ...] = ()) -> None:
@@ -535,53 +519,39 @@ def report_options(c: Command) -> None:
 
 def crs_words(paths) -> str | None:
     """The CRS the first of ``paths`` that states one states, in words (None: none
-    stated; the header says so)."""
-    from sensors.io.crs import crs_label, parse_crs, text_file_crs
-    from sensors.io.clouds import cloud_crs_text
+    stated). Kept for the commands: ``survey.report.header.crs_words``."""
+    from survey.report.header import crs_words as library_crs_words
 
-    for p in paths:
-        if p is None:
-            continue
-        suffix = Path(p).suffix.lower()
-        if suffix == ".json":
-            continue
-        text = text_file_crs(p) if suffix in (".csv", ".txt") else cloud_crs_text(p)
-        if text is not None:
-            return crs_label(parse_crs(text, metric=False))
-    return None
+    return library_crs_words(paths)
+
+
+def header_values(args: argparse.Namespace) -> dict[str, str | None]:
+    """The report header's user words from --project and --instrument, as the
+    keywords of ``survey.report.header.report_header`` / ``write_headed_report``."""
+    return {"project": getattr(args, "project", None),
+            "instrument": getattr(args, "instrument", None)}
 
 
 def write_headed_report(args: argparse.Namespace, path: Path, text: str,
                         inputs: list[tuple[str, Any, str]], *, crs_from=(),
                         settings: list[tuple[str, str]] | None = None) -> None:
     """Write a report's Markdown and its self-contained HTML (``path`` .md and .html)
-    with the header block (``report_header``; the CRS read from the files
-    ``crs_from``) below its title. Figures it links must exist already."""
-    from survey.report.header import with_header
-    from survey.report.html import write_report
+    with the header block below its title (the CRS read from the files ``crs_from``):
+    ``survey.report.header.write_headed_report`` with --project and --instrument."""
+    from survey.report.header import write_headed_report as library_write
 
-    head = report_header(args, inputs, crs=crs_words(crs_from), settings=settings)
-    write_report(path, with_header(text, head))
+    words = header_values(args)
+    library_write(path, text, inputs=inputs, crs_from=crs_from, settings=settings,
+                  project=words["project"], instrument=words["instrument"])
 
 
 def report_header(args: argparse.Namespace, inputs: list[tuple[str, Any, str]],
                   crs: str | None = None, settings: list[tuple[str, str]] | None = None
                   ) -> Any:
-    """The ``ReportHeader`` of a command's report: ``inputs`` as (role, path, how it was
-    read), the CRS in words, the settings the results depend on, --project and
-    --instrument."""
-    from survey.report.header import ReportHeader, ReportInput
+    """The ``ReportHeader`` of a command's report (``survey.report.header.report_header``
+    with --project and --instrument)."""
+    from survey.report.header import report_header as library_header
 
-    def entry(role: str, path: Any, note: str) -> ReportInput:
-        # An option's value may name a file with a fragment (design.xml#NAME) or be no
-        # file at all (an envelope given as box:W,H): checksum the file where there is
-        # one, else state the value.
-        p = Path(str(path).split("#", 1)[0])
-        if p.is_file():
-            return ReportInput.of(role, path, note)
-        return ReportInput(role, str(path), "–", note or "not a file")
-
-    return ReportHeader(inputs=[entry(r, p, note) for r, p, note in inputs if p is not None],
-                        crs=crs, project=getattr(args, "project", None),
-                        instrument=getattr(args, "instrument", None),
-                        settings=settings or [])
+    words = header_values(args)
+    return library_header(inputs, crs=crs, settings=settings, project=words["project"],
+                          instrument=words["instrument"])

@@ -45,7 +45,6 @@ import importlib.util
 import re
 import statistics
 import string
-import sys
 import time
 import tomllib
 from collections.abc import Callable
@@ -270,15 +269,18 @@ def step_about(step: dict, *, quick: bool = False,
 
 # ---------------------------------------------------------------------------- running
 class _Bar:
-    """One progress line per step on stderr: a bar of the work done and an estimate of
-    the time left, from the steps' expected times scaled by how the finished steps
-    compared with theirs."""
+    """One progress line per step on stderr (``survey.report.progress.Progress.line``):
+    a bar of the work done and an estimate of the time left, from the steps' expected
+    times scaled by how the finished steps compared with theirs."""
 
     def __init__(self, steps, quick, quiet):
+        from survey.report.progress import Progress
+
         self.expect = [float(s.get("expect_s", 10.0)) * (0.25 if quick else 1.0)
                        for s in steps]
         self.actual: list[float] = []
         self.quiet = quiet
+        self.progress = Progress(quiet, unit="steps", style="count")
 
     def start(self, i, name, about):
         if self.quiet:
@@ -289,9 +291,8 @@ class _Bar:
         ratios = [1.0] + [a / e for a, e in zip(self.actual, self.expect) if e > 0]
         left = statistics.median(ratios) * sum(self.expect[i:])
         frac = done / (done + left) if done + left > 0 else 0.0
-        bar = "#" * int(20 * frac)
-        print(f"[{bar:<20}] {i + 1}/{len(self.expect)} {name}: {about} "
-              f"(about {left:.0f} s left)", file=sys.stderr, flush=True)
+        self.progress.line(frac, f"{i + 1}/{len(self.expect)} {name}: {about} "
+                                 f"(about {left:.0f} s left)")
 
     def end(self, seconds):
         self.actual.append(seconds)

@@ -18,9 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import os
-import sys
 import threading
-import time
 import uuid
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -32,6 +30,7 @@ from numpy.typing import NDArray
 
 from raytrace.errors import TunnelsimError
 from survey.errors import ClusterError
+from survey.report.progress import Progress
 
 __all__ = ["CLUSTER_HINT", "ClusterError", "DaskExecutor", "Executor", "InProcess",
            "SceneRef", "TaskProgress", "numba_threads_per_worker", "open_executor"]
@@ -155,28 +154,13 @@ def call_shared(job: tuple[Shared, str, tuple[Any, ...]]) -> Any:
 
 
 # ---------------------------------------------------------------------------- progress
-class TaskProgress:
+class TaskProgress(Progress):
     """A one-line bar over tasks on stderr (only on a terminal): call it with
-    (done, total) as tasks finish and ``close`` it at the end."""
+    (done, total) as tasks finish and ``close`` it at the end. The one reporter
+    (``survey.report.progress.Progress``) counting whole tasks."""
 
     def __init__(self, quiet: bool, unit: str = "tasks") -> None:
-        self.on = not quiet and sys.stderr.isatty()
-        self.unit = unit
-        self.t0 = time.perf_counter()
-
-    def __call__(self, done: int, total: int) -> None:
-        if not self.on:
-            return
-        dt = time.perf_counter() - self.t0
-        frac = done / max(total, 1)
-        eta = dt / frac - dt if frac > 0 else 0.0
-        sys.stderr.write(f"\r[{'#' * int(30 * frac):<30}] {done}/{total} {self.unit}  "
-                         f"{dt:.0f} s, ETA {eta:.0f} s ")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.on:
-            sys.stderr.write("\n")
+        super().__init__(quiet, unit, style="count")
 
 
 # ---------------------------------------------------------------------------- executors

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import base64
 import html
+import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
 
 from raytrace.fileio import atomic_writer
@@ -149,17 +151,42 @@ def markdown_to_html(text: str, *, base: str | Path | None = None,
             "\n</body>\n</html>\n")
 
 
-def write_report(path: str | Path, text: str) -> tuple[Path, Path]:
+def write_report(path: str | os.PathLike[str], text: str, *, title: str | None = None,
+                 formats: Sequence[str] = ("md", "html")) -> tuple[Path, ...]:
     """Write the Markdown report ``path`` and the self-contained HTML beside it
     (``path`` with suffix ``.html``), both atomically; images the Markdown names are
-    read from ``path``'s folder, so write the figures first. Returns both paths."""
+    read from ``path``'s folder, so write the figures first.
+
+    Parameters
+    ----------
+    path : path-like, the Markdown file
+    text : str, the report's Markdown
+    title : str, optional
+        The HTML document's title (default: the first heading).
+    formats : sequence of {"md", "html"}
+        The files to write, in this order (default both).
+
+    Returns
+    -------
+    tuple of Path
+        The files written, in the order of ``formats``.
+    """
     path = Path(path)
     html_path = path.with_suffix(".html")
     if html_path == path:
         html_path = path.with_name(path.name + ".html")
-    # UTF-8 whatever the locale: the reports hold σ, ö, °.
-    with atomic_writer(path) as fh:
-        fh.write(text.encode("utf-8"))
-    with atomic_writer(html_path) as fh:
-        fh.write(markdown_to_html(text, base=path.parent).encode("utf-8"))
-    return path, html_path
+    written = []
+    for fmt in formats:
+        # UTF-8 whatever the locale: the reports hold σ, ö, °.
+        if fmt == "md":
+            with atomic_writer(path) as fh:
+                fh.write(text.encode("utf-8"))
+            written.append(path)
+        elif fmt == "html":
+            with atomic_writer(html_path) as fh:
+                fh.write(markdown_to_html(text, base=path.parent, title=title)
+                         .encode("utf-8"))
+            written.append(html_path)
+        else:
+            raise ValueError(f"Expected formats from ('md', 'html'), got {fmt!r}.")
+    return tuple(written)

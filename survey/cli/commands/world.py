@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
-from survey.cli.common import CommandSet, numbers, parse_window, version, warn_radian_like
+from survey.cli.common import CommandSet, numbers, parse_window, warn_radian_like
 from survey.errors import TunnelsimCLIError
 
 
@@ -110,108 +111,57 @@ def register(commands: CommandSet) -> None:
 
 
 def cmd_info(args) -> int:
-    import platform
-    from importlib import metadata
+    from survey.workflows.world import software_info
 
-    from raytrace.config import threading_info
-
-    lines = [f"tunnelsim {version()}",
-             f"python {platform.python_version()} ({platform.machine()}, {platform.system()})"]
-    for pkg in ("numpy", "numba", "scipy", "trimesh", "laspy", "lazrs", "pyproj", "pye57",
-                "embreex", "open3d"):
-        try:
-            lines.append(f"{pkg} {metadata.version(pkg)}")
-        except metadata.PackageNotFoundError:
-            lines.append(f"{pkg} (not installed)")
-    info = threading_info()
-    lines.append(f"numba threading layer: {info['threading_layer']}")
-    lines.append(f"numba threads: {info['threads']} of {info['max_threads']}")
+    info = software_info()
+    lines = [f"tunnelsim {info.version}",
+             f"python {info.python} ({info.machine}, {info.system})"]
+    lines += [f"{pkg} {v}" if v is not None else f"{pkg} (not installed)"
+              for pkg, v in info.packages]
+    lines.append(f"numba threading layer: {info.threading_layer}")
+    lines.append(f"numba threads: {info.threads} of {info.max_threads}")
     print("\n".join(lines))
     return 0
 
 
 def cmd_sensors(args) -> int:
-    from sensors import list_sensors, load_sensor
+    from survey.workflows.world import sensor_models
 
-    for name in list_sensors():
-        spec = load_sensor(name)
-        print(f"{name:18s} {spec.kind:9s} {spec.vendor} {spec.model}  "
-              f"range {spec.physics.range_min_m:g}-{spec.physics.range_max_m:g} m")
+    for m in sensor_models():
+        print(f"{m.name:18s} {m.kind:9s} {m.vendor} {m.model}  "
+              f"range {m.range_min_m:g}-{m.range_max_m:g} m")
     return 0
 
 
 def cmd_tunnel(args) -> int:
-    import time
-    import warnings
-    from pathlib import Path
+    from survey.workflows.world import tunnel_files
 
-    import numpy as np
-
-    from survey.world.deformation import Bulge, Convergence
-    from survey.world.generator import edge_length_for
-    from survey.world.presets import PRESETS, RELIEF, preset
-    from survey.world.rock import RockRelief
-
-    out = Path(args.output)
-    if out.suffix.lower() != ".ply":
-        raise TunnelsimCLIError(f"Expected an output file ending in .ply, got '{out}'.")
-    if not out.parent.exists():
-        raise TunnelsimCLIError(f"Expected an existing output folder, got '{out.parent}'; "
-                                "create it first.")
-    origin = (0.0, 0.0, 0.0) if args.origin is None else \
+    # DECISION: the name's suffix is the option's syntax, refused here as a usage
+    # error (TunnelsimCLIError, as before); the library refuses it too (TunnelError).
+    if Path(args.output).suffix.lower() != ".ply":
+        raise TunnelsimCLIError(f"Expected an output file ending in .ply, got "
+                                f"'{Path(args.output)}'.")
+    origin = None if args.origin is None else \
         numbers(args.origin, "--origin as E,N,H in metres", 3)
-    crs = None
-    if args.crs is not None:   # checked before the mesh is made (seconds)
-        from sensors.io.crs import area_warning, parse_crs
-
-        crs = parse_crs(args.crs, what="--crs")
-        where = area_warning(crs, origin, what="--origin" if args.origin else
-                             "the default origin", hint="give the portal's position in "
-                             "that CRS with --origin E,N,H" if args.origin is None else
-                             "easting and northing swapped, or another CRS meant?")
-        if where:
-            warnings.warn(where[0].upper() + where[1:], UserWarning, stacklevel=1)
-    edge = args.edge_length
-    if args.triangles is not None:
-        al, prof, _, _ = PRESETS[args.preset](origin, 0.0)
-        edge = edge_length_for(args.triangles, prof, al.length_m)
-    t0 = time.perf_counter()
-    deformations: list = []
-    for c in args.convergence:
-        a, b, mm = parse_window(c, "--convergence START:END:MM", 3)
-        deformations.append(Convergence(a, b, mm / 1000.0))
-    for c in args.bulge:
-        s, ang, r, mm = parse_window(c, "--bulge CHAINAGE:ANGLE_DEG:RADIUS_M:MM", 4)
-        deformations.append(Bulge(s, np.deg2rad(ang), r, mm / 1000.0))
-    relief = RELIEF[args.preset] if args.relief is None else \
-        None if args.relief == "none" else (RELIEF[args.preset] or RockRelief())
-    if args.relief_scale is not None:
-        if relief is None:
-            raise TunnelsimCLIError("Expected --relief-scale with rock relief, got a "
-                                    f"smooth lining ({args.preset}, --relief "
-                                    f"{args.relief or 'default'}); add --relief rock.")
-        relief = relief.scaled(args.relief_scale)
+    conv = [parse_window(c, "--convergence START:END:MM", 3) for c in args.convergence]
+    bulges = [parse_window(c, "--bulge CHAINAGE:ANGLE_DEG:RADIUS_M:MM", 4)
+              for c in args.bulge]
     warn_radian_like(args.heading_deg, "--heading-deg")
-    tun, default_def = preset(args.preset, edge_length_m=edge, seed=args.seed,
-                              closed_ends=args.closed_ends,
-                              roughness_rms_m=None if args.roughness_mm is None
-                              else args.roughness_mm / 1000.0, relief=relief,
-                              origin=origin, heading_rad=np.deg2rad(args.heading_deg))
-    if crs is not None:
-        tun = tun.with_crs(crs)
-    written = list(tun.write(out))
-    if args.epoch2:
-        epoch = tun.deformed(deformations or default_def)
-        written += list(epoch.write(Path(args.epoch2)))
-    dt = time.perf_counter() - t0
+    r = tunnel_files(args.output, preset=args.preset, edge_length_m=args.edge_length,
+                     triangles=args.triangles,
+                     roughness_rms_m=None if args.roughness_mm is None
+                     else args.roughness_mm / 1000.0, relief=args.relief,
+                     relief_scale=args.relief_scale, closed_ends=args.closed_ends,
+                     origin=origin, heading_deg=args.heading_deg, crs=args.crs,
+                     epoch2=args.epoch2 or None, convergence=conv, bulges=bulges,
+                     seed=args.seed)
     if not args.quiet:
-        counts = ", ".join(f"{k} {v:,}" for k, v in tun.metadata["face_counts"].items())
-        print(f"{args.preset}: {len(tun.faces):,} triangles ({counts}), "
-              f"{len(tun.vertices):,} vertices, edge length {edge:.4g} m, "
-              f"{len(tun.metadata['control_points'])} control points, relief "
-              f"{'none' if relief is None else 'rock'}, "
-              f"{tun.metadata.get('crs_name', 'local coordinates (no CRS)')}, {dt:.1f} s")
-        for p in written:
+        counts = ", ".join(f"{k} {v:,}" for k, v in r.face_counts.items())
+        print(f"{r.preset}: {r.triangles:,} triangles ({counts}), "
+              f"{r.vertices:,} vertices, edge length {r.edge_length_m:.4g} m, "
+              f"{r.control_points} control points, relief {r.relief}, "
+              f"{r.crs_name}, {r.seconds:.1f} s")
+        for p in r.files:
             print(f"wrote {p}")
     return 0
 
@@ -219,46 +169,44 @@ def cmd_tunnel(args) -> int:
 def cmd_gazebo(args) -> int:
     import warnings
 
-    from sensors import load_sensor
-    from sensors.route import read_waypoints
-    from survey.export.gazebo import export_gazebo
+    from survey.workflows.world import gazebo_files
 
-    spec = load_sensor(args.sensor)
-    wp = read_waypoints(args.waypoints) if args.waypoints else None
-    for flag, value in (("--clearance", args.clearance), ("--voxel", args.voxel)):
-        if value is not None and not (value > 0 and value < float("inf")):
-            raise TunnelsimCLIError(f"Expected a positive {flag} in metres, got {value:g}.")
-    route_kw = {k: v for k, v in (("route_clearance_m", args.clearance),
-                                  ("voxel_m", args.voxel)) if v is not None}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            info = export_gazebo(args.mesh, spec, args.output, force=args.force,
-                                 mount=args.mount, chainage_m=args.chainage,
-                                 flavour=args.flavour, waypoints=wp, **route_kw)
+            r = gazebo_files(args.mesh, args.output, sensor=args.sensor,
+                             flavour=args.flavour, mount=args.mount,
+                             chainage_m=args.chainage, waypoints=args.waypoints,
+                             clearance_m=args.clearance, voxel_m=args.voxel,
+                             force=args.force)
         finally:   # unit warnings first: they often explain a later failure
             for w in caught:
                 print(f"tunnelsim: warning: {w.message}", file=sys.stderr)
     if not args.quiet:
-        print(f"wrote {info['path']}/world.sdf, bridge.yaml and models/tunnel "
-              f"({info['triangles']:,} triangles, collision "
-              f"{info['collision_triangles']:,}, laser_retro {info['laser_retro']:.3g}); "
-              f"local origin {' '.join(f'{x:.3f}' for x in info['origin'])} m"
-              + (f" in {info['crs']}" if info.get("crs") else ""))
-        x, y, z, yaw = info["robot_pose"]
-        where = "on the tunnel axis" if info["route"] is None else (
-            f"at the start of the route ({info['route']['length_m']:.1f} m, smallest "
-            f"clearance {info['route']['min_clearance_m']:.2f} m)")
-        print(f"robot {where}: {x:.3f} {y:.3f} {z:.3f} m local, yaw {yaw:.3f} rad")
-        print(f"{spec.name} as gpu_lidar; SDF cannot express:")
-        for item in info["limitations"]:
-            print(f"  - {item}")
-        print(f"robot.urdf: base_link on the ground, the sensor and imu_link as in a "
-              f"drive's bag; ros2 launch ./robot.launch.py for robot_state_publisher")
-        print(f"run: cd {info['path']} && {info['run']}")
-        print("bridge: ros2 run ros_gz_bridge parameter_bridge --ros-args -p "
-              "config_file:=$PWD/bridge.yaml")
+        _print_gazebo(r)
     return 0
+
+
+def _print_gazebo(r) -> None:
+    """The summary of a Gazebo world (``GazeboResult``)."""
+    print(f"wrote {r.path}/world.sdf, bridge.yaml and models/tunnel "
+          f"({r.triangles:,} triangles, collision "
+          f"{r.collision_triangles:,}, laser_retro {r.laser_retro:.3g}); "
+          f"local origin {' '.join(f'{x:.3f}' for x in r.origin)} m"
+          + (f" in {r.crs}" if r.crs else ""))
+    x, y, z, yaw = r.robot_pose
+    where = "on the tunnel axis" if r.route is None else (
+        f"at the start of the route ({r.route['length_m']:.1f} m, smallest "
+        f"clearance {r.route['min_clearance_m']:.2f} m)")
+    print(f"robot {where}: {x:.3f} {y:.3f} {z:.3f} m local, yaw {yaw:.3f} rad")
+    print(f"{r.sensor} as gpu_lidar; SDF cannot express:")
+    for item in r.limitations:
+        print(f"  - {item}")
+    print("robot.urdf: base_link on the ground, the sensor and imu_link as in a "
+          "drive's bag; ros2 launch ./robot.launch.py for robot_state_publisher")
+    print(f"run: cd {r.path} && {r.run}")
+    print("bridge: ros2 run ros_gz_bridge parameter_bridge --ros-args -p "
+          "config_file:=$PWD/bridge.yaml")
 
 
 __all__ = ["cmd_gazebo", "cmd_info", "cmd_sensors", "cmd_tunnel", "register"]
