@@ -8,7 +8,7 @@ options the command registered.
 
 from __future__ import annotations
 
-from survey.cli.commands import (adjustment, analysis, axis, clouds, detectability,
+from survey.cli.commands import (adjustment, analysis, axis, cameras, clouds, detectability,
                                  driving, epochs, inspection, scanning, sections, slam,
                                  world)
 from survey.cli.common import Command, CommandSet, Parser, version
@@ -16,7 +16,7 @@ from survey.cli.common import Command, CommandSet, Parser, version
 #: The command groups a pipeline step may use (``run`` and ``demo`` run pipelines and
 #: are added by ``survey.cli.main``).
 STEP_GROUPS = (world, scanning, driving, slam, adjustment, clouds, analysis, axis, sections,
-               epochs, inspection, detectability)
+               epochs, inspection, detectability, cameras)
 
 
 def build(groups=STEP_GROUPS) -> tuple[Parser, dict[str, Command]]:
