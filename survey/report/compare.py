@@ -42,8 +42,10 @@ def plot_histogram(named: Mapping[str, ArrayLike], path: str | Path, *,
     fig, ax = plt.subplots(figsize=(7, 4), dpi=110)
     allv = np.concatenate([np.asarray(v, dtype=float) for v in named.values()]) * 1000
     lo, hi = (np.percentile(allv, [0.5, 99.5]) if allv.size else (0, 1))
-    if hi <= lo:
-        hi = lo + 1.0
+    # Equal distances (a copy shifted by a constant): a range narrower than the float
+    # noise of the values has no bins; widen it to 1 mm around them.
+    if not hi - lo > 1e-6 * max(1.0, abs(lo)):
+        lo, hi = lo - 0.5, hi + 0.5
     for name, dd in named.items():
         d = np.asarray(dd, dtype=float)
         ax.hist(d * 1000, bins=bins, range=(lo, hi), histtype="step", lw=1.4,

@@ -209,3 +209,25 @@ def test_cli_compare_keeps_the_input_fields(tmp_path):
     r = laspy.read(tmp_path / "r.laz")
     d, _ = naive_nearest(np.stack([a.x, a.y, a.z], 1), np.stack([r.x, r.y, r.z], 1))
     np.testing.assert_allclose(b["distance"], d, atol=1e-6)
+
+
+def test_a_cloud_against_its_shifted_copy_gives_a_histogram(tmp_path, capsys):
+    """Every distance the same (a copy moved 5 mm along z): the histogram's range has
+    to be widened, not refused (it crashed with a NumPy 'too many bins' traceback)."""
+    from survey.cli.main import main
+    from sensors.io.cloudmap import write_points_las
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0, 10, (2000, 2))
+    a = np.column_stack([xy, np.zeros(2000)])
+    write_points_las(tmp_path / "a.laz", a)
+    write_points_las(tmp_path / "b.laz", a + [0.0, 0.0, 0.005])
+    rc = main(["compare", str(tmp_path / "b.laz"), str(tmp_path / "a.laz"), "-o",
+               str(tmp_path / "out"), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    png = (tmp_path / "out" / "histogram.png").read_bytes()
+    assert png[:4] == b"\x89PNG"
+    import csv
+
+    row = next(csv.DictReader((tmp_path / "out" / "stats.csv").open()))
+    assert float(row["mean_m"]) == pytest.approx(0.005) and float(row["std_m"]) == 0.0
