@@ -132,3 +132,17 @@ def test_a_facade_lists_its_names_once(path):
     m = importlib.import_module(mod)
     assert listed <= set(m.__all__)
     assert set(m.__all__) - listed <= {"__version__", *getattr(m, "SUBPACKAGES", ())}
+
+
+@pytest.mark.parametrize("path", FACADES)
+def test_no_facade_name_is_shadowed_by_a_submodule(path):
+    """A façade name equal to one of its package's modules would be replaced by the
+    module as soon as anything imports that module (``survey.analysis.m3c2`` the
+    function vs the module)."""
+    import pkgutil
+
+    mod = str(Path(path).parent).replace("/", ".")
+    m = importlib.import_module(mod)
+    subs = {i.name for i in pkgutil.iter_modules(m.__path__)}
+    clash = subs & set(m.__all__) - set(getattr(m, "SUBPACKAGES", ()))
+    assert not clash, f"{mod} exports {sorted(clash)}, which are also its modules"
