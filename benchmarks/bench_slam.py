@@ -32,7 +32,7 @@ import numpy as np
 from raytrace import Scene
 from sensors import Mount, Trajectory, load_sensor, simulate_drive
 from survey.adjust.drift import fit_drift
-from survey.adjust.odometry import platform_trajectory, run_odometry
+from survey.adjust.odometry import odometry_trajectory, run_odometry
 from survey.adjust.slam import observe_control, to_slam_frame
 from survey.analysis.compare import ReferenceMesh
 from survey.analysis.trajectory import trajectory_errors
@@ -85,7 +85,7 @@ def one(world: str, mesh, frames, truth, method: str, prof=None):
     res = run_odometry(frames, method=method)
     wall = time.perf_counter() - t0
     pos, rot = truth.interpolate([res.times[0]])
-    est = platform_trajectory(res, Mount(), start=(pos[0], rot[0]),
+    est = odometry_trajectory(res, Mount(), start=(pos[0], rot[0]),
                               span_s=(truth.start_s, truth.end_s))
     e = trajectory_errors(est, truth)
     row = {"world": world, "odometry": method, "frames": len(res.times),

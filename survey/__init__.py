@@ -43,7 +43,7 @@ if TYPE_CHECKING:
     from survey.adjust.controlpoints import (ControlPoints, match, read_control_points,
         unmatched, unmatched_message)
     from survey.adjust.snooping import Snooping, SnoopStep, data_snooping
-    from survey.adjust.odometry import OdometryResult, platform_trajectory, run_odometry
+    from survey.adjust.odometry import OdometryResult, odometry_trajectory, run_odometry
     from survey.adjust.drift import DriftCorrection, fit_drift, leave_one_out
     from survey.adjust.slam import (slam_trajectory, to_slam_frame, DriftedRun,
         SlamObservation, observe_slam, observe_control)

@@ -14,6 +14,6 @@ if TYPE_CHECKING:
     from .snooping import Snooping, SnoopStep, data_snooping
     from .drift import DriftCorrection, fit_drift, leave_one_out
     from .slam import slam_trajectory, to_slam_frame, DriftedRun, SlamObservation, observe_slam, observe_control
-    from .odometry import OdometryResult, platform_trajectory, run_odometry
+    from .odometry import OdometryResult, odometry_trajectory, run_odometry
 
 __getattr__, __dir__, __all__ = lazy_exports_of(__name__, __file__, extra=())

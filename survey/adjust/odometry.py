@@ -21,7 +21,7 @@ those stamps; the others are off by 5-10 cm along the motion. ``STAMP`` records 
 DECISION: frames shorter than ``PARTIAL_FRAME`` of a neighbouring frame (the turn the
 sensor was in when the drive started or ended) are not registered: a partial turn sees
 a sector only, and the deskewing assumes a whole frame. Their points are still placed
-by ``platform_trajectory``, which extrapolates the first and last estimated motion
+by ``odometry_trajectory``, which extrapolates the first and last estimated motion
 (the constant-velocity model both odometries use) to the drive's start and end.
 """
 
@@ -41,7 +41,7 @@ from sensors import Mount, Trajectory
 from survey.errors import OdometryError
 
 __all__ = ["MIN_FRAMES", "ODOMETRY", "PARTIAL_FRAME", "STAMP", "OdometryResult",
-           "platform_trajectory", "run_odometry"]
+           "odometry_trajectory", "run_odometry"]
 
 #: Odometry backends: name -> (module, install hint).
 ODOMETRY = {"kiss-icp": "kiss_icp", "genz-icp": "genz_icp"}
@@ -244,10 +244,13 @@ def _extrapolate(a: NDArray[np.float64], b: NDArray[np.float64], f: float
     return a @ step
 
 
-def platform_trajectory(result: OdometryResult, mount: Mount | None = None, *,
+def odometry_trajectory(result: OdometryResult, mount: Mount | None = None, *,
                         start: tuple[ArrayLike, Rotation] | None = None,
                         span_s: tuple[float, float] | None = None) -> Trajectory:
     """The platform trajectory the odometry implies.
+
+    (Named apart from ``sensors.platform.platform_trajectory``, which drives a
+    platform along a path: this one turns estimated sensor poses into platform poses.)
 
     Parameters
     ----------

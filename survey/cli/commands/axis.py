@@ -3,14 +3,7 @@ chainage, for develop, clearance, sections, convergence and m3c2 --orient axis."
 
 from __future__ import annotations
 
-from pathlib import Path
-
-from survey.cli.common import CommandSet, pair, say, write_json
-from survey.errors import TunnelsimCLIError
-
-#: Format tag of the JSON the axis command writes (the tunnel JSON's alignment and
-#: profile, without a mesh).
-AXIS_FORMAT = "tunnelsim-axis/1"
+from survey.cli.common import CommandSet, pair, say
 
 
 def datum_options(c, *, with_alignment: bool) -> None:
@@ -57,95 +50,31 @@ def register(commands: CommandSet) -> None:
                   "the axis by its mid-range, as sections --fit-axis does)")
 
 
-def fitted_axis(args, path):
-    """(alignment with the user's chainage, datum record, sample points) of the input
-    ``path``: the axis of a seeded subset (``AXIS_SAMPLE`` points), extended to the
-    data's ends, with --start/--chainage-at/--reverse (or --alignment)."""
-    from survey.clouds.axis import apply_datum, estimate_axis, sample_points
-    from survey.world.alignment_io import load_tunnel
-
-    # DECISION: 'axis' has no --seed: its subset is drawn with seed 0, as
-    # estimate_axis draws its own (the axis must not change with a seed); sections and
-    # rings --fit-axis pass theirs.
-    pts = sample_points(path, seed=getattr(args, "seed", 0))
-    al, _ = estimate_axis(pts)
-    ref = getattr(args, "alignment", None)
-    if ref is not None and (args.start is not None or args.reverse):
-        raise TunnelsimCLIError("Expected --alignment or --start/--reverse (where the "
-                                "chainage comes from), got both.")
+def datum_values(args) -> dict:
+    """The chainage datum keywords of ``survey.workflows.axis.fitted_axis`` from
+    --start/--chainage-at/--reverse (and --alignment where the command has it)."""
     start = pair(args.start, "--start as X,Y in metres") if args.start else None
-    reference = load_tunnel(ref, option="--alignment").alignment if ref else None
-    at = 0.0 if args.chainage_at is None else args.chainage_at
-    al, rec = apply_datum(al, pts, start_xy=start, chainage_at_m=at,
-                          reverse=args.reverse, reference=reference)
-    return al, rec, pts
+    return {"start_xy": None if start is None else tuple(start),
+            "chainage_at_m": args.chainage_at, "reverse": args.reverse}
 
 
 def cmd_axis(args) -> int:
-    import numpy as np
+    from survey.workflows.axis import axis_file
 
-    from survey.analysis.design import read_design_profile
-    from survey.clouds.axis import fit_profile
-    from sensors.io.clouds import cloud_crs_text
-    from survey.world.profiles import Profile
-
-    src = Path(args.input)
-    if not src.is_file():
-        raise TunnelsimCLIError(f"Expected an input cloud or mesh, got '{src}' which does "
-                                "not exist.")
-    out = Path(args.output)
-    if out.suffix.lower() != ".json":
-        raise TunnelsimCLIError(f"Expected -o as a .json file, got '{out}'.")
-    if not out.parent.exists():
-        raise TunnelsimCLIError(f"Expected an existing folder for '{out}', got none; "
-                                "create it first.")
-    if args.alignment is not None and args.chainage_at is not None:
-        raise TunnelsimCLIError("Expected --chainage-at with --start (the alignment of "
-                                "--alignment gives the chainage), got it with "
-                                "--alignment.")
-    al, rec, pts = fitted_axis(args, src)
-    if args.profile in ("sectors", "circle"):
-        prof = fit_profile(al, pts, kind=args.profile)
-    else:
-        d = read_design_profile(args.profile)
-        if not d.closed:
-            raise TunnelsimCLIError(f"Expected --profile as a closed design profile, got "
-                                    f"an open one in '{args.profile}'.")
-        y0, y1, z0, z1 = d.extent()
-        prof = Profile.from_polyline(d.vertices - [0.5 * (y0 + y1), 0.5 * (z0 + z1)],
-                                     name=Path(args.profile).stem)
-    meta = {"format": AXIS_FORMAT, "name": src.stem, "source": src.name,
-            "alignment": al.to_dict(), "profile": prof.to_dict(), "datum": rec,
-            "fit": {"points_used": int(len(pts)), "profile": args.profile,
-                    "axis": "profile centre"}}
-    try:
-        crs = cloud_crs_text(src)
-    except Exception:   # a mesh or a file without a CRS statement
-        crs = None
-    if crs:
-        meta["crs"] = crs
-    write_json(out, meta)
-    lo, hi = al.chainage_range
-    a, b = al.point(lo), al.point(hi)
+    r = axis_file(args.input, args.output, alignment=args.alignment,
+                  profile=args.profile, **datum_values(args))
     extra = ""
-    if rec["kind"] == "alignment":
-        extra = f"; largest chainage difference to --alignment {rec['max_difference_m']:.3f} m"
-    elif rec["kind"] == "start":
-        extra = f"; --start lies {rec['start_offset_m']:.3f} m off the axis"
-    say(args, f"axis of {al.length_m:.1f} m: chainage {lo:.3f} at ({a[0]:.3f}, "
-              f"{a[1]:.3f}) to {hi:.3f} at ({b[0]:.3f}, {b[1]:.3f}){extra}; profile "
-              f"'{prof.name}' (mean radius {np.sqrt(abs(_area(prof)) / np.pi):.3f} m) "
-              f"-> {out}")
+    if r.datum["kind"] == "alignment":
+        extra = ("; largest chainage difference to --alignment "
+                 f"{r.datum['max_difference_m']:.3f} m")
+    elif r.datum["kind"] == "start":
+        extra = f"; --start lies {r.datum['start_offset_m']:.3f} m off the axis"
+    a, b = r.start_point, r.end_point
+    say(args, f"axis of {r.length_m:.1f} m: chainage {r.chainage_start_m:.3f} at "
+              f"({a[0]:.3f}, {a[1]:.3f}) to {r.chainage_end_m:.3f} at ({b[0]:.3f}, "
+              f"{b[1]:.3f}){extra}; profile '{r.profile.name}' (mean radius "
+              f"{r.mean_radius_m:.3f} m) -> {r.output}")
     return 0
 
 
-def _area(prof) -> float:
-    """Area (m^2) enclosed by a profile (its dense polygon, shoelace formula)."""
-    import numpy as np
-
-    _, p = prof.dense()
-    y, z = p[:, 0], p[:, 1]
-    return float(0.5 * np.sum(y * np.roll(z, -1) - np.roll(y, -1) * z))
-
-
-__all__ = ["AXIS_FORMAT", "cmd_axis", "datum_options", "fitted_axis", "register"]
+__all__ = ["cmd_axis", "datum_options", "datum_values", "register"]

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from survey.cli.common import CommandSet, pair, write_json
+from survey.cli.common import CommandSet, pair
 
 #: Cloud formats the readers take.
 CLOUD_INPUTS = ".las/.laz/.ply/.xyz/.npz/.e57"
@@ -114,180 +114,84 @@ def register(commands: CommandSet) -> None:
     c.option("--quiet", action="store_true", help="print nothing on success")
 
 
-def _tunnel_axis(path):
-    """(Alignment, profile-centre height) from a tunnel JSON, or (None, None)."""
-    if not path:
-        return None, None
-    from survey.world.mesh import read_axis
-
-    return read_axis(path)
-
-
 def cmd_preprocess(args) -> int:
-    import numpy as np
+    from survey.workflows.clouds import preprocess_file
 
-    from sensors.io.clouds import cloud_bounds
-    from survey.clouds.preprocess import (
-        VoxelGrid,
-        extra_dims,
-        iter_points_extra,
-        radius_outliers,
-        statistical_outliers,
-        write_preprocessed,
-    )
+    def two(text, what, whole=False):
+        if not text:
+            return None
+        a, b = pair(text, what)
+        return (int(a), b) if whole else (a, b)
 
-    lo, _hi, n_in = cloud_bounds(args.cloud)
-    # The input's extra dimensions (LAS/LAZ extra bytes) travel with the points.
-    dims = extra_dims(args.cloud)
-    if args.voxel is not None:
-        grid = VoxelGrid(args.voxel, lo)
-        for xyz, f in iter_points_extra(args.cloud):
-            grid.add(xyz, f)
-        pts, counts = grid.result()
-        extra = grid.fields()
-    else:
-        parts = list(iter_points_extra(args.cloud))
-        pts = np.concatenate([p for p, _ in parts])
-        extra = {k: np.concatenate([f[k] for _, f in parts]) for k in dims}
-        counts = np.ones(len(pts), dtype=np.int64)
-    keep = np.ones(len(pts), dtype=bool)
-    if args.crop:
-        s0, s1 = pair(args.crop, "--crop as START,END in m")
-        al, _ = _tunnel_axis(args.tunnel_json)
-        if al is None:
-            from survey.clouds.axis import estimate_axis
-            al, _ = estimate_axis(pts)
-        s, _, _ = al.to_local(pts)
-        keep &= (s >= s0) & (s <= s1)
-    if args.sor:
-        k, ratio = pair(args.sor, "--sor as K,STD_RATIO")
-        keep &= ~statistical_outliers(pts, k=int(k), std_ratio=ratio)
-    if args.ror:
-        nb, rad = pair(args.ror, "--ror as N,RADIUS_M")
-        keep &= ~radius_outliers(pts, min_neighbours=int(nb), radius_m=rad)
-    cls = None
-    if args.segment:
-        from survey.clouds.segment import segment_tunnel
-
-        al, hc = _tunnel_axis(args.tunnel_json)
-        cls = segment_tunnel(pts[keep], alignment=al, centre_height_m=hc)
-    write_preprocessed(args.output, pts[keep], counts[keep],
-                       {k: v[keep] for k, v in extra.items()}, dims, classification=cls)
+    r = preprocess_file(args.cloud, args.output, voxel_m=args.voxel,
+                        crop_m=two(args.crop, "--crop as START,END in m"),
+                        sor=two(args.sor, "--sor as K,STD_RATIO", whole=True),
+                        ror=two(args.ror, "--ror as N,RADIUS_M", whole=True),
+                        segment=args.segment, tunnel_json=args.tunnel_json)
     if not args.quiet:
-        print(f"{n_in:,} points -> {len(pts):,} after the voxel grid -> {int(keep.sum()):,} "
-              f"after outlier removal -> {args.output}")
-        if cls is not None:
-            from survey.clouds.segment import CLASS_NAMES
-
-            u, c = np.unique(cls, return_counts=True)
-            print("classes: " + ", ".join(f"{CLASS_NAMES[k]} ({k}) {v:,}"
-                                          for k, v in zip(u.tolist(), c.tolist())))
+        print(f"{r.input_points:,} points -> {r.voxel_points:,} after the voxel grid -> "
+              f"{r.kept_points:,} after outlier removal -> {args.output}")
+        if r.classes is not None:
+            print("classes: " + ", ".join(f"{name} ({k}) {v:,}"
+                                          for k, name, v in r.classes))
     return 0
 
 
-#: The tunnel mesher's cells without --cell (m along the axis, degrees around it).
-DEFAULT_CELL = (0.1, 2.0)
+def cmd_mesh(args) -> int:
+    from survey.workflows.clouds import mesh_files
 
-
-def _default_cell(args, pts, al) -> tuple[float, float, str]:
-    """--cell when not given: ``DEFAULT_CELL``, or for a profile cloud one cell per
-    profile along the axis (``survey.analysis.developed.station_spacing``). DECISION: a
-    cell shorter than the profiles' spacing leaves most columns without a point, and
-    the mesher then interpolates them: on the real Ringo profiles (0.5 m) 0.1 m cells
-    were 80 % interpolated, 0.5 m cells 2.9 % (issue 31)."""
-    from survey.analysis.developed import station_spacing
-
-    ax = al
-    if ax is None:
-        from survey.clouds.axis import estimate_axis
-
-        ax, _ = estimate_axis(pts)
-    s, _, _ = ax.to_local(pts)
-    spacing = station_spacing(s)
-    if spacing <= DEFAULT_CELL[0]:
-        return (*DEFAULT_CELL, "default (no profile spacing above it)")
-    cell = round(float(spacing), 3)
-    how = f"a profile cloud, profiles every {spacing:.3f} m"
-    if not args.quiet:
-        print(f"cell: {cell:g} m along the axis ({how}) x {DEFAULT_CELL[1]:g} deg; "
+    cell = pair(args.cell, "--cell as M,DEG") if args.cell is not None else (None, None)
+    r = mesh_files(args.cloud, args.output, method=args.method, cell_m=cell[0],
+                   cell_deg=cell[1], detail=args.detail, depth=args.depth,
+                   triangles=args.triangles, max_triangles=args.max_triangles,
+                   max_error_m=args.max_error, min_points=args.min_points,
+                   tunnel_json=args.tunnel_json, voxel_m=args.voxel, trim_m=args.trim,
+                   trajectory=args.trajectory, scanners=args.scanners,
+                   json_path=args.json, figure=args.figure)
+    if args.quiet:
+        return 0
+    if r.profile_spacing_m is not None:
+        print(f"cell: {r.cell_m:g} m along the axis ({r.cell_how}) x {r.cell_deg:g} deg; "
               "--cell M,DEG sets it")
-    return cell, DEFAULT_CELL[1], how
+    {"poisson": _print_poisson, "tunnel": _print_tunnel, "solid": _print_solid}[
+        r.method](r, args.output)
+    if r.decimation:
+        _print_compact(r.decimation)
+    return 0
 
 
-#: Options of one method that another method does not take (a silent no-op would
-#: let a user believe they acted).
-_METHOD_ONLY = {"tunnel": ("detail", "triangles", "figure"),
-                "solid": ("trim", "trajectory", "scanners")}
+def _mm(q, key: str) -> str:
+    """A distance of the report in millimetres, as the summaries print it."""
+    return f"{q[key] * 1000:.1f} mm"
 
 
-def _check_method_options(args, method: str) -> None:
-    """Refuse an option of another method than the one that runs (auto resolved)."""
-    from survey.cli.common import UsageError
-
-    for m, names in _METHOD_ONLY.items():
-        given = [n for n in names if getattr(args, n) not in (None, False)]
-        if given and method != m:
-            how = "" if args.method == method else f" (--method {args.method} chose it)"
-            raise UsageError(f"Expected --{given[0]} with --method {m}, got --method "
-                             f"{method}{how}; pass --method {m}.")
+def _print_poisson(r, output) -> None:
+    print(f"{r.input_points:,} points -> {r.triangles:,} triangles (Poisson, depth "
+          f"{r.depth}, trimmed) -> {output}")
 
 
-def _mesh_method(args, pts) -> tuple[str, str]:
-    """(method, reason): the method --method auto first tries: tunnel when --tunnel-json
-    is given or the cloud has a tunnel axis (``estimate_axis`` succeeds), else solid;
-    the tunnel mesh is judged afterwards (``cmd_mesh``)."""
-    if args.method != "auto":
-        return args.method, f"--method {args.method} asked"
-    if args.tunnel_json:
-        return "tunnel", "--tunnel-json gives the axis"
-    from survey.clouds.axis import estimate_axis
-    from survey.errors import ReconstructionError
-
-    try:
-        estimate_axis(pts)
-    except ReconstructionError as exc:
-        return "solid", f"no tunnel axis found ({exc})"
-    return "tunnel", "a tunnel axis was found"
+def _print_tunnel(r, output) -> None:
+    q = r.report
+    if r.detail_faces is not None:
+        print(f"detail layer: {r.detail_faces:,} triangles of attachment tubes")
+    via = "" if r.voxels is None else f" ({r.voxels:,} voxels of {r.voxel_m:g} m)"
+    print(f"{q['points']:,} points{via} -> {r.triangles_undecimated:,} triangles -> "
+          f"{output}; point-to-surface mean {_mm(q, 'mean_m')}, median "
+          f"{_mm(q, 'median_m')}, 95 % {_mm(q, 'p95_m')}, max {_mm(q, 'max_m')}; "
+          f"extrapolated {100 * q['extrapolated_share']:.1f} %")
+    if r.method_asked == "auto":
+        print(f"method tunnel: {r.method_reason}")
 
 
-def _check_compact(args) -> None:
-    """Refuse a bad --max-triangles / --max-error before the reconstruction runs."""
-    import numpy as np
-
-    from survey.cli.common import UsageError
-    from survey.clouds.decimate import MIN_TRIANGLES
-
-    if args.max_triangles is not None and args.max_triangles < MIN_TRIANGLES:
-        raise UsageError(f"Expected --max-triangles >= {MIN_TRIANGLES}, got "
-                         f"{args.max_triangles}; pass a larger --max-triangles.")
-    if args.max_error is not None and not (np.isfinite(args.max_error)
-                                           and args.max_error > 0):
-        raise UsageError(f"Expected a positive --max-error (m), got {args.max_error:g}; "
-                         "pass e.g. --max-error 0.02.")
-
-
-def _compact(args, vertices, faces, support, points):
-    """The mesh decimated as --max-triangles / --max-error ask (or as it is), the
-    support carried to the nearest original vertex, and the "decimation" JSON block
-    (None when nothing was asked), with the input points' distances to the result."""
-    import numpy as np
-
-    if args.max_triangles is None and args.max_error is None:
-        return vertices, faces, support, None
-    from survey.clouds.decimate import decimate_mesh, point_mesh_distances
-
-    dec = decimate_mesh(vertices, faces, max_triangles=args.max_triangles,
-                        max_error_m=args.max_error)
-    sup = None if support is None else np.asarray(support)[dec.nearest_original]
-    p = np.asarray(points, dtype=np.float64)
-    if len(p) > 200_000:
-        p = p[np.random.default_rng(0).choice(len(p), 200_000, replace=False)]
-    origin = np.round(p.mean(axis=0))
-    d = point_mesh_distances(p - origin, dec.vertices - origin, dec.faces)
-    block = dict(dec.quality, points_to_mesh={
-        "median_m": float(np.median(d)), "p95_m": float(np.percentile(d, 95)),
-        "max_m": float(d.max()), "points": int(len(p))})
-    return dec.vertices, dec.faces, sup, block
+def _print_solid(r, output) -> None:
+    q = r.report
+    print(f"{r.input_points:,} points -> {r.voxels:,} voxels -> {r.triangles:,} "
+          f"triangles -> {output} (solid: depth {q['depth']}, cell "
+          f"{q['cell_m'] * 1000:.0f} mm, trim {q['trim_m'] * 1000:.0f} mm); "
+          f"point-to-surface mean {_mm(q, 'mean_m')}, median {_mm(q, 'median_m')}, "
+          f"95 % {_mm(q, 'p95_m')}; support 0 on {100 * q['unsupported_share']:.1f} % "
+          "of the vertices")
+    print(f"method solid: {r.method_reason}")
 
 
 def _print_compact(block) -> None:
@@ -299,210 +203,6 @@ def _print_compact(block) -> None:
           f"{a['max_m'] * 1000:.1f} mm; back: median {b['median_m'] * 1000:.1f} mm, 95 % "
           f"{b['p95_m'] * 1000:.1f} mm, max {b['max_m'] * 1000:.1f} mm; points -> mesh "
           f"median {block['points_to_mesh']['median_m'] * 1000:.1f} mm")
-
-
-def _fallback_possible(args, clouds, why: str) -> None:
-    """Refuse the solid fallback when a cloud records no scanner position."""
-    from survey.cli.common import UsageError
-    from survey.clouds.scanners import station_position
-
-    for c in clouds:
-        if station_position(c) is None:
-            raise UsageError(f"Expected scanner positions for the solid route --method "
-                             f"auto falls back to ({why}), got '{c}' that records no "
-                             "station pose; pass --scanners FILE or --trajectory FILE, or "
-                             "--method tunnel to keep the tunnel mesh.")
-
-
-def _read_reduced(clouds, voxel_m: float):
-    """(points (m, 3), counts (m,) int64 or None, input points) of the clouds streamed
-    through a voxel grid of ``voxel_m`` (centroid and count per voxel,
-    ``survey.clouds.preprocess.VoxelGrid``), or every point when ``voxel_m`` is 0.
-
-    Memory bound: one bounds pass, then the grid holds 40 bytes per occupied voxel
-    (key, three sums, count), about three times that while chunks merge, plus one chunk
-    of points (``cloudio.CHUNK``); the occupied voxels are about lining area /
-    voxel_m^2 (times the noise's thickness in voxels), whatever the number of points.
-    The mesher then needs ~90 bytes a voxel. Measured peak RSS of ``tunnelsim mesh``
-    (a 5 m tube 300 m long, 2 mm noise, 2 cm voxels): 1.26 GB for 10^7 points (8.4 M
-    voxels), 2.53 GB for 3 x 10^7 (18.4 M), 4.74 GB for 10^8 (29.0 M); every point in
-    memory (``voxel_m`` 0) costs ~86 bytes a point (2.58 GB for 3 x 10^7).
-    """
-    import numpy as np
-
-    from sensors.io.clouds import cloud_bounds, iter_points
-    from survey.clouds.preprocess import VoxelGrid
-    from survey.errors import ReconstructionError
-
-    if not (np.isfinite(voxel_m) and voxel_m >= 0):
-        raise ReconstructionError(f"Expected --voxel >= 0 (m), got {voxel_m:g}.")
-    if voxel_m == 0:
-        pts = np.concatenate([xyz for c in clouds for xyz in iter_points(c)])
-        return pts, None, len(pts)
-    lo = np.min([cloud_bounds(c)[0] for c in clouds], axis=0)
-    grid = VoxelGrid(voxel_m, lo)
-    n_in = 0
-    for c in clouds:
-        for xyz in iter_points(c):
-            grid.add(xyz)
-            n_in += len(xyz)
-    pts, counts = grid.result()
-    return pts, counts, n_in
-
-
-def cmd_mesh(args) -> int:
-    import numpy as np
-
-    clouds = list(args.cloud)
-    _check_compact(args)
-    method = args.method
-    choice: dict = {"method_asked": args.method}
-    if method == "auto" and not args.tunnel_json and (args.trajectory or args.scanners):
-        method = "solid"           # scanner positions are what the solid route asks for
-        choice["method_reason"] = "scanner positions given (--trajectory/--scanners)"
-    if method == "solid":
-        _check_method_options(args, method)
-        choice.setdefault("method_reason", "--method solid asked")
-        return _mesh_solid(args, clouds, choice)
-    pts, counts, n_in = _read_reduced(clouds, args.voxel)
-    method, choice["method_reason"] = _mesh_method(args, pts)
-    _check_method_options(args, method)
-    if method == "solid":
-        del pts
-        return _mesh_solid(args, clouds, choice)
-    al, hc = _tunnel_axis(args.tunnel_json)
-    if method == "poisson":
-        from survey.clouds.reconstruct import poisson_tunnel
-        from survey.world.mesh import write_ply
-
-        v, f = poisson_tunnel(pts, alignment=al, centre_height_m=hc, depth=args.depth)
-        v, f, _, block = _compact(args, v, f, None, pts)
-        write_ply(args.output, v, f)
-        if args.json:
-            write_json(args.json, {"method": "poisson", **choice, "points": int(n_in),
-                                   "triangles": int(len(f)), "decimation": block})
-        if not args.quiet:
-            print(f"{n_in:,} points -> {len(f):,} triangles (Poisson, depth "
-                  f"{args.depth}, trimmed) -> {args.output}")
-            if block:
-                _print_compact(block)
-        return 0
-    from survey.clouds.reconstruct import reconstruct_within_budget
-
-    if args.cell is not None:
-        cell_m, cell_deg = pair(args.cell, "--cell as M,DEG")
-    else:
-        cell_m, cell_deg, how = _default_cell(args, pts, al)
-        choice["cell_chosen"] = {"cell_m": cell_m, "cell_deg": cell_deg, "how": how}
-    if args.triangles is None:
-        from survey.clouds.reconstruct import reconstruct_tunnel
-
-        rec = reconstruct_tunnel(pts, alignment=al, centre_height_m=hc, cell_m=cell_m,
-                                 cell_rad=np.deg2rad(cell_deg), min_points=args.min_points,
-                                 counts=counts)
-    else:
-        rec = reconstruct_within_budget(pts, args.triangles, alignment=al, centre_height_m=hc,
-                                        cell_m=cell_m, cell_rad=np.deg2rad(cell_deg),
-                                        min_points=args.min_points, counts=counts)
-    if args.method == "auto":
-        from survey.clouds.meshchoice import judge_tunnel_fit
-
-        judged = judge_tunnel_fit(pts, rec.vertices, rec.faces, rec.support, counts=counts)
-        choice["auto"] = judged.as_json()
-        if not judged.good:
-            _fallback_possible(args, clouds, judged.reason)
-            _check_method_options(args, "solid")
-            choice["method_reason"] = f"{judged.reason}: fell back to solid"
-            del pts, counts, rec
-            return _mesh_solid(args, clouds, choice)
-        choice["method_reason"] += f"; {judged.reason}"
-    from survey.world.mesh import write_ply
-
-    if args.detail:
-        from survey.clouds.detail import with_detail_layer
-
-        mesh = with_detail_layer(rec, pts)
-        v, f, sup = mesh.vertices, mesh.faces, mesh.support
-        if not args.quiet:
-            print(f"detail layer: {mesh.detail_faces:,} triangles of attachment tubes")
-    else:
-        v, f, sup = rec.vertices, rec.faces, rec.support.astype(np.float64)
-    v, f, sup, block = _compact(args, v, f, sup, pts)
-    write_ply(args.output, v, f, vertex_fields={"support": sup})
-    if args.figure:
-        from survey.report.reconstruct import plot_support
-
-        plot_support(rec, args.figure)
-    q: dict = rec.quality or {}
-    if args.json:
-        extra = {"method": "tunnel", **choice}
-        if block is not None:
-            extra.update(decimation=block, triangles=block["triangles"],
-                         triangles_undecimated=q["triangles"])
-        write_json(args.json, {**q, **extra})
-    if not args.quiet:
-        via = "" if counts is None else f" ({len(pts):,} voxels of {args.voxel:g} m)"
-        print(f"{q['points']:,} points{via} -> {q['triangles']:,} triangles -> "
-              f"{args.output}; "
-              f"point-to-surface mean {q['mean_m'] * 1000:.1f} mm, median "
-              f"{q['median_m'] * 1000:.1f} mm, 95 % {q['p95_m'] * 1000:.1f} mm, max "
-              f"{q['max_m'] * 1000:.1f} mm; extrapolated {100 * q['extrapolated_share']:.1f} %")
-        if args.method == "auto":
-            print(f"method tunnel: {choice['method_reason']}")
-        if block:
-            _print_compact(block)
-    return 0
-
-
-def _mesh_solid(args, clouds, choice: dict) -> int:
-    """--method solid: the clouds stream through a scanner-aware voxel grid (bounds
-    first, one pass each), then ``reconstruct_solid``."""
-    import numpy as np
-
-    from sensors.io.clouds import cloud_bounds
-    from survey.clouds.scanners import iter_scanned, read_positions
-    from survey.clouds.solid import ScannerVoxelGrid, reconstruct_solid
-    from survey.errors import ReconstructionError
-
-    if not (np.isfinite(args.voxel) and args.voxel > 0):
-        raise ReconstructionError(f"Expected a positive --voxel (m), got {args.voxel:g}.")
-    traj = None
-    if args.trajectory:
-        from sensors import Trajectory
-
-        traj = Trajectory.read(args.trajectory)
-    stations = read_positions(args.scanners) if args.scanners else None
-    lo = np.min([cloud_bounds(c)[0] for c in clouds], axis=0)
-    grid = ScannerVoxelGrid(args.voxel, lo)
-    for c in clouds:
-        for xyz, scanner in iter_scanned(c, trajectory=traj, stations=stations):
-            grid.add(xyz, scanner)
-    pts, scanners, _ = grid.result()
-    rec = reconstruct_solid(pts, scanners=scanners, cell_m=args.voxel, trim_m=args.trim)
-    v, f, sup, block = _compact(args, rec.vertices, rec.faces,
-                                rec.support.astype(np.float64), pts)
-    from survey.world.mesh import write_ply
-
-    write_ply(args.output, v, f, vertex_fields={"support": sup})
-    q = dict(rec.quality, method="solid", **choice, input_points=grid.n_points,
-             depth=rec.depth, cell_m=rec.cell_m, trim_m=rec.trim_m,
-             support_radius_m=rec.support_radius_m)
-    if block is not None:
-        q.update(decimation=block, triangles=block["triangles"],
-                 triangles_undecimated=rec.quality["triangles"])
-    if args.json:
-        write_json(args.json, q)
-    if not args.quiet:
-        print(f"{grid.n_points:,} points -> {len(pts):,} voxels -> {q['triangles']:,} "
-              f"triangles -> {args.output} (solid: depth {rec.depth}, cell "
-              f"{rec.cell_m * 1000:.0f} mm, trim {rec.trim_m * 1000:.0f} mm); "
-              f"point-to-surface mean {q['mean_m'] * 1000:.1f} mm, median "
-              f"{q['median_m'] * 1000:.1f} mm, 95 % {q['p95_m'] * 1000:.1f} mm; support 0 "
-              f"on {100 * q['unsupported_share']:.1f} % of the vertices")
-        print(f"method solid: {q['method_reason']}")
-        if block:
-            _print_compact(block)
-    return 0
 
 
 __all__ = ["CLOUD_INPUTS", "cmd_mesh", "cmd_preprocess", "register"]

@@ -1,29 +1,14 @@
 """Monitoring commands (issue 17): detect, the detectability study (what deformation a
 survey detects, and its false alarms, for a sensor x speed / station spacing x noise
-grid)."""
+grid). ``survey.workflows.detect.detect_study`` does the work; this module parses and
+prints."""
 
 from __future__ import annotations
 
-import sys
-
-from survey.cli.common import (CommandSet, floats, out_dir, report_options, say,
-                               write_headed_report, write_json, write_text)
+from survey.cli.common import CommandSet, floats, report_options, say
 from survey.errors import TunnelsimCLIError
 
-__all__ = ["FULL", "QUICK", "cmd_detect", "register"]
-
-#: Defaults of the full study and of --quick (a value given on the command line wins).
-#: DECISION: --quick is a tbm-like tube of coarse edges (0.2 m), a compact layout and
-#: TLS preview scans: 2 noise factors x 4 epochs of 3 preview stations take about a
-#: minute on 2 shared cores, enough for the tests and the demo.
-FULL = {"preset": "tbm", "edge_length": 0.1, "resolution": "middle", "zone": 5.0,
-        "taper": 0.5, "gap": 1.0, "bulge_radius": 0.5, "reference": 2.0,
-        "core_spacing": 0.1, "magnitudes": "1,2,5,10", "stations": "10,20",
-        "speeds": "1,3", "noise": "0.5,1,2"}
-QUICK = {"preset": "tbm", "edge_length": 0.2, "resolution": "preview", "zone": 2.0,
-         "taper": 0.25, "gap": 0.5, "bulge_radius": 0.4, "reference": 1.5,
-         "core_spacing": 0.15, "magnitudes": "2,5,10", "stations": "10", "speeds": "3",
-         "noise": "1,30"}
+__all__ = ["cmd_detect", "register"]
 
 
 def register(commands: CommandSet) -> None:
@@ -90,78 +75,36 @@ def register(commands: CommandSet) -> None:
     report_options(c)
 
 
-def _get(args, name: str):
-    v = getattr(args, name, None)
-    return (QUICK if args.quick else FULL)[name] if v is None else v
+def _numbers(text: str | None, what: str, scale: float = 1.0) -> list[float] | None:
+    """An option's comma-separated numbers divided by ``scale``; None when not given (the
+    library's default, ``survey.workflows.detect.FULL`` or ``QUICK``)."""
+    return None if text is None else [v / scale for v in floats(text, what)]
 
 
 def cmd_detect(args) -> int:
-    from sensors import load_sensor
-    from survey.analysis.detectability import Detectability, DetectLayout
-    from survey.analysis.m3c2 import M3C2Params
-    from survey.report.detectability import (detect_csv, detect_markdown, detect_summary,
-                                             plot_detectability, targets_csv)
+    from survey.report.progress import Progress
+    from survey.workflows.detect import detect_study
 
-    names = [n.strip() for n in args.sensor.split(",") if n.strip()]
-    if not names:
-        raise TunnelsimCLIError(f"Expected --sensor NAME[,NAME...], got {args.sensor!r}.")
-    specs = [load_sensor(n) for n in names]
-    mags = [m / 1000.0 for m in floats(_get(args, "magnitudes"), "--magnitudes (mm)")]
-    noises = floats(_get(args, "noise"), "--noise")
-    spacings = floats(_get(args, "stations"), "--stations") \
-        if any(s.kind == "tls" for s in specs) else []
-    speeds = floats(_get(args, "speeds"), "--speeds") \
-        if any(s.kind != "tls" for s in specs) else []
-    if args.mesh:
-        if args.edge_length is not None:
-            raise TunnelsimCLIError("Expected --edge-length only with --preset, got it "
-                                    "with --mesh (the mesh has its own edges).")
-        from survey.world.mesh import read_tunnel
-
-        tunnel = read_tunnel(args.mesh)
-    else:
-        from survey.world.presets import preset
-
-        tunnel, _ = preset(args.preset or _get(args, "preset"),
-                           edge_length_m=_get(args, "edge_length"), seed=args.seed)
-    kw = dict(zone_m=_get(args, "zone"), taper_m=_get(args, "taper"),
-              gap_m=_get(args, "gap"), bulge_radius_m=_get(args, "bulge_radius"),
-              reference_m=_get(args, "reference"))
-    start = args.start
-    if start is None:
-        probe = DetectLayout.build(0.0, mags, **kw)
-        c0, c1 = tunnel.alignment.chainage_range
-        start = round(0.5 * (c0 + c1) - 0.5 * probe.length_m, 2)
-    layout = DetectLayout.build(start, mags, **kw)
-    prm = M3C2Params(args.cyl_radius, args.max_depth,
-                     tuple(floats(args.normal_radii, "--normal-radii")), args.reg_error)
-    study = Detectability(tunnel, layout, params=prm,
-                          core_spacing_m=_get(args, "core_spacing"), seed=args.seed)
-    out = out_dir(args.output, args.force)
-
-    def progress(i, n):
-        if not args.quiet and sys.stderr.isatty():
-            sys.stderr.write(f"\rdetect: {i}/{n} configurations ")
-            sys.stderr.flush()
-
-    rows = study.grid(specs, speeds_mps=speeds, spacings_m=spacings, noises=noises,
-                      progress=progress, resolution=_get(args, "resolution"),
-                      rate_hz=args.rate, height_m=args.height)
-    if not args.quiet and sys.stderr.isatty():
-        sys.stderr.write("\n")
-    write_json(out / "detect.json", detect_summary(
-        study, rows, extra={"quick": bool(args.quick),
-                            "resolution": _get(args, "resolution"), "rate_hz": args.rate}))
-    write_text(out / "detect.csv", detect_csv(rows))
-    write_text(out / "targets.csv", targets_csv(rows))
-    md = detect_markdown(study, rows)
-    plot_detectability(rows, out / "detect.png")
-    write_headed_report(args, out / "detect.md", md,
-                        [("mesh", args.mesh, "")] if args.mesh else [],
-                        crs_from=[args.mesh] if args.mesh else [],
-                        settings=[("sensors", args.sensor),
-                                  ("tunnel", "the mesh" if args.mesh
-                                   else f"preset {args.preset or _get(args, 'preset')}")])
-    say(args, md.rstrip() + f"\n-> {out}/ (detect.json, detect.csv, targets.csv, "
-                            "detect.md, detect.png)")
+    if args.mesh and args.edge_length is not None:
+        raise TunnelsimCLIError("Expected --edge-length only with --preset, got it "
+                                "with --mesh (the mesh has its own edges).")
+    # Options not given are None: the library's default (FULL or QUICK) then.
+    with Progress(args.quiet, unit="configurations", style="count") as bar:
+        res = detect_study(
+            args.output, mesh=args.mesh, preset=args.preset,
+            edge_length_m=args.edge_length, sensors=args.sensor,
+            spacings_m=_numbers(args.stations, "--stations"),
+            speeds_mps=_numbers(args.speeds, "--speeds"),
+            noises=_numbers(args.noise, "--noise"),
+            magnitudes_m=_numbers(args.magnitudes, "--magnitudes (mm)", 1000.0),
+            start_m=args.start, zone_m=args.zone, bulge_radius_m=args.bulge_radius,
+            resolution=args.resolution, rate_hz=args.rate, height_m=args.height,
+            core_spacing_m=args.core_spacing, cyl_radius_m=args.cyl_radius,
+            max_depth_m=args.max_depth,
+            normal_radii_m=floats(args.normal_radii, "--normal-radii"),
+            reg_error_m=args.reg_error, quick=args.quick, force=args.force,
+            seed=args.seed, project=args.project, instrument=args.instrument,
+            progress=bar)
+    say(args, res.markdown.rstrip() + f"\n-> {res.folder}/ (detect.json, detect.csv, "
+                                      "targets.csv, detect.md, detect.png)")
     return 0

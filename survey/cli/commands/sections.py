@@ -2,13 +2,9 @@
 
 from __future__ import annotations
 
-import warnings
-from pathlib import Path
-
-from survey.cli.commands.axis import datum_options
-from survey.cli.common import (CommandSet, floats, out_dir, pair, report_options, say,
-                               write_headed_report, write_json, write_text)
-from survey.errors import TunnelsimCLIError
+from survey.cli.commands.axis import datum_options, datum_values
+from survey.cli.common import (CommandSet, floats, header_values, pair, report_options,
+                               say)
 
 def _cut_options(c) -> None:
     """Input, axis, chainages and band options shared by sections and rings."""
@@ -101,221 +97,51 @@ def register(commands: CommandSet) -> None:
                   "the alignment or fitted axis) that --min-height is measured from")
 
 
-def _alignment(args):
-    """(Alignment, Profile or None): from --tunnel-json (or the JSON beside a tunnel
-    PLY; a LandXML or station CSV has no profile) or fitted to the input (--fit-axis,
-    with the chainage datum of --start/--chainage-at/--reverse)."""
-    from survey.world.alignment_io import load_tunnel
-    from survey.world.mesh import sidecar
-
-    js = args.tunnel_json
-    if js is None and not args.fit_axis and Path(args.input).suffix.lower() == ".ply" \
-            and sidecar(args.input).is_file():
-        js = str(sidecar(args.input))
-    if js is not None and args.fit_axis:
-        raise TunnelsimCLIError("Expected --tunnel-json or --fit-axis, got both.")
-    if js is None and not args.fit_axis:
-        raise TunnelsimCLIError("Expected --tunnel-json T.json (the alignment) or "
-                                "--fit-axis, got neither.")
-    if not args.fit_axis and (args.start is not None or args.reverse or
-                              args.chainage_at is not None):
-        raise TunnelsimCLIError("Expected --start, --chainage-at and --reverse with "
-                                "--fit-axis (the chainage of a fitted axis), got them "
-                                "with --tunnel-json, whose alignment has its chainage.")
-    if js is not None:
-        t = load_tunnel(js, option="--tunnel-json")
-        return t.alignment, t.profile
-    return _fitted_axis(args), None
-
-
-def _fitted_axis(args):
-    """An alignment fitted to a seeded random subset of the input's points, with the
-    user's chainage (``survey.cli.commands.axis.fitted_axis``)."""
-    from survey.cli.commands.axis import fitted_axis
-
-    al, _, _ = fitted_axis(args, Path(args.input))
-    return al
-
-
-def _chainages(args, al):
-    from survey.analysis.sections import section_chainages
-
-    if (args.every is None) == (args.at is None):
-        raise TunnelsimCLIError("Expected --every M or --at C[,C...] (section chainages), "
-                                f"got {'both' if args.every is not None else 'neither'}.")
-    at = floats(args.at, "--at") if args.at is not None else None
-    return section_chainages(al, every_m=args.every, at=at, half_width_m=args.width)
-
-
-def _design(args, prof, fitted):
-    """The design profile: --design, or the tunnel JSON's profile."""
-    from survey.analysis.design import DesignProfile, read_design_profile
-
-    if args.design is not None:
-        shift = pair(args.design_shift, "--design-shift as DY,DZ in metres") \
-            if args.design_shift else (0.0, 0.0)
-        closed = {"auto": None, "yes": True, "no": False}[args.design_closed]
-        d = read_design_profile(args.design, closed=closed, order=args.design_order,
-                                shift_m=shift)
-    elif prof is not None:
-        d = DesignProfile.from_profile(prof)
-    else:
-        raise TunnelsimCLIError("Expected --design FILE with --fit-axis or with an "
-                                "alignment without a profile (LandXML, station CSV), "
-                                "got none.")
-    if fitted:
-        # DECISION: a fitted axis runs through the profile's mid-range centre
-        # (survey.clouds.axis.estimate_axis), so the design is centred the same way.
-        y0, y1, z0, z1 = d.extent()
-        d = d.shifted(-0.5 * (y0 + y1), -0.5 * (z0 + z1))
-    return d
-
-
-def _cuts(args, al, chainages):
-    from survey.analysis.sections import cut_file
-
-    if args.width is None or not args.width >= 0:
-        raise TunnelsimCLIError(f"Expected --width >= 0 m, got {args.width}.")
-    from sensors.io.errors import PointFileError
-
-    classes = None
-    if args.classes is not None:
-        vals = floats(args.classes, "--classes")
-        if not vals or any(v != int(v) or not 0 <= v <= 255 for v in vals):
-            raise TunnelsimCLIError(f"Expected --classes as whole codes 0-255 (e.g. 64,2), "
-                                    f"got {args.classes!r}.")
-        classes = [int(v) for v in vals]
-        from survey.analysis.developed import is_mesh_file
-
-        if is_mesh_file(args.input):
-            raise TunnelsimCLIError(f"Expected a classified point cloud for --classes, got "
-                                    f"the mesh '{args.input}'; leave out --classes.")
-    try:
-        cuts = cut_file(args.input, al, chainages, args.width, max_points=args.max_points,
-                        seed=args.seed, classes=classes)
-    except PointFileError as e:
-        if classes is None or "classification" not in str(e):
-            raise
-        raise TunnelsimCLIError(f"Expected a per-point classification in "
-                                f"'{args.input}' for --classes, got none; classify it "
-                                "with 'tunnelsim preprocess --segment' or leave out "
-                                "--classes.") from None
-    if classes is not None and not any(len(c.yz) for c in cuts):
-        raise TunnelsimCLIError(f"Expected points of classes {args.classes} in the "
-                                "section bands, got none; check --classes.")
-    return cuts
+def _cut_values(args) -> dict:
+    """The keywords sections and rings share, from the options of ``_cut_options``."""
+    return {"tunnel_json": args.tunnel_json, "fit_axis": args.fit_axis,
+            **datum_values(args), "every_m": args.every,
+            "at_m": floats(args.at, "--at") if args.at is not None else None,
+            "width_m": args.width, "max_points": args.max_points,
+            "classes": floats(args.classes, "--classes") if args.classes is not None
+            else None, "force": args.force, "seed": args.seed, **header_values(args)}
 
 
 def cmd_sections(args) -> int:
-    import numpy as np
+    from survey.workflows.sections import sections_files
 
-    from survey.analysis.overbreak import TOLERANCE_EDGES_M, compare_sections
-    from survey.report.sections import (contours_csv, plot_section, section_png_name,
-                                        sections_csv, sections_markdown, volumes_csv)
-
-    if not Path(args.input).is_file():
-        raise TunnelsimCLIError(f"Expected an input cloud or mesh, got '{args.input}' which "
-                                "does not exist.")
-    edges = TOLERANCE_EDGES_M if args.tolerance is None else \
-        tuple(np.asarray(floats(args.tolerance, "--tolerance")) / 1000.0)
-    al, prof = _alignment(args)
-    design = _design(args, prof, args.fit_axis)
-    chainages = _chainages(args, al)
-    out = out_dir(args.output, args.force)
-    cuts = _cuts(args, al, chainages)
-    rep = compare_sections(cuts, design, alignment=al, bin_m=args.bin,
-                           tolerance_edges_m=edges, seed=args.seed)
-    write_text(out / "sections.csv", sections_csv(rep))
-    write_text(out / "volumes.csv", volumes_csv(rep))
-    write_text(out / "contours.csv", contours_csv(rep))
-    write_json(out / "report.json", rep.to_dict())
-    if not args.no_plots:
-        for s in rep.sections:
-            plot_section(s, rep, out / section_png_name(s.chainage_m))
-    write_headed_report(args, out / "report.md",
-                        sections_markdown(rep, source=Path(args.input).name,
-                                          plots=not args.no_plots),
-                        [("cloud or mesh", args.input, ""),
-                         ("alignment", args.tunnel_json, "fitted axis" if args.fit_axis
-                          else ""),
-                         *([("design", args.design, "")] if args.design else [])],
-                        crs_from=[args.input],
-                        settings=[("band (m)", f"±{args.width:g}")] if getattr(
-                            args, "width", None) is not None else None)
-    worst = max(rep.sections, key=lambda s: s.max_m)
-    say(args, f"{len(rep.sections)} sections against '{design.name}': overbreak "
-              f"{rep.overbreak_m3:.3f} m^3, underbreak {rep.underbreak_m3:.3f} m^3; largest "
-              f"overbreak {1000 * worst.max_m:.0f} mm at {worst.chainage_m:g} m -> {out}/")
+    edges = None if args.tolerance is None else \
+        tuple(v / 1000.0 for v in floats(args.tolerance, "--tolerance"))
+    shift = pair(args.design_shift, "--design-shift as DY,DZ in metres") \
+        if args.design_shift else None
+    r = sections_files(args.input, args.output, design=args.design,
+                       design_order=args.design_order, design_shift_m=shift,
+                       design_closed={"auto": None, "yes": True, "no": False}[
+                           args.design_closed],
+                       bin_m=args.bin, tolerance_edges_m=edges, plots=not args.no_plots,
+                       **_cut_values(args))
+    say(args, f"{r.sections} sections against '{r.design_name}': overbreak "
+              f"{r.overbreak_m3:.3f} m^3, underbreak {r.underbreak_m3:.3f} m^3; largest "
+              f"overbreak {1000 * r.largest_overbreak_m:.0f} mm at "
+              f"{r.largest_overbreak_chainage_m:g} m -> {r.output}/")
     return 0
 
 
 def cmd_rings(args) -> int:
-    import numpy as np
+    from survey.workflows.sections import rings_files
 
-    from survey.analysis.design import DesignProfile
-    from survey.analysis.rings import FIT_RMS_WARN_M, fit_rings, poor_fits
-    from survey.analysis.sections import above_floor
-    from survey.report.sections import plot_rings, rings_csv, rings_markdown
-
-    if not Path(args.input).is_file():
-        raise TunnelsimCLIError(f"Expected an input cloud or mesh, got '{args.input}' which "
-                                "does not exist.")
-    al, prof = _alignment(args)
-    if args.rail_height is not None and args.min_height is None:
-        raise TunnelsimCLIError("Expected --rail-height with --min-height (the height it "
-                                "measures from), got it alone; add --min-height M.")
-    for flag, v in (("--min-height", args.min_height), ("--rail-height", args.rail_height)):
-        if v is not None and not np.isfinite(v):
-            raise TunnelsimCLIError(f"Expected {flag} a finite height in m, got {v}.")
-    chainages = _chainages(args, al)
-    out = out_dir(args.output, args.force)
-    cuts = _cuts(args, al, chainages)
-    floors = None
-    if args.min_height is not None:
-        # DECISION: with --tunnel-json the alignment is the floor (a tunnel JSON runs
-        # along the invert, as before); a fitted axis runs through the profile centre,
-        # so each section's lowest points are the floor there (issue 31).
-        rail = args.rail_height if args.rail_height is not None else \
-            (None if args.fit_axis else 0.0)
-        kept = [above_floor(c, args.min_height, floor_m=rail) for c in cuts]
-        cuts = [k[0] for k in kept]
-        floors = [k[1] for k in kept]
-    ref = DesignProfile.from_profile(prof).centre if prof is not None else np.zeros(2)
-    rings = fit_rings(cuts, reference_centre=ref, nominal_diameter_m=args.nominal_diameter)
-    bad = poor_fits(rings)
-    if bad:
-        worst = max(bad, key=lambda r: min(r.circle.rms_m, r.ellipse.rms_m))
-        rms = min(worst.circle.rms_m, worst.ellipse.rms_m)
-        warnings.warn(f"{len(bad)} of {len(rings)} rings fit a circle or an ellipse no "
-                      f"better than {1000 * FIT_RMS_WARN_M:g} mm rms (worst "
-                      f"{1000 * rms:.0f} mm at chainage {worst.chainage_m:g} m): the "
-                      "section is not a ring (a horseshoe?), so its diameters and "
-                      "ovality mean little; compare it with its design profile with "
-                      "'tunnelsim sections --design', or drop the invert with "
-                      "--min-height.", UserWarning, stacklevel=2)
-    write_text(out / "rings.csv", rings_csv(rings))
-    write_headed_report(args, out / "rings.md",
-                        rings_markdown(rings, source=Path(args.input).name),
-                        [("cloud or mesh", args.input, ""),
-                         ("alignment", args.tunnel_json, "fitted axis" if args.fit_axis
-                          else "")],
-                        crs_from=[args.input])
-    rows = [r.to_dict() for r in rings]
-    if floors is not None:
-        for row, f in zip(rows, sorted(zip([c.chainage_m for c in cuts], floors))):
-            row["floor_height_m"] = f[1]
-    write_json(out / "rings.json", rows)
-    plot_rings(rings, out / "rings.png")
-    dmax = max(r.ellipse.diameters_m[0] for r in rings)
-    dmin = min(r.ellipse.diameters_m[1] for r in rings)
-    if floors is not None:
+    r = rings_files(args.input, args.output, nominal_diameter_m=args.nominal_diameter,
+                    min_height_m=args.min_height, rail_height_m=args.rail_height,
+                    **_cut_values(args))
+    if r.floor_heights_m is not None:
         src = "--rail-height" if args.rail_height is not None else \
             ("each section's lowest points (its 1st percentile of heights)"
              if args.fit_axis else "the alignment of --tunnel-json")
         say(args, f"--min-height {args.min_height:g} m above the floor: {src}, at "
-                  f"{np.median(floors):.3f} m in the section frame (median)")
-    say(args, f"{len(rings)} rings: diameters {1000 * dmin:.1f} to {1000 * dmax:.1f} mm, "
-              f"largest ovality {100 * max(r.ovality for r in rings):.3f} % -> {out}/")
+                  f"{r.floor_median_m:.3f} m in the section frame (median)")
+    say(args, f"{len(r.rings)} rings: diameters {1000 * r.min_diameter_m:.1f} to "
+              f"{1000 * r.max_diameter_m:.1f} mm, largest ovality "
+              f"{100 * r.max_ovality:.3f} % -> {r.output}/")
     return 0
 
 

@@ -1,12 +1,9 @@
-"""The slam command: real LiDAR odometry (KISS-ICP, GenZ-ICP) on a simulated drive."""
+"""The slam command: real LiDAR odometry (KISS-ICP, GenZ-ICP) on a simulated drive
+(``survey.workflows.slam.slam_file`` does the work; this module parses and prints)."""
 
 from __future__ import annotations
 
-from survey.cli.common import CommandSet, report_options, write_headed_report, write_json
-from survey.errors import TunnelsimCLIError
-
-#: Trajectory suffixes ``slam -o`` writes (TUM text, or CSV).
-TRAJECTORY_SUFFIXES = (".txt", ".tum", ".csv")
+from survey.cli.common import CommandSet, report_options
 
 
 def register(commands: CommandSet) -> None:
@@ -51,129 +48,29 @@ def register(commands: CommandSet) -> None:
     report_options(c)
 
 
-def _check_args(args):
-    """Everything that can be checked before the odometry runs (so that bad input
-    fails at once and leaves no file)."""
-    from pathlib import Path
-
-    out = Path(args.output)
-    if out.suffix.lower() not in TRAJECTORY_SUFFIXES:
-        raise TunnelsimCLIError(f"Expected -o as a trajectory file {TRAJECTORY_SUFFIXES} "
-                                f"(TUM text or CSV), got '{out}'.")
-    if args.cloud and Path(args.cloud).suffix.lower() not in (".las", ".laz"):
-        raise TunnelsimCLIError(f"Expected --cloud as .las/.laz, got '{args.cloud}'.")
-    if args.place and not args.cloud:
-        raise TunnelsimCLIError("Expected --cloud OUT.laz with --place (where to write the "
-                                "re-placed drive), got none.")
-    if args.control and not (args.truth and args.cloud):
-        raise TunnelsimCLIError("Expected --truth and --cloud with --control (control "
-                                "points are observed in the re-placed cloud), got "
-                                f"{'no --truth' if not args.truth else 'no --cloud'}.")
-
-
-def _control(path):
-    """(ids, (k, 3) xyz) of the control points in a tunnel JSON."""
-    import numpy as np
-
-    from sensors.io.errors import TunnelFileError
-    from survey.world.mesh import read_meta
-
-    cps = read_meta(path).get("control_points")
-    if not cps:
-        raise TunnelFileError(f"Expected 'control_points' in '{path}' (a JSON written by "
-                              "'tunnelsim tunnel'), got none.")
-    return [c["id"] for c in cps], np.array([c["xyz"] for c in cps], dtype=np.float64)
-
-
 def cmd_slam(args) -> int:
-    from pathlib import Path
+    from survey.workflows.slam import slam_file
 
-    from sensors import Trajectory
-    from survey.adjust.odometry import platform_trajectory, run_odometry
-    from survey.clouds.drives import iter_frames, open_drive, replace_drive
+    def announce(drive) -> None:
+        if not args.quiet:
+            print(f"{args.odometry} on {drive.n_points:,} points of {drive.sensor} "
+                  f"({drive.time_span_s[1] - drive.time_span_s[0]:.1f} s)...")
 
-    _check_args(args)
-    drive = open_drive(args.drive)
-    place = open_drive(args.place) if args.place else drive
-    if args.cloud and place.kind != "las":
-        raise TunnelsimCLIError(f"Expected a LAS/LAZ drive to re-place with --cloud, got the "
-                                f"ROS 2 bag '{place.path}'; pass --place DRIVE.laz (the same "
-                                "drive written with --fields full).")
-    truth = Trajectory.read(args.truth) if args.truth else None
-    control = _control(args.control) if args.control else None
+    res = slam_file(args.drive, args.output, odometry=args.odometry, truth=args.truth,
+                    cloud=args.cloud, place=args.place, control=args.control,
+                    voxel_m=args.voxel, max_range_m=args.max_range, seed=args.seed,
+                    project=args.project, instrument=args.instrument,
+                    on_start=announce)
     if not args.quiet:
-        print(f"{args.odometry} on {drive.n_points:,} points of {drive.sensor} "
-              f"({drive.time_span_s[1] - drive.time_span_s[0]:.1f} s)...")
-    res = run_odometry(iter_frames(drive), method=args.odometry, voxel_size_m=args.voxel,
-                       max_range_m=args.max_range)
-    start = None
-    if truth is not None:
-        pos, rot = truth.interpolate([res.times[0]])
-        start = (pos[0], rot[0])
-    lo = min(drive.time_span_s[0], place.time_span_s[0])
-    hi = max(drive.time_span_s[1], place.time_span_s[1])
-    est = platform_trajectory(res, drive.mount, start=start, span_s=(lo, hi))
-    out = Path(args.output)
-    est.write(out)
-    said = [out.name]
-    summary = {"odometry": args.odometry, "frames": len(res.times),
-               "skipped_frames": len(res.skipped), "points": res.n_points,
-               "odometry_seconds": res.seconds, **res.settings}
-    if truth is not None:
-        summary.update(_evaluate(args, est, truth, out, summary))
-        said += [f"{out.stem}_report.md", f"{out.stem}.json", f"{out.stem}.png"]
-    if args.cloud:
-        n = replace_drive(place, args.cloud, est)
-        said.append(Path(args.cloud).name)
-        summary["cloud_points"] = n
-        if control is not None and truth is not None:
-            said += _observe(args, truth, est, control)
-    if not args.quiet:
-        line = (f"{args.odometry}: {len(res.times)} frames in {res.seconds:.1f} s "
-                f"({len(res.skipped)} partial skipped)")
-        if "final_error_pct" in summary:
-            line += (f"; final error {100 * summary['final_error_m']:.1f} cm = "
-                     f"{summary['final_error_pct']:.2f} % of {summary['path_length_m']:.1f} m, "
-                     f"ATE RMS {100 * summary['ate_rms_m']:.1f} cm")
-        print(line + " -> " + ", ".join(said))
+        odo, s = res.odometry, res.summary
+        line = (f"{args.odometry}: {len(odo.times)} frames in {odo.seconds:.1f} s "
+                f"({len(odo.skipped)} partial skipped)")
+        if "final_error_pct" in s:
+            line += (f"; final error {100 * s['final_error_m']:.1f} cm = "
+                     f"{s['final_error_pct']:.2f} % of {s['path_length_m']:.1f} m, "
+                     f"ATE RMS {100 * s['ate_rms_m']:.1f} cm")
+        print(line + " -> " + ", ".join(p.name for p in res.written))
     return 0
-
-
-def _evaluate(args, est, truth, out, run: dict) -> dict:
-    """Evaluate against the truth (survey.analysis.trajectory) and write the report,
-    the JSON (with ``run``: frames, points, odometry seconds and settings) and the plot
-    beside the trajectory; returns the key figures."""
-    from survey.analysis.trajectory import trajectory_errors
-    from survey.report.slam import plot_slam, slam_report
-
-    err = trajectory_errors(est, truth)
-    png = out.with_name(out.stem + ".png")
-    plot_slam(est, truth, err, png)
-    write_headed_report(args, out.with_name(out.stem + "_report.md"),
-                        slam_report(err, odometry=args.odometry, plot_path=png),
-                        [("drive", args.drive, ""), ("truth", args.truth, "")],
-                        settings=[("odometry", str(args.odometry))])
-    d = err.to_dict()
-    write_json(out.with_name(out.stem + ".json"), dict(d, **run))
-    return {k: d[k] for k in ("final_error_m", "final_error_pct", "path_length_m",
-                              "ate_rms_m") if k in d}
-
-
-def _observe(args, truth, est, control) -> list[str]:
-    """The control points a surveyor has for the re-placed cloud: world coordinates
-    by total station, and the prisms picked in the cloud with the time they were
-    passed (survey.adjust.slam.observe_control)."""
-    from pathlib import Path
-
-    from survey.adjust.slam import observe_control
-
-    ids, xyz = control
-    observed, world = observe_control(truth, est, ids, xyz, seed=args.seed)
-    c = Path(args.cloud)
-    names = [f"{c.stem}_cp_observed.csv", f"{c.stem}_cp_world.csv"]
-    observed.write(c.with_name(names[0]))
-    world.write(c.with_name(names[1]))
-    return names
 
 
 __all__ = ["cmd_slam", "register"]

@@ -21,7 +21,7 @@ from survey.adjust.odometry import (
     MIN_FRAMES,
     STAMP,
     OdometryResult,
-    platform_trajectory,
+    odometry_trajectory,
     run_odometry,
 )
 from survey.adjust.slam import slam_trajectory, to_slam_frame
@@ -110,7 +110,7 @@ def test_platform_poses_through_any_mount_recover_the_truth(lever, rpy, seed):
     rel = np.einsum("ij,njk->nik", np.linalg.inv(s[0]), s)
     res = OdometryResult("kiss-icp", t, rel, np.arange(n))
     start = truth.interpolate([t[0]])
-    est = platform_trajectory(res, mount, start=(start[0][0], start[1][0]))
+    est = odometry_trajectory(res, mount, start=(start[0][0], start[1][0]))
     np.testing.assert_allclose(est.positions, truth.positions, atol=1e-6)
     d = (est.rotations * truth.rotations.inv()).magnitude()
     assert d.max() < 1e-9
@@ -120,7 +120,7 @@ def test_platform_trajectory_extends_with_constant_velocity():
     t = np.array([1.0, 1.1, 1.2])
     poses = np.tile(np.eye(4), (3, 1, 1))
     poses[:, 0, 3] = [0.0, 0.2, 0.4]
-    est = platform_trajectory(OdometryResult("kiss-icp", t, poses, np.arange(3)),
+    est = odometry_trajectory(OdometryResult("kiss-icp", t, poses, np.arange(3)),
                               span_s=(0.9, 1.35))
     assert est.times[0] == 0.9 and est.times[-1] == 1.35
     np.testing.assert_allclose(est.positions[:, 0], [-0.2, 0, 0.2, 0.4, 0.7], atol=1e-12)

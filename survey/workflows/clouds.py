@@ -1,0 +1,633 @@
+"""Workflows on point clouds: ``preprocess_file`` (voxel grid, crop, outliers,
+segmentation; ``tunnelsim preprocess``) and ``mesh_files`` (reconstruction with the
+method choice, voxel streaming, decimation and the solid fallback; ``tunnelsim mesh``).
+
+Each writes the files its command writes and returns a frozen result with the paths and
+every number the command prints. Errors keep the command's messages (they name its
+options, e.g. ``--voxel``): a Python caller reads the keyword of the same name.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from survey.errors import ReconstructionError
+
+__all__ = ["DEFAULT_CELL", "MESH_METHODS", "MeshResult", "PreprocessResult", "mesh_files",
+           "preprocess_file"]
+
+PathLike = str | os.PathLike[str]
+
+#: The tunnel mesher's cells without ``cell_m``/``cell_deg`` (m along the axis, degrees
+#: around it).
+DEFAULT_CELL = (0.1, 2.0)
+#: The methods ``mesh_files`` takes (``--method``).
+MESH_METHODS = ("auto", "tunnel", "poisson", "solid")
+#: Most input points the decimated mesh's point-to-mesh distances are measured on (a
+#: seeded random subset beyond).
+COMPACT_SAMPLE = 200_000
+
+
+# ------------------------------------------------------------------------- preprocess
+@dataclass(frozen=True)
+class PreprocessResult:
+    """What ``preprocess_file`` wrote and counted.
+
+    output : the LAS/LAZ written
+    input_points : points read
+    voxel_points : points after the voxel grid (``input_points`` without one)
+    kept_points : points written (after crop and outlier removal)
+    classes : ((code, name, count), ...) of the segmentation in increasing code, or
+        None without ``segment``
+    """
+
+    output: Path
+    input_points: int
+    voxel_points: int
+    kept_points: int
+    classes: tuple[tuple[int, str, int], ...] | None = None
+
+
+def _tunnel_axis(path: PathLike | None) -> tuple[Any, float | None]:
+    """(Alignment, profile-centre height) from a tunnel JSON, or (None, None)."""
+    if not path:
+        return None, None
+    from survey.world.mesh import read_axis
+
+    return read_axis(str(path))
+
+
+def preprocess_file(cloud: PathLike, output: PathLike, *, voxel_m: float | None = None,
+                    sor: tuple[int, float] | None = None,
+                    ror: tuple[int, float] | None = None,
+                    crop_m: tuple[float, float] | None = None, segment: bool = False,
+                    tunnel_json: PathLike | None = None) -> PreprocessResult:
+    """Stream a cloud through a voxel grid, crop it to a chainage range, remove outliers,
+    optionally classify it, and write LAS/LAZ (``tunnelsim preprocess``).
+
+    Parameters
+    ----------
+    cloud : path-like
+        Input cloud (LAS/LAZ/PLY/XYZ/NPZ/E57); its extra dimensions travel with the points.
+    output : path-like
+        Output cloud (.las/.laz), with the number of points per voxel.
+    voxel_m : float, optional
+        Voxel size (m): centroid per voxel, Open3D semantics. None: no grid.
+    sor : (int, float), optional
+        Statistical outlier removal: K neighbours (the point included) and the
+        threshold mean + STD_RATIO x std (``--sor K,STD_RATIO``).
+    ror : (int, float), optional
+        Radius outlier removal: at least N other points within RADIUS_M
+        (``--ror N,RADIUS_M``).
+    crop_m : (float, float), optional
+        Keep the chainage range START..END (m) of the axis of ``tunnel_json``, or of the
+        axis estimated from the cloud.
+    segment : bool
+        Classify lining (64), floor (2), attachments (65), objects (66), terrain beyond a
+        portal (67), noise (7) as the LAS classification.
+    tunnel_json : path-like, optional
+        The alignment for ``crop_m`` and ``segment`` (a tunnel JSON, LandXML or CSV).
+
+    Returns
+    -------
+    PreprocessResult
+
+    Raises
+    ------
+    sensors.io.errors.PointFileError
+        When the cloud cannot be read.
+    survey.errors.PreprocessError, survey.errors.ReconstructionError
+        For bad parameters, or no axis found for ``crop_m``/``segment``.
+
+    Examples
+    --------
+    >>> r = preprocess_file("scan.laz", "clean.laz", voxel_m=0.02,
+    ...                     sor=(8, 2.0))  # doctest: +SKIP
+    >>> r.input_points, r.voxel_points, r.kept_points  # doctest: +SKIP
+    (1250000, 310421, 309877)
+    """
+    from sensors.io.clouds import cloud_bounds
+    from survey.clouds.preprocess import (VoxelGrid, extra_dims, iter_points_extra,
+                                          radius_outliers, statistical_outliers,
+                                          write_preprocessed)
+
+    lo, _hi, n_in = cloud_bounds(cloud)
+    # The input's extra dimensions (LAS/LAZ extra bytes) travel with the points.
+    dims = extra_dims(cloud)
+    if voxel_m is not None:
+        grid = VoxelGrid(voxel_m, lo)
+        for xyz, f in iter_points_extra(cloud):
+            grid.add(xyz, f)
+        pts, counts = grid.result()
+        extra = grid.fields()
+    else:
+        parts = list(iter_points_extra(cloud))
+        pts = np.concatenate([p for p, _ in parts])
+        extra = {k: np.concatenate([f[k] for _, f in parts]) for k in dims}
+        counts = np.ones(len(pts), dtype=np.int64)
+    keep = np.ones(len(pts), dtype=bool)
+    if crop_m is not None:
+        s0, s1 = crop_m
+        al, _ = _tunnel_axis(tunnel_json)
+        if al is None:
+            from survey.clouds.axis import estimate_axis
+            al, _ = estimate_axis(pts)
+        s, _, _ = al.to_local(pts)
+        keep &= (s >= s0) & (s <= s1)
+    if sor is not None:
+        keep &= ~statistical_outliers(pts, k=int(sor[0]), std_ratio=sor[1])
+    if ror is not None:
+        keep &= ~radius_outliers(pts, min_neighbours=int(ror[0]), radius_m=ror[1])
+    cls = None
+    classes = None
+    if segment:
+        from survey.clouds.segment import CLASS_NAMES, segment_tunnel
+
+        al, hc = _tunnel_axis(tunnel_json)
+        cls = segment_tunnel(pts[keep], alignment=al, centre_height_m=hc)
+        u, c = np.unique(cls, return_counts=True)
+        classes = tuple((k, CLASS_NAMES[k], v) for k, v in zip(u.tolist(), c.tolist()))
+    write_preprocessed(output, pts[keep], counts[keep],
+                       {k: v[keep] for k, v in extra.items()}, dims, classification=cls)
+    return PreprocessResult(Path(output), int(n_in), int(len(pts)), int(keep.sum()),
+                            classes)
+
+
+# ------------------------------------------------------------------------------- mesh
+@dataclass(frozen=True)
+class MeshResult:
+    """What ``mesh_files`` wrote and measured.
+
+    output : the PLY written (per-vertex ``support`` for tunnel and solid)
+    method : the method that made it: "tunnel", "poisson" or "solid"
+    method_asked : ``method`` as given ("auto" included)
+    method_reason : why ``method`` ran (auto: the judgement of the tunnel fit)
+    input_points : points read from the clouds
+    voxels : points after the voxel grid (None: ``voxel_m`` 0, every point)
+    voxel_m : the voxel grid's size (m)
+    triangles : triangles written (after decimation)
+    triangles_undecimated : triangles before decimation (= ``triangles`` without)
+    report : the reconstruction quality, as the JSON ``json_path`` holds it (written
+        or not): point-to-surface ``mean_m``, ``median_m``, ``p95_m``, ``max_m``,
+        ``extrapolated_share`` (tunnel), ``unsupported_share``, ``depth``, ``cell_m``,
+        ``trim_m`` (solid), the method choice (``method_reason``, ``auto``,
+        ``cell_chosen``) and ``decimation``
+    decimation : the decimation block (triangles before and after, tries, error both
+        ways, points-to-mesh distances), or None when none was asked
+    depth : the Poisson octree depth (poisson and solid), else None
+    cell_m, cell_deg : the tunnel mesher's cell (None when it did not run)
+    profile_spacing_m : the profiles' spacing along the axis when the cell was chosen
+        from it (a profile cloud), else None
+    cell_how : how the cell was chosen when not given, else None
+    detail_faces : triangles of the detail layer (``detail``), else None
+    json_path, figure : the JSON and the support-map PNG written, or None
+    """
+
+    output: Path
+    method: str
+    method_asked: str
+    method_reason: str
+    input_points: int
+    voxels: int | None
+    voxel_m: float
+    triangles: int
+    triangles_undecimated: int
+    report: Mapping[str, Any] = field(default_factory=dict)
+    decimation: Mapping[str, Any] | None = None
+    depth: int | None = None
+    cell_m: float | None = None
+    cell_deg: float | None = None
+    profile_spacing_m: float | None = None
+    cell_how: str | None = None
+    detail_faces: int | None = None
+    json_path: Path | None = None
+    figure: Path | None = None
+
+
+@dataclass(frozen=True)
+class _MeshJob:
+    """The options of one ``mesh_files`` call, as its steps read them."""
+
+    clouds: tuple[str, ...]
+    output: Path
+    method: str
+    cell: tuple[float, float] | None
+    detail: bool
+    depth: int
+    triangles: int | None
+    max_triangles: int | None
+    max_error_m: float | None
+    min_points: int
+    tunnel_json: PathLike | None
+    voxel_m: float
+    trim_m: float | None
+    trajectory: PathLike | None
+    scanners: PathLike | None
+    json_path: Path | None
+    figure: Path | None
+
+
+#: Options of one method that another method does not take, with their command-line
+#: names (a silent no-op would let a user believe they acted).
+_METHOD_ONLY = {"tunnel": (("detail", "--detail"), ("triangles", "--triangles"),
+                           ("figure", "--figure")),
+                "solid": (("trim_m", "--trim"), ("trajectory", "--trajectory"),
+                          ("scanners", "--scanners"))}
+
+
+def _check_method_options(job: _MeshJob, method: str) -> None:
+    """Refuse an option of another method than the one that runs (auto resolved)."""
+    for m, names in _METHOD_ONLY.items():
+        given = [flag for name, flag in names if getattr(job, name) not in (None, False)]
+        if given and method != m:
+            how = "" if job.method == method else f" (--method {job.method} chose it)"
+            raise ReconstructionError(f"Expected {given[0]} with --method {m}, got --method "
+                                      f"{method}{how}; pass --method {m}.")
+
+
+def _check_job(job: _MeshJob) -> None:
+    """Refuse a bad method, --max-triangles or --max-error before anything is read."""
+    from survey.clouds.decimate import MIN_TRIANGLES
+
+    if job.method not in MESH_METHODS:
+        raise ReconstructionError(f"Expected --method as one of {', '.join(MESH_METHODS)}, "
+                                  f"got {job.method!r}.")
+    if not job.clouds:
+        raise ReconstructionError("Expected at least one input cloud, got none.")
+    if job.max_triangles is not None and job.max_triangles < MIN_TRIANGLES:
+        raise ReconstructionError(f"Expected --max-triangles >= {MIN_TRIANGLES}, got "
+                                  f"{job.max_triangles}; pass a larger --max-triangles.")
+    if job.max_error_m is not None and not (np.isfinite(job.max_error_m)
+                                            and job.max_error_m > 0):
+        raise ReconstructionError(f"Expected a positive --max-error (m), got "
+                                  f"{job.max_error_m:g}; pass e.g. --max-error 0.02.")
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    """Strict JSON, atomically (``raytrace.fileio``); the folder must exist."""
+    from raytrace.fileio import write_json
+
+    if not path.parent.exists():
+        raise ReconstructionError(f"Expected an existing folder for '{path}', got none; "
+                                  "create it first.")
+    write_json(path, obj)
+
+
+def _default_cell(pts: NDArray[np.float64], al: Any
+                  ) -> tuple[float, float, str, float | None]:
+    """(cell m, cell deg, how, profile spacing or None) when no cell is given:
+    ``DEFAULT_CELL``, or for a profile cloud one cell per profile along the axis
+    (``survey.analysis.developed.station_spacing``). DECISION: a cell shorter than the
+    profiles' spacing leaves most columns without a point, and the mesher then
+    interpolates them: on the real Ringo profiles (0.5 m) 0.1 m cells were 80 %
+    interpolated, 0.5 m cells 2.9 % (issue 31)."""
+    from survey.analysis.developed import station_spacing
+
+    ax = al
+    if ax is None:
+        from survey.clouds.axis import estimate_axis
+
+        ax, _ = estimate_axis(pts)
+    s, _, _ = ax.to_local(pts)
+    spacing = station_spacing(s)
+    if spacing <= DEFAULT_CELL[0]:
+        return (*DEFAULT_CELL, "default (no profile spacing above it)", None)
+    cell = round(float(spacing), 3)
+    return cell, DEFAULT_CELL[1], f"a profile cloud, profiles every {spacing:.3f} m", \
+        float(spacing)
+
+
+def _auto_method(job: _MeshJob, pts: NDArray[np.float64]) -> tuple[str, str]:
+    """(method, reason): the method ``auto`` first tries: tunnel when ``tunnel_json``
+    is given or the cloud has a tunnel axis (``estimate_axis`` succeeds), else solid;
+    the tunnel mesh is judged afterwards (``_mesh_tunnel``)."""
+    if job.method != "auto":
+        return job.method, f"--method {job.method} asked"
+    if job.tunnel_json:
+        return "tunnel", "--tunnel-json gives the axis"
+    from survey.clouds.axis import estimate_axis
+
+    try:
+        estimate_axis(pts)
+    except ReconstructionError as exc:
+        return "solid", f"no tunnel axis found ({exc})"
+    return "tunnel", "a tunnel axis was found"
+
+
+def _compact(job: _MeshJob, vertices: Any, faces: Any, support: Any, points: Any
+             ) -> tuple[Any, Any, Any, dict[str, Any] | None]:
+    """The mesh decimated as ``max_triangles`` / ``max_error_m`` ask (or as it is), the
+    support carried to the nearest original vertex, and the "decimation" JSON block
+    (None when nothing was asked), with the input points' distances to the result."""
+    if job.max_triangles is None and job.max_error_m is None:
+        return vertices, faces, support, None
+    from survey.clouds.decimate import decimate_mesh, point_mesh_distances
+
+    dec = decimate_mesh(vertices, faces, max_triangles=job.max_triangles,
+                        max_error_m=job.max_error_m)
+    sup = None if support is None else np.asarray(support)[dec.nearest_original]
+    p = np.asarray(points, dtype=np.float64)
+    if len(p) > COMPACT_SAMPLE:
+        p = p[np.random.default_rng(0).choice(len(p), COMPACT_SAMPLE, replace=False)]
+    # A local origin keeps UTM-sized coordinates exact in the distance kernel.
+    origin = np.round(p.mean(axis=0))
+    d = point_mesh_distances(p - origin, dec.vertices - origin, dec.faces)
+    block = dict(dec.quality, points_to_mesh={
+        "median_m": float(np.median(d)), "p95_m": float(np.percentile(d, 95)),
+        "max_m": float(d.max()), "points": int(len(p))})
+    return dec.vertices, dec.faces, sup, block
+
+
+def _fallback_possible(job: _MeshJob, why: str) -> None:
+    """Refuse the solid fallback when a cloud records no scanner position."""
+    from survey.clouds.scanners import station_position
+
+    for c in job.clouds:
+        if station_position(c) is None:
+            raise ReconstructionError(
+                f"Expected scanner positions for the solid route --method auto falls "
+                f"back to ({why}), got '{c}' that records no station pose; pass "
+                "--scanners FILE or --trajectory FILE, or --method tunnel to keep the "
+                "tunnel mesh.")
+
+
+def _read_reduced(clouds: Sequence[str], voxel_m: float
+                  ) -> tuple[NDArray[np.float64], NDArray[np.int64] | None, int]:
+    """(points (m, 3), counts (m,) int64 or None, input points) of the clouds streamed
+    through a voxel grid of ``voxel_m`` (centroid and count per voxel,
+    ``survey.clouds.preprocess.VoxelGrid``), or every point when ``voxel_m`` is 0.
+
+    Memory bound: one bounds pass, then the grid holds 40 bytes per occupied voxel
+    (key, three sums, count), about three times that while chunks merge, plus one chunk
+    of points (``cloudio.CHUNK``); the occupied voxels are about lining area /
+    voxel_m^2 (times the noise's thickness in voxels), whatever the number of points.
+    The mesher then needs ~90 bytes a voxel. Measured peak RSS of ``tunnelsim mesh``
+    (a 5 m tube 300 m long, 2 mm noise, 2 cm voxels): 1.26 GB for 10^7 points (8.4 M
+    voxels), 2.53 GB for 3 x 10^7 (18.4 M), 4.74 GB for 10^8 (29.0 M); every point in
+    memory (``voxel_m`` 0) costs ~86 bytes a point (2.58 GB for 3 x 10^7).
+    """
+    from sensors.io.clouds import cloud_bounds, iter_points
+    from survey.clouds.preprocess import VoxelGrid
+
+    if not (np.isfinite(voxel_m) and voxel_m >= 0):
+        raise ReconstructionError(f"Expected --voxel >= 0 (m), got {voxel_m:g}.")
+    if voxel_m == 0:
+        pts = np.concatenate([xyz for c in clouds for xyz in iter_points(c)])
+        return pts, None, len(pts)
+    lo = np.min([cloud_bounds(c)[0] for c in clouds], axis=0)
+    grid = VoxelGrid(voxel_m, lo)
+    n_in = 0
+    for c in clouds:
+        for xyz in iter_points(c):
+            grid.add(xyz)
+            n_in += len(xyz)
+    pts, counts = grid.result()
+    return pts, counts, n_in
+
+
+def mesh_files(clouds: PathLike | Sequence[PathLike], output: PathLike, *,
+               method: str = "auto", cell_m: float | None = None,
+               cell_deg: float | None = None, detail: bool = False, depth: int = 10,
+               triangles: int | None = None, max_triangles: int | None = None,
+               max_error_m: float | None = None, min_points: int = 3,
+               tunnel_json: PathLike | None = None, voxel_m: float = 0.02,
+               trim_m: float | None = None, trajectory: PathLike | None = None,
+               scanners: PathLike | None = None, json_path: PathLike | None = None,
+               figure: PathLike | None = None) -> MeshResult:
+    """Reconstruct a mesh from cleaned clouds (``tunnelsim mesh``).
+
+    The clouds stream through a voxel grid (centroid and count per voxel). ``tunnel``:
+    unroll the lining around the centreline (estimated, or from ``tunnel_json``), a
+    median radius per cell, gaps filled (vertex ``support`` 0), open portals found from
+    the data. ``solid``: screened Poisson oriented towards the scanner of each point
+    (a station's pose from its file, ``trajectory`` at each point's time, or the
+    nearest of ``scanners``), trimmed where no point lies within ``trim_m``.
+    ``poisson``: Open3D Poisson oriented by the tunnel axis. ``auto``: tunnel when an
+    axis is given or found, judged on its result (``survey.clouds.meshchoice``) and
+    replaced by solid when the fit is poor; else solid. ``max_triangles`` /
+    ``max_error_m`` decimate the mesh of any method (quadric, Open3D), the error
+    measured after.
+
+    Parameters
+    ----------
+    clouds : path-like or sequence of path-like
+        Input cloud(s) (LAS/LAZ/PLY/XYZ/NPZ/E57), e.g. one file per station.
+    output : path-like
+        Output mesh (.ply).
+    method : {"auto", "tunnel", "poisson", "solid"}
+    cell_m, cell_deg : float, optional
+        tunnel: cell size along the axis (m) and around it (degrees), both or
+        neither; neither: ``DEFAULT_CELL``, or for a profile cloud the profiles'
+        spacing along the axis (``MeshResult.cell_how`` says).
+    detail : bool
+        tunnel: add attachments (cables, pipes) as closed tubes (vertex support -1).
+    depth : int
+        poisson: octree depth.
+    triangles : int, optional
+        tunnel: triangle budget: coarsen the cells until the mesh fits.
+    max_triangles : int, optional
+        Any method: quadric decimation to at most this many triangles.
+    max_error_m : float, optional
+        Any method: the fewest triangles (within ``max_triangles``) whose measured
+        error to the undecimated mesh is at most this (m).
+    min_points : int
+        tunnel: cells with fewer points are interpolated.
+    tunnel_json : path-like, optional
+        The alignment of a generated tunnel's JSON (or LandXML / CSV).
+    voxel_m : float
+        The voxel grid (m) the clouds stream through; solid: also the finest Poisson
+        cell. 0: no grid, every point in memory (tunnel and poisson only).
+    trim_m : float, optional
+        solid: remove the surface farther than this from every point (default 5
+        voxels, at least 0.3 m).
+    trajectory : path-like, optional
+        solid: the platform trajectory (TUM .txt or .csv): the scanner at each point's
+        gps_time.
+    scanners : path-like, optional
+        solid: scanner positions (x y z rows, a route CSV or a TUM file); each point
+        takes the nearest.
+    json_path : path-like, optional
+        Also write the reconstruction quality (``MeshResult.report``) as JSON.
+    figure : path-like, optional
+        tunnel: also write the unrolled support map (points per cell) as PNG.
+
+    Returns
+    -------
+    MeshResult
+
+    Raises
+    ------
+    survey.errors.ReconstructionError
+        For bad options (an option of another method than the one that runs, a bad
+        ``max_triangles``/``max_error_m``/``voxel_m``), no usable axis, or the solid
+        fallback without scanner positions.
+    sensors.io.errors.PointFileError
+        When a cloud cannot be read.
+
+    Examples
+    --------
+    >>> r = mesh_files(["st01.laz", "st02.laz"], "cave.ply", method="solid",
+    ...                max_triangles=200_000)  # doctest: +SKIP
+    >>> r.method, r.triangles <= 200_000, r.report["median_m"] < 0.01  # doctest: +SKIP
+    ('solid', True, True)
+    """
+    if (cell_m is None) != (cell_deg is None):
+        raise ReconstructionError("Expected cell_m and cell_deg together (--cell M,DEG), "
+                                  "got one of them; pass both or neither.")
+    paths = (clouds,) if isinstance(clouds, (str, os.PathLike)) else tuple(clouds)
+    job = _MeshJob(tuple(str(c) for c in paths), Path(output), method,
+                   None if cell_m is None else (float(cell_m), float(cell_deg or 0.0)),
+                   detail, depth, triangles, max_triangles, max_error_m, min_points,
+                   tunnel_json, voxel_m, trim_m, trajectory, scanners,
+                   None if json_path is None else Path(json_path),
+                   None if figure is None else Path(figure))
+    _check_job(job)
+    chosen = job.method
+    choice: dict[str, Any] = {"method_asked": job.method}
+    if chosen == "auto" and not job.tunnel_json and (job.trajectory or job.scanners):
+        chosen = "solid"           # scanner positions are what the solid route asks for
+        choice["method_reason"] = "scanner positions given (--trajectory/--scanners)"
+    if chosen == "solid":
+        _check_method_options(job, chosen)
+        choice.setdefault("method_reason", "--method solid asked")
+        return _mesh_solid(job, choice, {})
+    pts, counts, n_in = _read_reduced(job.clouds, job.voxel_m)
+    chosen, choice["method_reason"] = _auto_method(job, pts)
+    _check_method_options(job, chosen)
+    if chosen == "solid":
+        del pts
+        return _mesh_solid(job, choice, {})
+    if chosen == "poisson":
+        return _mesh_poisson(job, choice, pts, counts, n_in)
+    return _mesh_tunnel(job, choice, pts, counts)
+
+
+def _mesh_poisson(job: _MeshJob, choice: dict[str, Any], pts: NDArray[np.float64],
+                  counts: NDArray[np.int64] | None, n_in: int) -> MeshResult:
+    """``poisson``: Open3D Poisson oriented by the tunnel axis."""
+    from survey.clouds.reconstruct import poisson_tunnel
+    from survey.world.mesh import write_ply
+
+    al, hc = _tunnel_axis(job.tunnel_json)
+    v, f = poisson_tunnel(pts, alignment=al, centre_height_m=hc, depth=job.depth)
+    n_faces = len(f)
+    v, f, _, block = _compact(job, v, f, None, pts)
+    write_ply(job.output, v, f)
+    report = {"method": "poisson", **choice, "points": int(n_in),
+              "triangles": int(len(f)), "decimation": block}
+    if job.json_path:
+        _write_json(job.json_path, report)
+    return MeshResult(job.output, "poisson", job.method, choice["method_reason"],
+                      int(n_in), None if counts is None else int(len(pts)), job.voxel_m,
+                      int(len(f)), int(n_faces), report, block, depth=job.depth,
+                      json_path=job.json_path)
+
+
+def _mesh_tunnel(job: _MeshJob, choice: dict[str, Any], pts: NDArray[np.float64],
+                 counts: NDArray[np.int64] | None) -> MeshResult:
+    """``tunnel`` (and ``auto``'s first try): the tunnel mesher, judged under auto."""
+    from survey.clouds.reconstruct import reconstruct_tunnel, reconstruct_within_budget
+    from survey.world.mesh import write_ply
+
+    al, hc = _tunnel_axis(job.tunnel_json)
+    spacing = how = None
+    if job.cell is not None:
+        cell_m, cell_deg = job.cell
+    else:
+        cell_m, cell_deg, how, spacing = _default_cell(pts, al)
+        choice["cell_chosen"] = {"cell_m": cell_m, "cell_deg": cell_deg, "how": how}
+    cells: dict[str, Any] = {"cell_m": cell_m, "cell_deg": cell_deg,
+                             "profile_spacing_m": spacing, "cell_how": how}
+    kw = dict(alignment=al, centre_height_m=hc, cell_m=cell_m,
+              cell_rad=np.deg2rad(cell_deg), min_points=job.min_points, counts=counts)
+    rec = reconstruct_tunnel(pts, **kw) if job.triangles is None else \
+        reconstruct_within_budget(pts, job.triangles, **kw)
+    if job.method == "auto":
+        from survey.clouds.meshchoice import judge_tunnel_fit
+
+        judged = judge_tunnel_fit(pts, rec.vertices, rec.faces, rec.support, counts=counts)
+        choice["auto"] = judged.as_json()
+        if not judged.good:
+            _fallback_possible(job, judged.reason)
+            _check_method_options(job, "solid")
+            choice["method_reason"] = f"{judged.reason}: fell back to solid"
+            del pts, counts, rec
+            return _mesh_solid(job, choice, cells)
+        choice["method_reason"] += f"; {judged.reason}"
+    detail_faces = None
+    if job.detail:
+        from survey.clouds.detail import with_detail_layer
+
+        mesh = with_detail_layer(rec, pts)
+        v, f, sup = mesh.vertices, mesh.faces, mesh.support
+        detail_faces = int(mesh.detail_faces)
+    else:
+        v, f, sup = rec.vertices, rec.faces, rec.support.astype(np.float64)
+    v, f, sup, block = _compact(job, v, f, sup, pts)
+    write_ply(job.output, v, f, vertex_fields={"support": sup})
+    if job.figure:
+        from survey.report.reconstruct import plot_support
+
+        plot_support(rec, job.figure)
+    q: dict[str, Any] = rec.quality or {}
+    extra: dict[str, Any] = {"method": "tunnel", **choice}
+    if block is not None:
+        extra.update(decimation=block, triangles=block["triangles"],
+                     triangles_undecimated=q["triangles"])
+    report = {**q, **extra}
+    if job.json_path:
+        _write_json(job.json_path, report)
+    return MeshResult(job.output, "tunnel", job.method, choice["method_reason"],
+                      int(q["points"]), None if counts is None else int(len(pts)),
+                      job.voxel_m, int(len(f)), int(q["triangles"]), report, block,
+                      detail_faces=detail_faces, json_path=job.json_path,
+                      figure=job.figure, **cells)
+
+
+def _mesh_solid(job: _MeshJob, choice: dict[str, Any], cells: dict[str, Any]
+                ) -> MeshResult:
+    """``solid``: the clouds stream through a scanner-aware voxel grid (bounds first,
+    one pass each), then ``reconstruct_solid``. ``cells``: the tunnel mesher's cell
+    when auto tried it first."""
+    from sensors.io.clouds import cloud_bounds
+    from survey.clouds.scanners import iter_scanned, read_positions
+    from survey.clouds.solid import ScannerVoxelGrid, reconstruct_solid
+    from survey.world.mesh import write_ply
+
+    if not (np.isfinite(job.voxel_m) and job.voxel_m > 0):
+        raise ReconstructionError(f"Expected a positive --voxel (m), got {job.voxel_m:g}.")
+    traj = None
+    if job.trajectory:
+        from sensors import Trajectory
+
+        traj = Trajectory.read(job.trajectory)
+    stations = read_positions(job.scanners) if job.scanners else None
+    lo = np.min([cloud_bounds(c)[0] for c in job.clouds], axis=0)
+    grid = ScannerVoxelGrid(job.voxel_m, lo)
+    for c in job.clouds:
+        for xyz, scanner in iter_scanned(c, trajectory=traj, stations=stations):
+            grid.add(xyz, scanner)
+    pts, scanners, _ = grid.result()
+    rec = reconstruct_solid(pts, scanners=scanners, cell_m=job.voxel_m, trim_m=job.trim_m)
+    v, f, sup, block = _compact(job, rec.vertices, rec.faces,
+                                rec.support.astype(np.float64), pts)
+    write_ply(job.output, v, f, vertex_fields={"support": sup})
+    q = dict(rec.quality, method="solid", **choice, input_points=grid.n_points,
+             depth=rec.depth, cell_m=rec.cell_m, trim_m=rec.trim_m,
+             support_radius_m=rec.support_radius_m)
+    if block is not None:
+        q.update(decimation=block, triangles=block["triangles"],
+                 triangles_undecimated=rec.quality["triangles"])
+    if job.json_path:
+        _write_json(job.json_path, q)
+    return MeshResult(job.output, "solid", job.method, q["method_reason"],
+                      int(grid.n_points), int(len(pts)), job.voxel_m, int(q["triangles"]),
+                      int(rec.quality["triangles"]), q, block, depth=int(rec.depth),
+                      json_path=job.json_path, **cells)
