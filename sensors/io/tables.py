@@ -60,6 +60,8 @@ _UNIT = re.compile(r"\s*[\[(][^\])]*[\])]\s*$")
 class Dialect:
     """How a table file is written.
 
+    Attributes
+    ----------
     encoding : str, the codec used to decode it ("utf-8", "utf-8-sig", "utf-16",
         "cp1252" or "latin-1")
     delimiter : str, one of ``DELIMITERS`` ("ws": runs of white space)

@@ -167,16 +167,26 @@ class HelmertResult:
     sigma0 : float, a posteriori standard deviation of unit weight
     residuals : (n, 3) float64, m, target - transformed source
     redundancy : (n, 3) float64, redundancy numbers
-    w_tests : (n,) float64, largest |w| or |tau| of each point
-    test : "w", "tau" or "none"; critical : float, its critical value
+    w_tests : (n,) float64, largest ``|w|`` or ``|tau|`` of each point
+    test : "w", "tau" or "none"
+    critical : float, the critical value of ``test``
     mdb_m : (n,) float64, minimal detectable bias, metres
     outliers : list of the ids whose test exceeds ``critical``, largest first
-    global_test : dict; ids : list of point ids
-    dof : int, redundancy 3n - u; iterations : int
+    global_test : dict, the chi-square test of the weighted residual sum ("statistic",
+        "dof", "alpha", "interval", "passed"; "interval" and "passed" None without a
+        priori sigmas)
+    ids : list of point ids
+    dof : int, redundancy 3n - u
+    iterations : int
     sigma_basis : "a priori" (from the given sigmas, sigma0 = 1), "a posteriori"
         (scaled by the estimated sigma0) or "none" (no statistics)
-    correlation_warnings : list of str, pairs with |rho| > 0.95 and the geometry reason
+    correlation_warnings : list of str, pairs with ``|rho|`` > 0.95 and the geometry
+        reason
+    extra : dict, internal: the rotation and convention ``from_parameters`` was given
+        (``apply(..., exact=False)`` linearises that rotation; not in ``to_dict``)
 
+    Notes
+    -----
     ``repr`` is two lines; the full report (parameters, tests, residuals per point) is
     ``survey.report.helmert_report(result)``.
     """
@@ -378,8 +388,22 @@ def from_parameters(translation_m: ArrayLike, rotation_arcsec: ArrayLike,
                     "position_vector") -> HelmertResult:
     """A transform from known parameters (PROJ form), without statistics.
 
-    translation_m : (3,) metres; rotation_arcsec : (3,) arcseconds, in the given
-    ``convention`` (exact form); scale_ppm : ppm.
+    Parameters
+    ----------
+    translation_m : (3,) array_like of float
+        Translation, metres.
+    rotation_arcsec : (3,) array_like of float
+        Rotations about x, y, z, arcseconds, in the given ``convention`` (exact form).
+    scale_ppm : float
+        Scale change, ppm.
+    convention : "position_vector" or "coordinate_frame"
+        PROJ's ``+convention`` of ``rotation_arcsec``.
+
+    Returns
+    -------
+    HelmertResult
+        Model "7" in the position-vector convention, with NaN statistics
+        (``sigma_basis`` "none").
     """
     try:
         t = np.asarray(translation_m, dtype=np.float64).reshape(3)

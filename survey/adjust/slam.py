@@ -133,6 +133,8 @@ class DriftedRun:
 class SlamObservation:
     """A drive through a drifting SLAM, as a surveyor receives it.
 
+    Attributes
+    ----------
     run : DriftedRun
         The cloud in the SLAM map frame (iterate it or ``write`` it).
     true, slam : Trajectory
@@ -208,13 +210,38 @@ def observe_control(true: Trajectory, slam: Trajectory, control_ids: Iterable[st
     """The control points a surveyor has for a cloud mapped with ``slam`` (a drifting
     model or a real odometry's estimate): (observed, world).
 
-    observed : the prisms picked in the SLAM cloud - each point mapped into the SLAM
-        frame at the time the platform passed nearest to it (horizontal distance),
-        plus ``prism_sigma_m`` noise per axis, with that ``time``; only points the
-        path passes (nearest to neither of its ends) strictly inside both
-        trajectories' common time span.
-    world : every point by total station, ``control_sigma_m`` noise and that sigma.
-    Noise from ``seed + 2`` (the offset ``observe_slam`` has always used).
+    Parameters
+    ----------
+    true : Trajectory
+        The platform's true trajectory.
+    slam : Trajectory
+        The SLAM estimate the cloud was mapped with.
+    control_ids : iterable of str
+        One id per control point.
+    control_xyz : (k, 3) array_like of float
+        The control points' true world coordinates, metres.
+    seed : int
+        Noise from ``seed + 2`` (the offset ``observe_slam`` has always used).
+    prism_sigma_m : float
+        Picking noise of a prism in the cloud, per axis (m), >= 0.
+    control_sigma_m : float
+        Total-station noise of a control point, per axis (m), >= 0.
+
+    Returns
+    -------
+    observed : ControlPoints
+        The prisms picked in the SLAM cloud: each point mapped into the SLAM frame at
+        the time the platform passed nearest to it (horizontal distance), plus
+        ``prism_sigma_m`` noise per axis, with that ``time``; only points the path
+        passes (nearest to neither of its ends) strictly inside both trajectories'
+        common time span.
+    world : ControlPoints
+        Every point by total station, ``control_sigma_m`` noise and that ``sigma``.
+
+    Raises
+    ------
+    DriftError
+        Not one id per finite control point, or a negative or non-finite sigma.
     """
     g = np.asarray(control_xyz, dtype=np.float64).reshape(-1, 3)
     ids = [str(i) for i in control_ids]

@@ -32,9 +32,15 @@ class SnoopStep:
     """One step of data snooping: the point removed, its test value and the critical
     value it exceeded (in the adjustment before the step), and the adjustment after it.
 
-    removed : str; statistic : float; test : "w" or "tau"; critical : float;
-    sigma0_after : float; points_left : int; above_after : int (points still above the
-    critical value after the step)
+    Attributes
+    ----------
+    removed : str, the id of the point removed
+    statistic : float, its test value
+    test : "w" or "tau"
+    critical : float, the critical value it exceeded
+    sigma0_after : float, sigma0 of the adjustment after the step
+    points_left : int, points in the adjustment after the step
+    above_after : int, points still above the critical value after the step
     """
 
     removed: str
@@ -122,8 +128,10 @@ def data_snooping(source: ArrayLike, target: ArrayLike, *, ids: Iterable[object]
     ----------
     source, target : (n, 3) array_like of float, the same points in both systems (m)
     ids : (n,) sequence, the point names (``exclude`` and the steps refer to them)
-    model, sigma_source_m, sigma_target_m, use_apriori, max_iter, allow_reflection,
-    allow_scale : as in ``fit_helmert``; sigmas may be None, one value, (n,) or (n, 3)
+    model, use_apriori, max_iter, allow_reflection, allow_scale
+        As in ``fit_helmert``.
+    sigma_source_m, sigma_target_m : array_like of float or None
+        As in ``fit_helmert``; None, one value, (n,) or (n, 3) (m).
     exclude : ids to leave out before the first adjustment
     snoop : bool, run data snooping (False: only ``exclude``)
     max_removed : int or None, remove at most this many points (None: until no test

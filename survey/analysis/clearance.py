@@ -98,6 +98,8 @@ def read_envelope(spec: str | os.PathLike[str]) -> DesignProfile:
 class Violations:
     """The deepest violating point of each violating cell; (k,) arrays, deepest first.
 
+    Attributes
+    ----------
     chainage_m, offset_m, height_m : float64, its position (m)
     arc_m : float64, its arc length along the design from the crown (m, + left)
     depth_m : float64, how far it lies inside the envelope (plus ``required_m``)
@@ -158,12 +160,17 @@ class ViolationRegion:
 class ClearanceResult:
     """The clearance check of one input against one envelope.
 
+    Attributes
+    ----------
     envelope : DesignProfile
     required_m : float, free space asked beyond the envelope (m)
     margin : DevelopedRaster, per cell the smallest margin (m; < required: violation)
     violations : Violations, per violating cell
     regions : tuple of ViolationRegion, by region number (deepest region first)
-    points : int, points checked; violating_points : int
+    points : int, points checked
+    violating_points : int, points whose margin is below ``required_m``
+    meta : dict, how violating cells were merged into regions ("merge": the gap used
+        and why)
     """
 
     envelope: DesignProfile
@@ -336,9 +343,13 @@ def clearance(points: Any, alignment: Alignment, envelope: DesignProfile,
         ``meta["merge"]``: the gap, how it was chosen, the groups of touching cells and
         the regions they were merged into.
 
-    Raises ``CompareError`` for an open envelope, a negative ``required_m`` or
-    ``merge_gap_m`` and the errors of ``develop``'s grid; ``AlignmentError`` for a range
-    outside the alignment.
+    Raises
+    ------
+    CompareError
+        An open envelope, a negative ``required_m`` or ``merge_gap_m``, and the errors
+        of ``develop``'s grid.
+    AlignmentError
+        A range outside the alignment.
     """
     if not isinstance(envelope, DesignProfile) or not envelope.closed:
         raise CompareError("Expected a closed envelope polygon (a DesignProfile with "

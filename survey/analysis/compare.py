@@ -138,11 +138,15 @@ def check_overlap(box: ArrayLike, reference_box: ArrayLike, *,
 class Distances:
     """Result of a comparison: one value per compared point.
 
+    Attributes
+    ----------
     distance : (n,) float64, m (unsigned for C2C, signed for C2M)
     nearest : (n,) int64, index of the nearest reference point or triangle (-1 where
         clamped)
     dx, dy, dz : (n,) float64 or None, split components (C2C with ``split``), m
 
+    Notes
+    -----
     A single compared point (3,) gives n = 1.
     """
 
@@ -329,7 +333,7 @@ class ReferenceMesh:
     def distances(self, compared: ArrayLike, *,
                   max_distance_m: float | None = None) -> Distances:
         """Signed distances from each compared point (n, 3) or (3,) to this mesh;
-        ``max_distance_m`` clamps |d| keeping the sign."""
+        ``max_distance_m`` clamps ``|d|`` keeping the sign."""
         p = as_points(compared, "compared", CompareError)[0]
         max_d = _max_distance(max_distance_m)
         dist = np.empty(len(p))
@@ -356,7 +360,7 @@ def cloud_to_mesh(compared: ArrayLike, vertices: ArrayLike, faces: ArrayLike, *,
     vertices : (v, 3) array_like of float; faces : (m, 3) array_like of int
         The reference mesh.
     max_distance_m : float, optional
-        Clamp |d| to this (keeping the sign); clamped points get ``nearest`` -1.
+        Clamp ``|d|`` to this (keeping the sign); clamped points get ``nearest`` -1.
 
     Returns
     -------
@@ -372,7 +376,8 @@ STAT_FIELDS = ("n", "mean", "median", "std", "p95", "rms", "max_abs")
 
 
 def distance_stats(d: ArrayLike) -> dict[str, float]:
-    """n, mean, median, std (ddof 0), p95 of |d|, RMS and max |d| of distances (m)."""
+    """n, mean, median, std (ddof 0), p95 of ``|d|``, RMS and max ``|d|`` of distances
+    (m)."""
     d = np.asarray(d, dtype=np.float64)
     if d.size == 0:
         return {k: (0 if k == "n" else float("nan")) for k in STAT_FIELDS}

@@ -61,12 +61,14 @@ def control_points(meta: Mapping[str, Any]) -> dict[str, Floats]:
 class Chords:
     """Chord lengths between named points in two epochs; (k,) arrays in metres.
 
-    id_a, id_b : list of str
+    Attributes
+    ----------
+    id_a, id_b : list of str, the chord's two ends
     chainage_m : mean chainage of the two ends (NaN without an alignment)
     length1_m, length2_m : lengths in epoch 1 and 2
     convergence_m : length1_m - length2_m (positive: shortened)
     lod_m : LoD95 of the change (NaN without ``sigma_m``)
-    significant : |convergence_m| > lod_m
+    significant : (k,) bool, ``|convergence_m| > lod_m``
     """
 
     id_a: list[str]
@@ -193,6 +195,8 @@ def chords(points1: Mapping[str, ArrayLike], points2: Mapping[str, ArrayLike],
 class RadialChange:
     """Radial change by angle in one cross-section; (k,) arrays over angular bins.
 
+    Attributes
+    ----------
     chainage_m : float, the section
     angle_rad : bin centres, from the crown, positive to the left
     radius1_m, radius2_m : radius about the section centre at the bin centre (NaN:
@@ -200,7 +204,7 @@ class RadialChange:
     change_m : radius1_m - radius2_m (positive inward: convergence)
     lod_m : LoD95 of the change from the fits' standard errors
     n1, n2 : points in the bin per epoch
-    significant : |change_m| > lod_m
+    significant : (k,) bool, ``|change_m| > lod_m``
     """
 
     chainage_m: float

@@ -44,10 +44,13 @@ def _pos(value: Any, name: str, zero: bool = False) -> float:
 class DetectTarget:
     """One known deformation of the layout, at unit magnitude.
 
+    Attributes
+    ----------
     kind : "convergence" or "bulge"
     lo_m, hi_m : chainages (m) outside which it moves nothing
     plateau_m : (start, end) of a convergence zone's full value (m)
     centre_m, radius_m : a bulge ring's chainage and radius (m)
+    taper_m : half-cosine ramp at each end of a convergence zone (m)
     """
 
     kind: str

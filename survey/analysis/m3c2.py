@@ -83,6 +83,8 @@ def _positive(value: Any, name: str, zero: bool = False) -> float:
 class M3C2Params:
     """M3C2 parameters (py4dgeo's meaning; radii and half-lengths in metres).
 
+    Attributes
+    ----------
     cyl_radius_m : float > 0
         Projection cylinder radius (py4dgeo ``cyl_radius``; half CloudCompare's
         projection scale).
@@ -226,10 +228,12 @@ class EpochGrid:
 class M3C2Result:
     """M3C2 at n core points.
 
+    Attributes
+    ----------
     distance : (n,) float64, m; centre2 - centre1 along the normal (NaN: no normal, or
         an empty cylinder in an epoch)
     lod : (n,) float64, m; LoD95 (NaN also where an epoch has one point, mean mode)
-    significant : (n,) bool; |distance| > lod (False where either is NaN)
+    significant : (n,) bool; ``|distance| > lod`` (False where either is NaN)
     spread1, spread2 : (n,) float64, m; standard deviation (ddof 1) or IQR of the
         projections in each epoch's cylinder
     n1, n2 : (n,) int64; points in each epoch's cylinder

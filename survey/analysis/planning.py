@@ -208,13 +208,21 @@ def axis_stations(scene: Scene, alignment: Alignment, centre_height_m: float,
 class Plan:
     """Stations and what they achieve.
 
-    stations : (k, 3), m; chainages (k,), m
+    Attributes
+    ----------
+    name : str, the plan's name
+    stations : (k, 3) float64, station positions, m
+    chainages : (k,) float64, station chainages, m
     served : (k_cells,) int, stations meeting the thresholds per cell
     seen : (k_cells,) int, stations seeing the cell within the range threshold
-    coverage : area share of cells served by at least one station
-    per_station : (k,) area share each station serves alone
-    overlap : (k - 1,) share of station i's seen area also seen by station i + 1
-    gaps : list of dicts (chainage_from, chainage_to, angle_from_deg, angle_to_deg, area_m2)
+    coverage : float, area share of cells served by at least one station
+    per_station : (k,) float64, area share each station serves alone
+    overlap : (k - 1,) float64, share of station i's seen area also seen by station i + 1
+    gaps : list of dicts (chainage_from, chainage_to, angle_from_deg, angle_to_deg,
+        area_m2), the uncovered regions, largest first
+    note : str, a remark shown in the ``repr`` ("" for none)
+    offsets_m : (k,) float64, lateral offsets (m, left positive) of route stations;
+        zeros on the axis
     """
 
     name: str

@@ -266,8 +266,9 @@ def cut_cloud(points: ArrayLike | Iterable[ArrayLike], alignment: Alignment,
 
     Returns
     -------
-    list of SectionCut, one per chainage (sorted); a band without points has an
-    empty ``yz`` (``survey.analysis.overbreak`` refuses it with a clear error).
+    list of SectionCut
+        One per chainage (sorted); a band without points has an empty ``yz``
+        (``survey.analysis.overbreak`` refuses it with a clear error).
     """
     s = np.sort(np.atleast_1d(np.asarray(chainages, dtype=np.float64)))
     if len(s) == 0:
@@ -361,7 +362,27 @@ def cut_mesh(vertices: ArrayLike, faces: ArrayLike, alignment: Alignment,
     the midpoints of pieces no longer than ``spacing_m`` (so every length of the cut
     weighs the same), in the section frame.
 
-    vertices : (n, 3) float64; faces : (m, 3) int; chainages : (k,) m.
+    Parameters
+    ----------
+    vertices : (n, 3) array_like of float
+        The mesh's vertices, m.
+    faces : (m, 3) array_like of int
+        Vertex indices of each triangle.
+    alignment : Alignment
+        The centreline that places the section planes.
+    chainages : (k,) array_like of float
+        Section chainages, m, within the alignment.
+    spacing_m : float
+        Longest piece of the cut polyline that gives one sample, m (default
+        ``MESH_SPACING_M``).
+
+    Returns
+    -------
+    list of SectionCut
+        One per chainage, by increasing chainage, ``half_width_m`` 0.
+
+    Notes
+    -----
     Only triangles near the plane's chainage are cut (not the tunnel's far side of a
     bend that the infinite plane also meets).
     """

@@ -107,11 +107,15 @@ class Surface:
     sub-triangles (n from its longest edge and ``sample_m``), one sample at each
     sub-triangle's centroid, standing for its area.
 
+    Attributes
+    ----------
     points, normals : (k, 3) float64, sample (m) and its triangle's unit normal, turned
         towards the route (the side the scanner looks from)
-    area : (k,) float64, m^2; corners : (k, 3, 3) float64, the sub-triangle (m)
-    triangle : (k,) int64, face index in the mesh; sub : (k,) int64, sub-triangle index
-        in it (``sub_index``); split : (n_faces,) int64, n per face
+    area : (k,) float64, m^2
+    corners : (k, 3, 3) float64, the sub-triangle (m)
+    triangle : (k,) int64, face index in the mesh
+    sub : (k,) int64, sub-triangle index in it (``sub_index``)
+    split : (n_faces,) int64, n per face
     chainage, angle : (k,) float64, distance along the route (m) and angle around it
         from the crown (radians, positive left), seen from ``height_m`` above the route
     is_floor : (k,) bool, below the route and facing up (kept only by ``keep_floor``)

@@ -63,7 +63,10 @@ class ScanFrame(NamedTuple):
 class DriveFile:
     """A checked drive file (``open_drive``).
 
+    Attributes
+    ----------
     path : Path
+        The file (or rosbag2 folder) opened.
     sensor : str
         The simulated sensor's name (from the tunnelsim VLR; "unknown" without one).
     mount : sensors.Mount
@@ -72,6 +75,7 @@ class DriveFile:
     mount_recorded : bool
         Whether the file recorded the mount.
     n_points : int
+        Points in the file.
     time_span_s : (float, float)
         First and last point time (from the points, read once).
     kind : str

@@ -205,8 +205,25 @@ def _reduce(values: NDArray[Any], inv: NDArray[np.intp], first: NDArray[np.intp]
 def voxel_down_sample(points: ArrayLike, voxel_size_m: float) -> NDArray[np.float64]:
     """Centroid per voxel of ``voxel_size_m`` (Open3D semantics, see module doc).
 
-    points : (n, 3) or (3,) array_like of float, or structured array with x, y, z.
-    Returns (m, 3) float64.
+    Parameters
+    ----------
+    points : (n, 3) or (3,) array_like of float, or structured array with x, y, z
+        The cloud, metres; not empty.
+    voxel_size_m : float
+        Voxel edge length, metres, > 0.
+
+    Returns
+    -------
+    (m, 3) float64
+        The centroid of the points in each occupied voxel (m <= n voxels), metres, in
+        the input's coordinates, ordered by voxel key.
+
+    Raises
+    ------
+    PreprocessError
+        Points not (n, 3) or (3,), not finite or none at all, a voxel size that is not
+        a positive number, or a cloud wider than 2**21 voxels along an axis
+        (``VoxelGrid.BITS``).
     """
     p = _check_points(points)
     g = VoxelGrid(voxel_size_m, p.min(axis=0))

@@ -152,33 +152,49 @@ def reconstruct_tunnel(points: ArrayLike, *, alignment: Alignment | None = None,
                        portals: bool | None = None) -> ReconstructedTunnel:
     """Mesh a tunnel lining from points (see module doc).
 
+    Parameters
+    ----------
     points : (n, 3) float64
         The cloud (or voxel centroids, with ``counts``).
-    alignment, centre_height_m : optional known centreline and height of the profile
-        centre above it (e.g. from the tunnel's JSON); else estimated from the cloud.
-    cell_m, cell_rad : cell size along the axis (m) and around it (rad).
-    min_points : cells with fewer points are interpolated (support 0).
-    margin_m : chainage trimmed at both ends of the point coverage.
-    rows_at : optional increasing chainages of the mesh rings (e.g. the chainages of
-        measured profiles); each point goes to the nearest ring within half the local
-        spacing. Default: rings every ``cell_m``.
-    end_reach_m : how far beyond the alignment's ends points still count (m), measured
-        along the end tangent; the rings may then lie beyond the ends (the alignment
-        extended straight). Default: with ``rows_at``, as far as the end rings' halves
-        reach (an estimated axis ends ~2 m inside the data, and a profile whose plane is
-        not quite normal to it has a part beyond its end: without them the first ring
-        lost a wall at Ringo's portal and was filled by a chord 0.5 m inside); else
+    alignment, centre_height_m : Alignment and float, optional
+        Known centreline and height of the profile centre above it (e.g. from the
+        tunnel's JSON); else estimated from the cloud.
+    cell_m, cell_rad : float
+        Cell size along the axis (m) and around it (rad).
+    min_points : int
+        Cells with fewer points are interpolated (support 0).
+    margin_m : float
+        Chainage trimmed at both ends of the point coverage (m).
+    rows_at : (r,) array_like of float, optional
+        Increasing chainages of the mesh rings (e.g. the chainages of measured
+        profiles); each point goes to the nearest ring within half the local spacing.
+        Default: rings every ``cell_m``.
+    end_reach_m : float, optional
+        How far beyond the alignment's ends points still count (m), measured along the
+        end tangent; the rings may then lie beyond the ends (the alignment extended
+        straight). Default: with ``rows_at``, as far as the end rings' halves reach (an
+        estimated axis ends ~2 m inside the data, and a profile whose plane is not
+        quite normal to it has a part beyond its end: without them the first ring lost
+        a wall at Ringo's portal and was filled by a chord 0.5 m inside); else
         ``AXIS_END_REACH_M`` for an estimated axis with ``portals``, 0 otherwise.
-    counts : optional (n,) int64 multiplicity of each point (the points per voxel of a
-        voxel grid, ``VoxelGrid.result``): a cell's radius is the weighted median, its
-        support (and the ``min_points`` test) the summed counts, so that a voxelised
-        cloud meshes as the cloud it came from.
-    portals : find where the lining ends (``survey.clouds.axis.lining_extent``, rings of
-        ``cell_m`` or the ``rows_at`` spacing) and mesh only that extent: terrain beyond
-        a portal, and points farther out than the lining within ``PORTAL_BAND_M`` of
-        a portal end (the face around the opening), are left out; rings (``rows_at``)
-        beyond it are dropped. False: every point's chainage range, as before issue 18.
-        Default: True for a cloud, False with ``rows_at``.
+    counts : (n,) int64, optional
+        Multiplicity of each point (the points per voxel of a voxel grid,
+        ``VoxelGrid.result``): a cell's radius is the weighted median, its support
+        (and the ``min_points`` test) the summed counts, so that a voxelised cloud
+        meshes as the cloud it came from.
+    portals : bool, optional
+        Find where the lining ends (``survey.clouds.axis.lining_extent``, rings of
+        ``cell_m`` or the ``rows_at`` spacing) and mesh only that extent: terrain
+        beyond a portal, and points farther out than the lining within
+        ``PORTAL_BAND_M`` of a portal end (the face around the opening), are left out;
+        rings (``rows_at``) beyond it are dropped. False: every point's chainage range,
+        as before issue 18. Default: True for a cloud, False with ``rows_at``.
+
+    Returns
+    -------
+    ReconstructedTunnel
+        The mesh, its per-vertex support, the alignment and grid it was built on and
+        its ``quality``.
     """
     # DECISION: with ``rows_at`` (measured profiles) each ring is lining by the caller's
     # word; on Ringo the detection cut the last 2 m, where the portal changes the

@@ -92,9 +92,11 @@ def tile_distances(job: _TileJob) -> tuple[NDArray[np.int64], Floats, Floats | N
 class TiledDistances:
     """Distances by row of the compared cloud, on disk.
 
+    Attributes
+    ----------
     distance : (n,) float64 memmap, m
     diff : (n, 3) float64 memmap or None; compared - nearest (``split``)
-    tiles : int; tasks run
+    tiles : int, the tasks run (one per tile)
     """
 
     distance: Floats

@@ -63,6 +63,8 @@ def _positive(value: Any, name: str, zero: bool = False) -> float:
 class TileData:
     """One tile's points (its own and its halo's), in input order.
 
+    Attributes
+    ----------
     xyz : (n, 3) float64, m
     index : (n,) int64 or None; the running index ``add`` was given
     extra : (n, k) float64 or None; the extra columns

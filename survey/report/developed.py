@@ -39,7 +39,7 @@ __all__ = ["LABELLED_REGIONS", "LIMIT_PERCENTILE", "RASTER_FORMAT", "ColourScale
 
 #: Identifies the JSON sidecars of developed rasters (and their version).
 RASTER_FORMAT = "tunnelsim developed raster 1"
-#: Percentile of |value| over the cells with data that sets a diverging colour bar's
+#: Percentile of ``|value|`` over the cells with data that sets a diverging colour bar's
 #: limits when none is given (the same on every tile).
 #: DECISION: 98, not 99.9 (issue 31): a profile tunnel's portal terrain or a fitting
 #: metres off the design fills more than 0.1 % of the cells and set a +-2.8 m bar on
@@ -154,8 +154,8 @@ def write_developed(raster: DevelopedRaster, folder: str | Path, *, stem: str | 
     """Write the raster's ``stat`` as NPY + JSON (+ PNG) into ``folder``: one set, or
     one per tile of ``tile_m`` metres (chainages at whole multiples of it). Returns the
     paths written. ``limit``: colour-bar limit in the raster's unit (default the
-    ``LIMIT_PERCENTILE`` of |value|, ``colour_scale``; written to each JSON sidecar as
-    ``colour_scale``); ``edges``: tolerance class edges that colour the view in
+    ``LIMIT_PERCENTILE`` of ``|value|``, ``colour_scale``; written to each JSON sidecar
+    as ``colour_scale``); ``edges``: tolerance class edges that colour the view in
     classes instead; ``regions`` are outlined on the PNGs."""
     from raytrace.fileio import atomic_writer, write_json
 

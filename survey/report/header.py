@@ -70,7 +70,9 @@ class ReportInput:
 class ReportHeader:
     """What a report states before its results.
 
-    inputs : the files it was computed from
+    Attributes
+    ----------
+    inputs : sequence of ReportInput, the files it was computed from
     crs : the coordinate reference system in words, or None ("none stated")
     project, instrument : the user's words (``--project``, ``--instrument``), or None
     date_utc : ISO 8601 time of the computation, UTC (default: now)

@@ -5,25 +5,32 @@ and returns a frozen result object with the paths written and the numbers the co
 prints; the command line only parses, calls one of these, and prints. They never print
 (progress goes to an optional ``progress(done, total)`` callback).
 
-======================  =====================================  ==========================
-command                 function                               module
-======================  =====================================  ==========================
-compare                 ``compare_files``                      ``survey.workflows.compare``
-plan, study             ``plan_stations``, ``run_study``       ``.planning``
-m3c2, convergence       ``m3c2_to_file``, ``convergence_files``  ``.epochs``
-develop, clearance      ``develop_files``, ``clearance_files``  ``.inspection``
-tunnel, gazebo, info    ``tunnel_files``, ``gazebo_files``,    ``.world``
+Workflows: one typed lib  rary function for every ``tunnelsim`` command.
+
+Each takes paths or arrays and keyword options, writes the same files as its command,
+and returns a frozen result object with the paths written and the numbers the command
+prints; the command line only parses, calls one of these, and prints. They never print
+(progress goes to an opt  ional ``progress(done, total)`` callback).
+
+======================  ========================================  ============================
+command                 function                                  module
+======================  ========================================  ============================
+compare                 ``compare_files``                         ``survey.workflows.compare``
+plan, study             ``plan_stations``, ``run_study``          ``.planning``
+m3c2, convergence       ``m3c2_to_file``, ``convergence_files``   ``.epochs``
+develop, clearance      ``develop_files``, ``clearance_files``    ``.inspection``
+tunnel, gazebo, info    ``tunnel_files``, ``gazebo_files``,       ``.world``
                         ``software_info``, ``sensor_models``
-adjust, transform,      ``adjust_files``, ``transform_file``,  ``.adjust``
+adjust, transform,      ``adjust_files``, ``transform_file``,     ``.adjust``
 correct                 ``correct_file``
-slam                    ``slam_file``                          ``.slam``
-detect                  ``detect_study``                       ``.detect``
-preprocess, mesh        ``preprocess_file``, ``mesh_files``    ``.clouds``
-axis                    ``axis_file``                          ``.axis``
-sections, rings         ``sections_files``, ``rings_files``    ``.sections``
-scan, drive             ``scan_to_file``, ``scan_campaign``,   ``.simulation``
+slam                    ``slam_file``                             ``.slam``
+detect                  ``detect_study``                          ``.detect``
+preprocess, mesh        ``preprocess_file``, ``mesh_files``       ``.clouds``
+axis                    ``axis_file``                             ``.axis``
+sections, rings         ``sections_files``, ``rings_files``       ``.sections``
+scan, drive             ``scan_to_file``, ``scan_campaign``,      ``.simulation``
                         ``drive_to_file``
-======================  =====================================  ==========================
+======================  ========================================  ============================
 """
 
 from __future__ import annotations

@@ -88,7 +88,7 @@ def curve(deflection_rad: float, radius_m: float, transition_m: float) -> list[E
 
     Each clothoid of length L turns by L / (2 R), so the arc's own deflection is
     deflection - L / R (e.g. Casal et al. 2017, eq. for the spiral angle). The radius
-    must therefore be at least L / |deflection|: a smaller radius is more than the
+    must therefore be at least ``L / |deflection|``: a smaller radius is more than the
     clothoids allow, and is an error rather than a silent negative-length arc.
     ``deflection_rad`` > 0 turns left. Returns [clothoid, arc, clothoid].
     """
@@ -134,6 +134,8 @@ class Alignment:
     start_chainage_m : float
         Chainage of the first point (surveyors rarely start at 0).
 
+    Notes
+    -----
     ``repr`` is one line; ``to_local`` / ``to_world`` convert between world points
     and (chainage, offset, height), all in metres.
     """
