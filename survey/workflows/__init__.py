@@ -5,13 +5,6 @@ and returns a frozen result object with the paths written and the numbers the co
 prints; the command line only parses, calls one of these, and prints. They never print
 (progress goes to an optional ``progress(done, total)`` callback).
 
-Workflows: one typed lib  rary function for every ``tunnelsim`` command.
-
-Each takes paths or arrays and keyword options, writes the same files as its command,
-and returns a frozen result object with the paths written and the numbers the command
-prints; the command line only parses, calls one of these, and prints. They never print
-(progress goes to an opt  ional ``progress(done, total)`` callback).
-
 ======================  ========================================  ============================
 command                 function                                  module
 ======================  ========================================  ============================
