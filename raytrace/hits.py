@@ -28,6 +28,8 @@ class Hits:
         Barycentric coordinates: the hit is (1 - u - v) p0 + u p1 + v p2 of the face's
         vertices in their given order (Embree's convention); 0 on a miss.
 
+    Notes
+    -----
     Properties ``hit``, ``points``, ``normals`` and ``incidence_rad`` are derived from
     these (the last three computed on first access and kept).
     """

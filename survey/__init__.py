@@ -9,7 +9,7 @@ Sub-packages, lowest layer first (imports only point down)::
               monitoring: sections, rings, M3C2, convergence, developed views
     report    Markdown/CSV reports and figures;  export: Gazebo
     cluster   running campaigns in-process or on a Dask cluster (optional extra)
-    cli       the ``tunnelsim`` command (a leaf: nothing imports it)
+    cli       the tunnelsim command (a leaf: nothing imports it)
 
 Every public name is also available here (``from survey import fit_helmert``); they are
 imported on first use, so ``import survey`` and ``tunnelsim --help`` stay fast.

@@ -47,8 +47,7 @@ BARS = re.compile(r"(?<![\w\\|`])\|([A-Za-z_](?:[\w.()+\- ]*?[\w)])?)\|(?![\w|`]
 
 #: Modules (or packages: their sub-modules too) whose docstrings are still rewritten,
 #: owned by other work when issue 32 fixed the rest (see the module doc).
-PENDING = ("sensors.io.fields", "survey.adjust.odometry", "survey.analysis.trajectory",
-           "survey.clouds.axis", "survey.workflows")
+PENDING = ("sensors.io.fields", "survey.workflows.robotbag", "survey.workflows.simulation")
 
 
 def home_module(obj: object, name: str = "") -> str:

@@ -313,6 +313,8 @@ class CopcWriter(Stream):
     spill_dir : path-like, optional
         Folder of the temporary spill files (default: ``path``'s folder).
 
+    Notes
+    -----
     ``write_points`` takes laspy point records of ``header``'s point format (or the
     structured array they hold). The file's bytes depend only on the header and the
     records in written order, not on how they were chunked nor on

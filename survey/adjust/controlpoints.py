@@ -138,7 +138,8 @@ def read_control_points(path: str | Path, *, columns: dict[str, str] | str | Non
 
     Returns
     -------
-    ControlPoints, with ``dialect`` (``sensors.io.tables.Dialect``) telling what was read.
+    ControlPoints
+        With ``dialect`` (``sensors.io.tables.Dialect``) telling what was read.
 
     Raises
     ------

@@ -71,6 +71,8 @@ class _Frame(Protocol):
 class OdometryResult:
     """Sensor poses estimated by LiDAR odometry.
 
+    Attributes
+    ----------
     method : str
         "kiss-icp" or "genz-icp".
     times : (n,) float64
@@ -86,6 +88,9 @@ class OdometryResult:
         Points fed to the odometry.
     seconds : float
         Wall time of the odometry itself.
+    settings : dict of str to float
+        The settings used: ``voxel_size_m`` (the default filled in), ``max_range_m``,
+        ``min_range_m`` (m).
     """
 
     method: str

@@ -97,8 +97,11 @@ class DesignProfile:
     name : str
         Shown in reports.
 
-    Raises ``ProfileError`` for fewer than two segments, non-finite vertices, a
-    polyline that crosses or touches itself, and a zero-area closed profile.
+    Raises
+    ------
+    ProfileError
+        Fewer than two segments, non-finite vertices, a polyline that crosses or
+        touches itself, or a zero-area closed profile.
     """
 
     def __init__(self, vertices: ArrayLike, *, closed: bool, name: str = "design") -> None:

@@ -336,8 +336,11 @@ def compare_sections(cuts: Sequence[SectionCut], design: DesignProfile, *,
     -------
     SectionReport
 
-    Raises ``CompareError`` for an empty band (one message naming its chainage), a
-    band whose points all lie beyond an open design's ends, and bad settings.
+    Raises
+    ------
+    CompareError
+        An empty band (one message naming its chainage), a band whose points all lie
+        beyond an open design's ends, or bad settings.
     """
     if not isinstance(design, DesignProfile):
         raise CompareError(f"Expected a DesignProfile, got {type(design).__name__}.")

@@ -119,15 +119,22 @@ class Study:
     Parameters
     ----------
     scene : raytrace.Scene
-    alignment : Alignment; centre_height_m : float, profile-centre height (m)
+    alignment : Alignment
+    centre_height_m : float, profile-centre height (m)
     sensor : SensorSpec, a spinning lidar or a profiler
-    strip_m : (start, end) chainages (m) of the evaluation strip (default: 5 m in the
-        middle of the tunnel)
-    lead_m : the sensor's run-in and run-out on each side of the strip (m)
-    height_m : sensor height above the floor (m)
-    cell_m, cell_rad : lining cell size along (m) and around (rad) the axis
-    keep_points : floor points kept per configuration for the figure (0: none)
+    strip_m : (start, end) float, optional, chainages (m) of the evaluation strip
+        (default: 5 m in the middle of the tunnel)
+    lead_m : float, the sensor's run-in and run-out on each side of the strip (m)
+    height_m : float, sensor height above the floor (m)
+    cell_m, cell_rad : float, lining cell size along (m) and around (rad) the axis
+    settings : sensors.physics.Settings, optional, passed to ``simulate_drive``
+    seed : int, seed of the simulated drives
+    reflectivity : float or (m,) array_like, optional, passed to ``simulate_drive``
+        (one value or one per mesh face)
+    keep_points : int, floor points kept per configuration for the figure (0: none)
 
+    Notes
+    -----
     ``Study.along_route`` makes one on any mesh.
     """
 

@@ -132,7 +132,7 @@ class TrajectoryErrors:
 
     @property
     def ate_m(self) -> NDArray[np.float64]:
-        """(n,) float64 per-pose translation error |error_m| (m)."""
+        """(n,) float64 per-pose translation error ``|error_m|`` (m)."""
         return np.asarray(np.linalg.norm(self.error_m, axis=1))
 
     def rpe(self, delta_m: float) -> RelativeError:

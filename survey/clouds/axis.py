@@ -195,18 +195,20 @@ def extend_chainage(alignment: Alignment, points: ArrayLike, s: ArrayLike
 class LiningExtent:
     """Where the lining runs along the axis (``lining_extent``).
 
-    start_m, end_m : the lining's chainage range (m; the outer edges of its first and
-        last rings).
-    ring_m : ring length used (m; the requested one shortened so that whole rings span
-        the points).
-    ref_start, ref_end : (LINING_SECTORS,) float64 reference lining radius per sector
+    Attributes
+    ----------
+    start_m, end_m : float, the lining's chainage range (m; the outer edges of its
+        first and last rings)
+    ring_m : float, ring length used (m; the requested one shortened so that whole
+        rings span the points)
+    ref_start, ref_end : (LINING_SECTORS,) float64, reference lining radius per sector
         at the first and last lining ring (m; the sector i spans angles
-        [-pi + i d, -pi + (i + 1) d) from the crown, d = 2 pi / LINING_SECTORS).
-    lining_share : (r,) float64 share of each ring's sectors on the lining (for
-        diagnostics), rings from ``ring_start_m`` every ``ring_m``.
-    ring_start_m : chainage of the first ring's lower edge (m).
-    portal_start, portal_end : whether points lie beyond that end by more than a ring
-        (terrain: the end is a portal; else the data just stop there).
+        [-pi + i d, -pi + (i + 1) d) from the crown, d = 2 pi / LINING_SECTORS)
+    lining_share : (r,) float64, share of each ring's sectors on the lining (for
+        diagnostics), rings from ``ring_start_m`` every ``ring_m``
+    ring_start_m : float, chainage of the first ring's lower edge (m)
+    portal_start, portal_end : bool, whether points lie beyond that end by more than a
+        ring (terrain: the end is a portal; else the data just stop there)
     """
 
     start_m: float

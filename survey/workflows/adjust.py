@@ -67,6 +67,8 @@ PathLike = str | Path
 class AdjustResult:
     """What ``adjust_files`` computed and wrote.
 
+    Attributes
+    ----------
     helmert : HelmertResult
         The final adjustment (after data snooping, when asked).
     snooping : Snooping
@@ -96,6 +98,8 @@ class AdjustResult:
 class TransformResult:
     """What ``transform_file`` wrote.
 
+    Attributes
+    ----------
     output : Path, the transformed cloud
     points : int, the points transformed
     inverse : bool, whether the inverse transform was applied
@@ -117,6 +121,8 @@ class TransformResult:
 class CorrectResult:
     """What ``correct_file`` computed and wrote.
 
+    Attributes
+    ----------
     correction : survey.adjust.drift.DriftCorrection
         The fitted drift correction.
     check_residuals_m : (k, 3) float64

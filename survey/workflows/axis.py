@@ -32,17 +32,20 @@ AXIS_PROFILES = ("sectors", "circle")
 class AxisResult:
     """What ``axis_file`` wrote and fitted.
 
-    output : the tunnel JSON written
-    alignment : the fitted axis with the user's chainage (``survey.world.Alignment``)
-    profile : the cross-section written (``survey.world.profiles.Profile``)
-    datum : how the chainage was set (the JSON's "datum": ``kind`` "start",
+    Attributes
+    ----------
+    output : Path, the tunnel JSON written
+    alignment : survey.world.Alignment, the fitted axis with the user's chainage
+    profile : survey.world.profiles.Profile, the cross-section written
+    datum : mapping, how the chainage was set (the JSON's "datum": ``kind`` "start",
         "alignment" or the default, with ``start_offset_m`` / ``max_difference_m``)
-    points_used : points of the seeded subset the axis was fitted to
-    chainage_start_m, chainage_end_m : the axis' chainage range
-    start_point, end_point : (x, y, z) of the axis at those chainages (m)
-    length_m : the axis' length
-    mean_radius_m : radius of the circle of the profile's area
-    crs : the CRS text the input states, or None
+    points_used : int, points of the seeded subset the axis was fitted to
+    chainage_start_m, chainage_end_m : float, the axis' chainage range (m)
+    start_point, end_point : tuple of 3 float, (x, y, z) of the axis at those
+        chainages (m)
+    length_m : float, the axis' length (m)
+    mean_radius_m : float, radius of the circle of the profile's area (m)
+    crs : str or None, the CRS text the input states
     """
 
     output: Path

@@ -40,12 +40,14 @@ COMPACT_SAMPLE = 200_000
 class PreprocessResult:
     """What ``preprocess_file`` wrote and counted.
 
-    output : the LAS/LAZ written
-    input_points : points read
-    voxel_points : points after the voxel grid (``input_points`` without one)
-    kept_points : points written (after crop and outlier removal)
-    classes : ((code, name, count), ...) of the segmentation in increasing code, or
-        None without ``segment``
+    Attributes
+    ----------
+    output : Path, the LAS/LAZ written
+    input_points : int, points read
+    voxel_points : int, points after the voxel grid (``input_points`` without one)
+    kept_points : int, points written (after crop and outlier removal)
+    classes : tuple of (code, name, count) or None, the segmentation's classes in
+        increasing code (None without ``segment``)
     """
 
     output: Path
@@ -165,29 +167,34 @@ def preprocess_file(cloud: PathLike, output: PathLike, *, voxel_m: float | None 
 class MeshResult:
     """What ``mesh_files`` wrote and measured.
 
-    output : the PLY written (per-vertex ``support`` for tunnel and solid)
-    method : the method that made it: "tunnel", "poisson" or "solid"
-    method_asked : ``method`` as given ("auto" included)
-    method_reason : why ``method`` ran (auto: the judgement of the tunnel fit)
-    input_points : points read from the clouds
-    voxels : points after the voxel grid (None: ``voxel_m`` 0, every point)
-    voxel_m : the voxel grid's size (m)
-    triangles : triangles written (after decimation)
-    triangles_undecimated : triangles before decimation (= ``triangles`` without)
-    report : the reconstruction quality, as the JSON ``json_path`` holds it (written
-        or not): point-to-surface ``mean_m``, ``median_m``, ``p95_m``, ``max_m``,
-        ``extrapolated_share`` (tunnel), ``unsupported_share``, ``depth``, ``cell_m``,
-        ``trim_m`` (solid), the method choice (``method_reason``, ``auto``,
-        ``cell_chosen``) and ``decimation``
-    decimation : the decimation block (triangles before and after, tries, error both
-        ways, points-to-mesh distances), or None when none was asked
-    depth : the Poisson octree depth (poisson and solid), else None
-    cell_m, cell_deg : the tunnel mesher's cell (None when it did not run)
-    profile_spacing_m : the profiles' spacing along the axis when the cell was chosen
-        from it (a profile cloud), else None
-    cell_how : how the cell was chosen when not given, else None
-    detail_faces : triangles of the detail layer (``detail``), else None
-    json_path, figure : the JSON and the support-map PNG written, or None
+    Attributes
+    ----------
+    output : Path, the PLY written (per-vertex ``support`` for tunnel and solid)
+    method : str, the method that made it: "tunnel", "poisson" or "solid"
+    method_asked : str, ``method`` as given ("auto" included)
+    method_reason : str, why ``method`` ran (auto: the judgement of the tunnel fit)
+    input_points : int, points read from the clouds
+    voxels : int or None, points after the voxel grid (None: ``voxel_m`` 0, every
+        point)
+    voxel_m : float, the voxel grid's size (m)
+    triangles : int, triangles written (after decimation)
+    triangles_undecimated : int, triangles before decimation (= ``triangles``
+        without)
+    report : mapping, the reconstruction quality, as the JSON ``json_path`` holds it
+        (written or not): point-to-surface ``mean_m``, ``median_m``, ``p95_m``,
+        ``max_m``, ``extrapolated_share`` (tunnel), ``unsupported_share``, ``depth``,
+        ``cell_m``, ``trim_m`` (solid), the method choice (``method_reason``,
+        ``auto``, ``cell_chosen``) and ``decimation``
+    decimation : mapping or None, the decimation block (triangles before and after,
+        tries, error both ways, points-to-mesh distances); None when none was asked
+    depth : int or None, the Poisson octree depth (poisson and solid)
+    cell_m, cell_deg : float or None, the tunnel mesher's cell (m, degrees; None when
+        it did not run)
+    profile_spacing_m : float or None, the profiles' spacing along the axis when the
+        cell was chosen from it (a profile cloud)
+    cell_how : str or None, how the cell was chosen when not given
+    detail_faces : int or None, triangles of the detail layer (``detail``)
+    json_path, figure : Path or None, the JSON and the support-map PNG written
     """
 
     output: Path

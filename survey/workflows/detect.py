@@ -55,6 +55,8 @@ DETECT_FILES = ("detect.json", "detect.csv", "targets.csv", "detect.md", "detect
 class DetectResult:
     """What ``detect_study`` computed and wrote.
 
+    Attributes
+    ----------
     study : Detectability, the tunnel, layout, M3C2 parameters and seed
     rows : tuple of DetectRow, one per configuration (sensor x speed/spacing x noise)
     markdown : str
@@ -135,7 +137,7 @@ def detect_study(output: PathLike, *, mesh: PathLike | None = None,
     A radial convergence zone and a ring of bulges at each magnitude are laid beside
     undeformed lining; each configuration scans the tunnel as built and deformed, runs
     M3C2 (normals towards the axis) and reports the smallest magnitude detected at
-    >= 95 % of the deformed region's core points (|d| > LoD95, d > 0), its a-hat vs a
+    >= 95 % of the deformed region's core points (``|d|`` > LoD95, d > 0), its a-hat vs a
     estimate (MIL-HDBK-1823A) and the false-alarm rate on undeformed lining.
 
     Parameters

@@ -341,7 +341,7 @@ def develop_files(source: PathLike, output_dir: PathLike, *, tunnel: PathLike | 
     max_deviation_m : float > 0, optional
         Leave out points farther than this from the design line.
     limit_mm : float > 0, optional
-        Colour-bar limit +- in mm (default: the 98th percentile of |value|).
+        Colour-bar limit +- in mm (default: the 98th percentile of ``|value|``).
     tolerance_mm : sequence of float, optional
         Increasing tolerance-class edges in mm (instead of a continuous bar).
     force : bool

@@ -38,15 +38,19 @@ DESIGN_ORDERS = ("file", "angle")
 class SectionsResult:
     """What ``sections_files`` wrote and measured.
 
-    output : the output folder
-    files : the files written into it (tables, JSON, report .md and .html, PNGs)
-    report : the comparison (``survey.analysis.overbreak.SectionReport``: every
-        section's deviations, areas, classes, and the volumes between them)
-    design_name : the design profile's name
-    sections : number of sections
-    overbreak_m3, underbreak_m3 : volumes between the first and last section
-    largest_overbreak_m : the largest deviation outside the design (m)
-    largest_overbreak_chainage_m : where it is
+    Attributes
+    ----------
+    output : Path, the output folder
+    files : tuple of Path, the files written into it (tables, JSON, report .md and
+        .html, PNGs)
+    report : survey.analysis.overbreak.SectionReport, the comparison (every section's
+        deviations, areas, classes, and the volumes between them)
+    design_name : str, the design profile's name
+    sections : int, number of sections
+    overbreak_m3, underbreak_m3 : float, volumes between the first and last section
+        (m3)
+    largest_overbreak_m : float, the largest deviation outside the design (m)
+    largest_overbreak_chainage_m : float, where it is (chainage, m)
     """
 
     output: Path
@@ -64,15 +68,18 @@ class SectionsResult:
 class RingsResult:
     """What ``rings_files`` wrote and fitted.
 
-    output : the output folder
-    files : the files written into it (rings.csv, .md, .html, .json, .png)
-    rings : the fits by chainage (``survey.analysis.rings.RingFit``)
-    floor_heights_m : each section's floor height in the section frame (``min_height_m``
-        given), else None
-    min_diameter_m, max_diameter_m : the smallest minor and largest major axis of the
-        ellipses
-    max_ovality : the largest ovality (a fraction)
-    poor_fits : rings that fit a circle or an ellipse no better than
+    Attributes
+    ----------
+    output : Path, the output folder
+    files : tuple of Path, the files written into it (rings.csv, .md, .html, .json,
+        .png)
+    rings : tuple of survey.analysis.rings.RingFit, the fits by chainage
+    floor_heights_m : tuple of float or None, each section's floor height in the
+        section frame (m; ``min_height_m`` given)
+    min_diameter_m, max_diameter_m : float, the smallest minor and largest major axis
+        of the ellipses (m)
+    max_ovality : float, the largest ovality (a fraction)
+    poor_fits : int, rings that fit a circle or an ellipse no better than
         ``survey.analysis.rings.FIT_RMS_WARN_M`` rms (a warning says so)
     """
 

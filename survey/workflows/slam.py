@@ -40,6 +40,8 @@ KEY_FIGURES = ("final_error_m", "final_error_pct", "path_length_m", "ate_rms_m")
 class SlamResult:
     """What ``slam_file`` computed and wrote.
 
+    Attributes
+    ----------
     odometry : OdometryResult
         The odometry's sensor poses, frames, skipped frames, points, seconds, settings.
     trajectory : sensors.Trajectory

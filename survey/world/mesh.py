@@ -83,6 +83,8 @@ class TunnelMesh:
         points, deformations; ``crs`` and ``crs_name`` when georeferenced)
     displacement : (n, 3) float64 or None, displacement from the undeformed epoch (m)
 
+    Notes
+    -----
     Coordinates, chainages and profile parameters are metres. ``repr`` is one line.
     """
 
