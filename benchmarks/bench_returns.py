@@ -3,7 +3,8 @@ and the single-return default path against the committed code, in one process.
 
 A VLP-16 (or ``--sensor``) drives at 2 m/s along the ``bfo`` preset's centreline with
 dust (``--particles`` per metre) for ``--drive-s`` seconds; each variant simulates the
-whole drive (no file written), ``--repeat`` times, the fastest pass reported:
+whole drive (no file written), ``--repeat`` times after a first (compiling) pass, the
+passes going round the variants, the fastest pass of each reported:
 
 * ``head``: the default path of ``sensors/simulate.py`` as ``git show HEAD:`` gives it
   (loaded as a module of the ``sensors`` package beside the working tree's): the
@@ -11,25 +12,35 @@ whole drive (no file written), ``--repeat`` times, the fastest pass reported:
   must equal the working tree's default bit for bit (checked, reported).
 * ``default``: the working tree, ``returns=None``.
 * ``strongest``, ``dual``, ``last``...: the waveform model in that return mode.
+* ``waveform``, ``dual+waveform``: full-waveform output (``Settings(waveform=True)``)
+  in the strongest (a survey scanner's default) and the dual mode: every return also
+  carries its 256-bin waveform window. The sensor is made a waveform recorder for the
+  run (``[returns] waveform = true`` in code: the cost depends on the pulses and
+  sub-rays, not on whose pattern fires them), so the rows compare on one drive.
 
 Each variant runs with ``--subrays`` sub-rays per pulse (1, 7 or 19). Results:
-pulses/s, ns per pulse, and the cost relative to ``default``.
+pulses/s, ns per pulse, and the cost relative to ``default``. With ``--write`` each
+variant's pass is also written to a temporary .las (waveform: LAS 1.4 point format 9
+with the packets in its EVLR) and that time and size reported.
 
 Usage::
 
     python benchmarks/bench_returns.py                         # 2 s, 7 sub-rays
     python benchmarks/bench_returns.py --drive-s 5 --subrays 1 --json out.json
+    python benchmarks/bench_returns.py --modes strongest,dual,waveform,dual+waveform
 """
 
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib.util
 import json
 import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -64,8 +75,13 @@ def main(argv=None) -> int:
     ap.add_argument("--subrays", type=int, default=7, choices=[1, 7, 19])
     ap.add_argument("--particles", type=float, default=0.05)
     ap.add_argument("--edge-length", type=float, default=0.25)
-    ap.add_argument("--modes", default="strongest,dual,last")
+    ap.add_argument("--modes", default="strongest,dual,last,waveform,dual+waveform")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--pause", type=float, default=1.0,
+                    help="seconds of rest before each pass (the memory a waveform pass "
+                         "freed is returned before the next is timed)")
+    ap.add_argument("--write", action="store_true",
+                    help="also time writing each variant's pass to a .las")
     ap.add_argument("--json")
     a = ap.parse_args(argv)
 
@@ -86,27 +102,66 @@ def main(argv=None) -> int:
     head = _head_simulate()
     t_end = traj.start_s + a.drive_s
 
+    wf_spec = replace(spec, returns=replace(spec.returns, waveform=True))
+
     def settings(mode):
+        m, wf = (mode.removesuffix("+waveform"), True) if mode and mode.endswith(
+            "waveform") else (mode, False)
+        m = None if m == "waveform" else m        # the device's default mode
         return Settings(beam_subrays=a.subrays, particle_rate_per_m=a.particles,
-                        attenuation_per_m=0.01, returns=mode)
+                        attenuation_per_m=0.01, returns=m, waveform=wf)
+
+    def usable(m):
+        base = m.removesuffix("+waveform")
+        return base == "waveform" or base in spec.returns.modes
 
     variants = [("default", new, None)] + ([("head", head, None)] if head else []) + \
-        [(m, new, m) for m in a.modes.split(",") if m in spec.returns.modes]
+        [(m, new, m) for m in a.modes.split(",") if usable(m)]
     rows, points = {}, {}
-    for name, mod, mode in variants:   # a first pass compiles; then timed passes
-        best = np.inf
-        for _ in range(a.repeat + 1):
-            run = mod.simulate_drive(scene, spec, traj, settings=settings(mode),
-                                     t_end=t_end, cache_bytes=0)
-            t = time.perf_counter()
+    tmp = Path(tempfile.mkdtemp())
+    best = dict.fromkeys([v[0] for v in variants], np.inf)
+    runs = {}
+
+    def one_pass(name, mod, mode):
+        gc.collect()
+        time.sleep(a.pause)
+        st = settings(mode)
+        run = mod.simulate_drive(scene, wf_spec if st.waveform else spec, traj,
+                                 settings=st, t_end=t_end, cache_bytes=0)
+        t = time.perf_counter()
+        # The default and HEAD keep their points (compared bit for bit); the others
+        # count them (a waveform pass is ~650 bytes a return).
+        if name in ("default", "head"):
             pts = list(run)
-            best = min(best, time.perf_counter() - t)
+            points[name] = np.concatenate(pts)
+            n = len(points[name])
+        else:
+            n = sum(len(c) for c in run)
+        best[name] = min(best[name], time.perf_counter() - t)
+        runs[name] = (run, n)
+
+    # DECISION: a first pass of every variant compiles; the timed passes then go round
+    # the variants (not one variant's repeats in a row), so that a drift of the
+    # machine's load or clock touches every variant alike.
+    for v in variants:
+        one_pass(*v)
+    best = dict.fromkeys(best, np.inf)
+    for _ in range(a.repeat):
+        for v in variants:
+            one_pass(*v)
+    for name, mod, _mode in variants:
+        run, n_points = runs[name]
         n_pulses = run.n_pulses
-        pts = np.concatenate(pts)
-        points[name] = pts
-        rows[name] = {"pulses": int(n_pulses), "points": int(len(pts)),
-                      "seconds": best, "pulses_per_s": n_pulses / best,
-                      "ns_per_pulse": 1e9 * best / n_pulses}
+        rows[name] = {"pulses": int(n_pulses), "points": int(n_points),
+                      "seconds": best[name], "pulses_per_s": n_pulses / best[name],
+                      "ns_per_pulse": 1e9 * best[name] / n_pulses}
+        if a.write and mod is new:
+            las_out = tmp / f"{name.replace('+', '_')}.las"
+            t = time.perf_counter()
+            run.write(las_out)
+            rows[name]["write_s"] = time.perf_counter() - t
+            rows[name]["las_bytes"] = las_out.stat().st_size
+            las_out.unlink()
     base = rows["default"]["ns_per_pulse"]
     for r in rows.values():
         r["relative"] = r["ns_per_pulse"] / base
@@ -120,12 +175,14 @@ def main(argv=None) -> int:
     print(f"{a.sensor}, {a.drive_s:g} s drive, {a.subrays} sub-rays, dust "
           f"{a.particles:g}/m, {numba.get_num_threads()} threads; default == HEAD bit for "
           f"bit: {same}")
-    print(f"{'variant':<10} {'pulses':>9} {'points':>9} {'s':>7} {'Mpulse/s':>9} "
+    print(f"{'variant':<14} {'pulses':>9} {'points':>9} {'s':>7} {'Mpulse/s':>9} "
           f"{'ns/pulse':>9} {'x default':>9}")
     for name, r in rows.items():
-        print(f"{name:<10} {r['pulses']:>9,} {r['points']:>9,} {r['seconds']:>7.3f} "
+        extra = (f"  write {r['write_s']:.2f} s, {r['las_bytes'] / 1e6:.1f} MB"
+                 if "write_s" in r else "")
+        print(f"{name:<14} {r['pulses']:>9,} {r['points']:>9,} {r['seconds']:>7.3f} "
               f"{r['pulses_per_s'] / 1e6:>9.3f} {r['ns_per_pulse']:>9.0f} "
-              f"{r['relative']:>9.2f}")
+              f"{r['relative']:>9.2f}{extra}")
     if a.json:
         Path(a.json).write_text(json.dumps(out, indent=2))
     return 0 if same in (None, True) else 1

@@ -100,6 +100,14 @@ class Settings:
         and those the device reports in this return mode (one of its spec's
         ``returns.modes``; output records ``sensors.io.fields.RETURN_POINT_DTYPE``). None (the
         default): the single blended return per pulse, as before the waveform model.
+    waveform : bool
+        Full-waveform output (``--waveform``), for devices whose spec has ``[returns]
+        waveform = true`` (the survey scanners): every reported return also carries
+        its pulse's sampled waveform, a ``sensors.io.fields.WAVE_SAMPLES``-bin window
+        around the echoes (records ``sensors.io.fields.WAVEFORM_POINT_DTYPE``), which
+        the LAS writer stores as LAS 1.4 wave packets. Runs the multiple-return model:
+        with ``returns`` None, in the device's default mode (the first of its
+        ``[returns] modes``). False (the default): no waveform is kept.
 
     Raises
     ------
@@ -117,9 +125,10 @@ class Settings:
     particle_reflectivity: float = 0.1
     reflectivity: float = 0.5
     returns: str | None = None
+    waveform: bool = False
 
     def __post_init__(self) -> None:
-        for name in ("range_noise", "angle_jitter", "detection"):
+        for name in ("range_noise", "angle_jitter", "detection", "waveform"):
             v = getattr(self, name)
             if not isinstance(v, (bool, np.bool_)):
                 raise SimulationError(f"Expected `{name}` to be True or False, got {v!r}.")

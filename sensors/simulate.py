@@ -37,6 +37,14 @@ order, with ``return_number`` (1 = nearest), ``number_of_returns`` (among the de
 ones), ``echo_width`` (sigma, m) and ``echo_amplitude`` (relative power). With
 ``returns=None`` (the default) none of this runs: the points are those of the
 single-return model, bit for bit.
+
+Full waveform (``Settings(waveform=True)``, devices with ``[returns] waveform =
+true``): the multiple-return model runs (in the device's default mode unless
+``returns`` names one) and each record (``WAVEFORM_POINT_DTYPE``) also carries a
+``WAVE_SAMPLES``-bin window of the summed waveform its echo was detected in
+(``sensors.waveform.wave_windows``: shared by a pulse's returns where their echoes fit
+in one), quantised to 16 bits, with the LAS wave packet geometry (return point location,
+x(t), y(t), z(t)); chunks are cut at ``WAVE_CHUNK_PULSES`` pulses at most.
 """
 
 from __future__ import annotations
@@ -64,18 +72,24 @@ from ._kernels.pulses import (
     world_directions,
 )
 from .errors import SimulationError
-from .io.fields import POINT_DTYPE, RETURN_POINT_DTYPE
+from .io.fields import POINT_DTYPE, RETURN_POINT_DTYPE, WAVEFORM_POINT_DTYPE
 from .patterns import CHUNK_PULSES, Pulses, Scan, TLSScan, chunk_size, scan_for
-from .spec import SensorSpec, load_sensor
+from .spec import SensorSpec, list_sensors, load_sensor
 from .trajectory import Mount, Trajectory
 
-__all__ = ["CACHE_BYTES", "RANDOM_BLOCK", "Run", "simulate_drive", "simulate_station"]
+__all__ = ["CACHE_BYTES", "RANDOM_BLOCK", "Run", "WAVE_CHUNK_PULSES", "simulate_drive",
+           "simulate_station"]
 
 #: Pulses per block of random numbers (see ``_Streams``).
 RANDOM_BLOCK: Final = 1 << 16
 #: Default bound of a run's replay cache (bytes of point records): 1 GiB holds about
 #: 11 million points (97 bytes each), a 10 s drive of any shipped spinning lidar.
 CACHE_BYTES: Final = 1 << 30
+#: Most pulses per chunk of a full-waveform run (``Settings(waveform=True)``): its records
+#: carry a waveform window each (~650 bytes), so chunks are cut smaller than
+#: ``chunk_pulses`` (64k pulses, one random-number block: ~43 MB of records per return
+#: per pulse). Results do not depend on it (random streams are keyed by pulse index).
+WAVE_CHUNK_PULSES: Final = 1 << 16
 
 #: poses(times (n,)) -> (positions (1 or n, 3), sensor-to-world matrices (1 or n, 3, 3)).
 PoseFn = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
@@ -187,6 +201,13 @@ class Run:
         """Whether the next pass replays the chunks of a complete one."""
         return self._cache is not None and self._cache_key == self._key()
 
+    def _chunk_step(self) -> int:
+        """Pulses per simulated chunk: ``chunk_pulses``, at most ``WAVE_CHUNK_PULSES``
+        in a full-waveform run."""
+        if self.settings.waveform:
+            return min(self.chunk_pulses, WAVE_CHUNK_PULSES)
+        return self.chunk_pulses
+
     def clear_cache(self) -> None:
         """Drop the cached chunks (the next pass simulates again)."""
         self._cache, self._cache_key = None, None
@@ -245,7 +266,7 @@ class Run:
         store: list[tuple[int, int, NDArray[np.void]]] | None = \
             [] if self.cache_bytes > 0 else None
         size = 0
-        for pulses in self.scan.chunks(self.chunk_pulses):
+        for pulses in self.scan.chunks(self._chunk_step()):
             pts, hits = self._chunk(n_pulses, pulses)
             n_pulses += len(pulses)
             n_points += len(pts)
@@ -289,7 +310,7 @@ class Run:
         b = self.n_pulses if stop is None else as_whole(stop, "stop", SimulationError,
                                                         lo=0)
         first = 0
-        for pulses in self.scan.chunks(self.chunk_pulses):
+        for pulses in self.scan.chunks(self._chunk_step()):
             if first >= b:
                 break
             n = len(pulses)
@@ -305,7 +326,8 @@ class Run:
 
     def write(self, path, *, fmt: str | None = None, progress=None, fields=None,
               points: Iterable[NDArray[np.void]] | None = None, crs=None,
-              start_time_ns: int | None = None, ros_distro: str | None = None):
+              start_time_ns: int | None = None, ros_distro: str | None = None,
+              waveform_data: str | None = None):
         """Stream every chunk into ``path`` (format from the suffix or ``fmt``:
         las, laz, ply, npz, e57); atomic. ``progress(done_pulses, total)`` is called
         after each chunk; ``fields`` picks the LAS extra bytes (see
@@ -315,7 +337,10 @@ class Run:
         PROJJSON; needs pyproj), stated in the file (``sensors.writers``).
         ``start_time_ns`` and ``ros_distro``: a ROS 2 bag's epoch at the scan's start
         and metadata layout (``sensors.bag.RosbagStream``); only passed on when given.
-        Returns ``stats`` plus the path."""
+        A full-waveform run (``Settings(waveform=True)``) writes LAS/LAZ wave packets
+        and refuses other formats before simulating; ``waveform_data`` (None,
+        "internal" or "external") says where its packets go (``sensors.writers.
+        open_writer``). Returns ``stats`` plus the path."""
         from .writers import open_writer
 
         span = None if self.station is not None else (self.t0, self.t0 + self.duration_s)
@@ -327,7 +352,9 @@ class Run:
         with open_writer(path, sensor=self.sensor, seed=self.seed, pose=self.station,
                          fields=fields, fmt=fmt, expected_points=self.n_pulses,
                          mount=self.mount, trajectory=self.trajectory, span_s=span,
-                         crs=crs, returns=self.settings.returns, **bag) as w:
+                         crs=crs, returns=self.settings.returns,
+                         waveform=self.settings.waveform, waveform_data=waveform_data,
+                         **bag) as w:
             for chunk in (self if points is None else points):
                 w.write_points(chunk)
                 if progress is not None:
@@ -358,7 +385,7 @@ class Run:
         z = rng.normal(4, 1)
         dw = np.empty((n, 3))
         world_directions(pulses.direction, jit, mats, dw)
-        if st.returns is not None:   # multiple returns: the waveform model
+        if st.returns is not None or st.waveform:   # the waveform model
             return self._chunk_returns(rng, pulses, t_abs, pos, mats, dw, dpart, u_det, z)
         ret = self._surface(pos[0] if single else pos, dw, "cubemap" if single else "auto")
         n_hit = int(np.count_nonzero(ret[3]))
@@ -388,7 +415,7 @@ class Run:
         device's mode picks its echoes, each is detected and noised as a single return
         is; records of ``RETURN_POINT_DTYPE``, one per detected return."""
         st, phys, spec = self.settings, self.sensor.physics, self.sensor
-        assert st.returns is not None
+        mode = _mode(spec, st)
         n = len(dw)
         single = self.station is not None
         t, tri, hit, cos, e, w = self._cast_subrays(pos[0] if single else pos, dw,
@@ -403,8 +430,9 @@ class Run:
             pr = np.where(dpart < np.minimum(far, phys.range_max_m), dpart, np.inf)
             pp = ph.power(st.particle_reflectivity, 1.0, pr, st.attenuation_per_m)
         rs = spec.returns
+        model = rs.model(phys)
         cr = waveform.chunk_returns(np.where(hit, t, np.inf), e, cos, tri, w,
-                                    rs.model(phys), st.returns, dual=rs.dual,
+                                    model, mode, dual=rs.dual,
                                     max_returns=rs.max_returns, particle_range_m=pr,
                                     particle_power=pp)
         k = len(cr)
@@ -428,7 +456,8 @@ class Run:
                          1.0 / phys.detection_softness, st.range_noise, floor2, ref2,
                          returned)
         idx = np.flatnonzero(returned)
-        out = np.empty(len(idx), dtype=RETURN_POINT_DTYPE)
+        out = np.empty(len(idx), dtype=WAVEFORM_POINT_DTYPE if st.waveform else
+                       RETURN_POINT_DTYPE)
         f = [out[name] for name in POINT_DTYPE.names or ()]
         q = cr.pulse
         per_pos = pos[q] if pos.shape[0] == n and n > 1 else pos
@@ -441,7 +470,41 @@ class Run:
             waveform.renumber_returns(q, returned)
         out["echo_width"] = cr.width_m[idx]
         out["echo_amplitude"] = cr.amplitude[idx]
+        if st.waveform:
+            self._fill_waves(out, cr, idx, r, model, pulses.direction[q[idx]],
+                             per_rot if per_rot.shape[0] == 1 else per_rot[idx])
         return out, n_hit
+
+    def _fill_waves(self, out: NDArray[np.void], cr: waveform.ChunkReturns,
+                    idx: NDArray[np.int64], r: NDArray[np.float64],
+                    model: waveform.WaveformModel, d_sensor: NDArray[np.float64],
+                    rot: NDArray[np.float64]) -> None:
+        """The waveform fields of the detected returns ``idx`` of ``cr`` (measured
+        ranges ``r``; nominal beam directions ``d_sensor`` (k, 3) in the sensor frame,
+        sensor-to-world rotations ``rot`` (1 or k, 3, 3)): each return's window
+        (``sensors.waveform.wave_windows``) and its LAS wave packet geometry."""
+        assert cr.contrib_range_m is not None and cr.contrib_power is not None
+        # The windows of the detected returns (a pulse's window spans the echoes it
+        # reports), sampled straight into the records.
+        ww = waveform.wave_windows(cr.contrib_range_m, cr.contrib_power, model,
+                                   return_pulse=cr.pulse[idx], echo_range_m=cr.range_m[idx],
+                                   gain=waveform.waveform_gain(self.sensor.physics),
+                                   out=out["wave"])
+        # The world point is pos + R (r d) (fill_points): its beam is R d, unit.
+        d_world = np.einsum("kij,kj->ki", np.broadcast_to(rot, (len(idx), 3, 3)), d_sensor)
+        out["wave_start_m"] = ww.start_m
+        # LAS "return point waveform location": the measured return's time after the
+        # window's first sample (ps), so that the sample grid sits where the point is.
+        out["wave_location_ps"] = (r[idx] - ww.start_m) / waveform.RANGE_PER_PS_M
+        # DECISION: x(t), y(t), z(t) point back along the beam, towards the scanner:
+        # LASlib (laswaveform13reader) and CloudCompare (ccWaveform::getSamplePos) place
+        # sample k at point + (location - k spacing) (x(t), y(t), z(t)), which puts the
+        # first sample nearest the scanner only with this sense. The anchor (sample 0)
+        # is then point + location (x(t), y(t), z(t)).
+        back = -d_world * waveform.RANGE_PER_PS_M
+        out["wave_dx"], out["wave_dy"], out["wave_dz"] = back.T
+        out["wave_gain"] = ww.gain
+        out["wave_spacing_ps"] = ww.spacing_ps
 
     def _surface(self, origin: NDArray[np.float64], dw: NDArray[np.float64], method: str
                  ) -> _Returns:
@@ -595,8 +658,21 @@ def _settings(settings: ph.Settings | None) -> ph.Settings:
     return settings
 
 
+def _mode(spec: SensorSpec, settings: ph.Settings) -> str:
+    """The return mode a multiple-return run simulates: ``settings.returns``, or the
+    device's default (first) mode for a full-waveform run without one."""
+    return settings.returns if settings.returns is not None else spec.returns.modes[0]
+
+
 def _check_returns(spec: SensorSpec, settings: ph.Settings) -> None:
-    """A return mode must be one the device records (its spec's ``[returns] modes``)."""
+    """A return mode must be one the device records (its spec's ``[returns] modes``);
+    full-waveform output needs a device that records the waveform."""
+    if settings.waveform and not spec.returns.waveform:
+        able = [n for n in list_sensors() if load_sensor(n).returns.waveform]
+        raise SimulationError(f"Expected a sensor that records the full waveform for "
+                              f"--waveform ([returns] waveform = true: {able}), got "
+                              f"{spec.name}; pick one of those, or leave --waveform "
+                              "out (--returns gives its multiple returns).")
     mode = settings.returns
     if mode is not None and mode not in spec.returns.modes:
         raise SimulationError(f"Expected --returns in {list(spec.returns.modes)} for "

@@ -40,12 +40,18 @@ with HELIOS++", Remote Sens. Environ. 269, and its ``FWFSettings``: 0.25 ns bins
 The simulation loop's entry point is ``chunk_returns`` (per-sub-ray arrays in, one row
 per reported return out, with the echo's face, incidence, flag and return numbers);
 the default single-return path of the simulation does not run any of this.
+
+Full-waveform output (``Settings(waveform=True)``): ``wave_windows`` samples the summed
+waveform each reported return was detected in, a fixed window of
+``sensors.io.fields.WAVE_SAMPLES`` bins on the same grid (shared by a pulse's returns
+where their echoes fit in it, else centred on each echo), quantised to 16-bit counts
+of ``waveform_gain`` (the waveform threshold per count); the LAS writer stores the
+windows as LAS 1.4 wave packets (``sensors.writers``).
 """
 
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Final, Protocol, TypeVar
@@ -74,11 +80,11 @@ class Physics(Protocol):
     def detection_softness(self) -> float: ...
 
 __all__ = ["BIN_S", "ChunkReturns", "DEFAULT_PULSE_FWHM_S", "DEFAULT_RETURNS",
-           "DUAL_KINDS", "EVLR_HEADER_BYTES", "Echoes", "MAX_ECHOES", "RETURN_FIELDS",
+           "DUAL_KINDS", "Echoes", "MAX_ECHOES", "RANGE_PER_PS_M", "RETURN_FIELDS",
            "RETURN_MODES", "Returns", "ReturnsSpec", "SPEED_OF_LIGHT_M_S", "WAVE_BITS",
-           "WAVE_PACKET_SAMPLES", "WavePackets", "WaveformModel", "chunk_returns",
+           "WAVE_PAD_SIGMAS", "WaveWindows", "WaveformModel", "chunk_returns",
            "detect_echoes", "detection_threshold", "pulse_echoes", "renumber_returns",
-           "select_returns", "wave_packets", "waveforms"]
+           "select_returns", "wave_windows", "waveform_gain", "waveforms"]
 
 #: Speed of light in vacuum (m/s); the ~3e-4 relative difference in air is ignored, as
 #: the simulator's ranges are geometric.
@@ -274,6 +280,9 @@ class ReturnsSpec:
         Pulse width (FWHM, ns).
     pulse_source : str
         Where the width comes from ("ASSUMED: ..." where no datasheet gives it).
+    waveform : bool
+        Whether the device records the full waveform (``Settings(waveform=True)``,
+        ``--waveform``): the survey scanners.
     """
 
     modes: tuple[str, ...] = ("strongest",)
@@ -281,11 +290,16 @@ class ReturnsSpec:
     max_returns: int = 1
     pulse_fwhm_ns: float = DEFAULT_PULSE_FWHM_S * 1e9
     pulse_source: str = "ASSUMED: HELIOS++ default pulse length"
+    waveform: bool = False
 
-    _KEYS = frozenset({"modes", "dual", "max_returns", "pulse_fwhm_ns", "pulse_source"})
+    _KEYS = frozenset({"modes", "dual", "max_returns", "pulse_fwhm_ns", "pulse_source",
+                       "waveform"})
 
     def __post_init__(self) -> None:
         err = SensorSpecError
+        if not isinstance(self.waveform, (bool, np.bool_)):
+            raise err(f"Expected [returns] waveform = true or false, got "
+                      f"{self.waveform!r}.")
         if not self.modes or any(m not in RETURN_MODES for m in self.modes) or \
                 len(set(self.modes)) != len(self.modes):
             raise err(f"Expected [returns] modes: distinct names from "
@@ -565,6 +579,9 @@ class ChunkReturns:
     return_number, number_of_returns : (p,) uint8
     amplitude, width_m : (p,) float64
         The echo's fitted Gaussian: peak (relative power) and sigma (m).
+    contrib_range_m, contrib_power : (n, m) or (n, m + 1) float64
+        The chunk's contributions as the waveform summed them (sub-rays, weighted, and
+        the particle last): what ``wave_windows`` samples.
     """
 
     pulse: NDArray[np.int64]
@@ -577,6 +594,8 @@ class ChunkReturns:
     number_of_returns: NDArray[np.uint8]
     amplitude: NDArray[np.float64]
     width_m: NDArray[np.float64]
+    contrib_range_m: NDArray[np.float64] | None = None
+    contrib_power: NDArray[np.float64] | None = None
 
     def __len__(self) -> int:
         return int(self.pulse.shape[0])
@@ -640,7 +659,8 @@ def chunk_returns(subray_range_m: ArrayLike, subray_power: ArrayLike,
         cos=np.where(particle, 1.0, cos[rows, js]), flag=flag.astype(np.uint8),
         triangle=np.where(particle, -1, tri[rows, js]).astype(np.int32),
         return_number=ret.return_number, number_of_returns=ret.number_of_returns,
-        amplitude=ret.take(echoes.amplitude), width_m=ret.take(echoes.width_m))
+        amplitude=ret.take(echoes.amplitude), width_m=ret.take(echoes.width_m),
+        contrib_range_m=rr, contrib_power=pw)
 
 
 def renumber_returns(pulse: ArrayLike, keep: ArrayLike
@@ -671,122 +691,134 @@ def renumber_returns(pulse: ArrayLike, keep: ArrayLike
 
 
 
-# ------------------------------------------------------------ LAS 1.4 wave packets
-#: Samples per wave packet of descriptor index 1, 2, ... (LAS 1.4 R15: wave packet
-#: descriptors are ``LASF_Spec`` VLRs 99 + index): a pulse's waveform row goes into the
-#: smallest that holds it, zero-padded; a row longer than the last (307 m at 0.25 ns)
-#: is cut there.
-WAVE_PACKET_SAMPLES: Final = (64, 128, 256, 512, 1024, 2048, 4096, 8192)
-#: Bits per sample: unsigned 16-bit, linear (digitizer value = gain x sample).
+# ------------------------------------------------------- full-waveform windows
+#: Metres of range per picosecond of two-way travel time (c / 2 x 1e-12): the length of
+#: the LAS parametric line x(t), y(t), z(t).
+RANGE_PER_PS_M: Final = SPEED_OF_LIGHT_M_S / 2.0 * 1e-12
+#: Bits per stored sample: unsigned 16-bit, linear (relative power = gain x sample).
 WAVE_BITS: Final = 16
-#: Bytes of the waveform data packet record's header (an EVLR header) before the
-#: packets: wave packet offsets count from the record's start, header included.
-EVLR_HEADER_BYTES: Final = 60
-_DESCRIPTOR = struct.Struct("<BBIIdd")   # LAS 1.4 R15 wave packet descriptor, 26 bytes
+#: A window is shared by a pulse's returns where their echoes, padded by this many
+#: pulse sigmas either side (the echo has fallen to 3e-4 of its peak there), fit in it.
+WAVE_PAD_SIGMAS: Final = 4.0
 
 
 @dataclass(frozen=True)
-class WavePackets:
-    """The waveforms of a chunk's returns as LAS 1.4 point formats 4/5/9/10 store them.
+class WaveWindows:
+    """The sampled waveform windows of a chunk's returns (``wave_windows``).
 
     Attributes
     ----------
-    descriptors : list of (int, bytes)
-        (VLR record id, 26-byte payload) of each wave packet descriptor (user
-        ``LASF_Spec``), one per size in ``WAVE_PACKET_SAMPLES``.
-    data : bytes
-        The packets back to back: the payload of the waveform data packet record
-        (EVLR ``LASF_Spec`` 65535) or of a ``.wdp`` file.
-    index : (p,) uint8
-        Descriptor index of each return's packet (``wavepacket_index``).
-    offset : (p,) uint64
-        Byte offset of the packet from the start of the record, its 60-byte header
-        included (``wavepacket_offset``; add the bytes of the chunks before).
-    size : (p,) uint32
-        Packet size in bytes (``wavepacket_size``).
-    location_ps : (p,) float32
-        Time of the return from the packet's first sample, ps
-        (``return_point_wave_location``).
-    xyz_t : (p, 3) float32
-        ``x_t, y_t, z_t``: metres per picosecond back along the beam towards the
-        scanner, so that sample k lies at the point + (location_ps - k spacing) xyz_t
-        (as LASlib's waveform reader places samples).
+    start_m : (p,) float64
+        Range of each return's first sample (m); sample k at start_m + k bin_m.
+    samples : (p, w) uint16
+        The window's samples, relative power / ``gain``, rounded, clipped at 65535.
+    shared : (p,) bool
+        Whether the return's window is its pulse's shared one (all its reported echoes
+        fit) rather than one centred on its own echo.
     gain : float
-        Digitizer gain: relative power = gain x sample.
+        Relative power per count (the LAS descriptor's digitizer gain).
+    spacing_ps : int
+        Time between samples (ps): the model's bin.
     """
 
-    descriptors: list[tuple[int, bytes]]
-    data: bytes
-    index: NDArray[np.uint8]
-    offset: NDArray[np.uint64]
-    size: NDArray[np.uint32]
-    location_ps: NDArray[np.float32]
-    xyz_t: NDArray[np.float32]
+    start_m: NDArray[np.float64]
+    samples: NDArray[np.uint16]
+    shared: NDArray[np.bool_]
     gain: float
+    spacing_ps: int
+
+    def __len__(self) -> int:
+        return int(self.start_m.shape[0])
 
 
-def wave_packets(ranges: ArrayLike, powers: ArrayLike, model: WaveformModel, *,
-                 return_pulse: ArrayLike, return_range_m: ArrayLike,
-                 direction: ArrayLike, full_scale: float,
-                 first_offset: int = EVLR_HEADER_BYTES) -> WavePackets:
-    """Wave packets of the returns of a chunk: each returning pulse's waveform
-    (``waveforms``), quantised to ``WAVE_BITS`` bits, once per pulse, shared by its
-    returns.
+def waveform_gain(phys: Physics) -> float:
+    """The digitiser gain (relative power per count) of a device's stored waveforms:
+    one count is its waveform noise threshold (``detection_threshold``).
+
+    DECISION: the least significant bit at the noise floor, as a digitiser's range is
+    set: every echo the detector finds is at least one count, and the 16-bit full
+    scale is 65535 thresholds (Z+F Imager: a 0.5 reflectivity wall at normal incidence
+    clips nearer than ~1.4 m; no device's 1e6 dynamic range fits 16 linear bits, and
+    LAS 1.4 has no logarithmic sample type). A clipped sample is 65535."""
+    return detection_threshold(phys)
+
+
+def wave_windows(ranges: ArrayLike, powers: ArrayLike, model: WaveformModel, *,
+                 return_pulse: ArrayLike, echo_range_m: ArrayLike, gain: float,
+                 samples: int | None = None, out: NDArray[np.uint16] | None = None
+                 ) -> WaveWindows:
+    """Waveform windows of the returns of a chunk, on the model's bin grid (anchored
+    at range 0, as ``waveforms``), quantised to ``WAVE_BITS`` bits.
+
+    A pulse's returns share one window, centred between its nearest and farthest
+    reported echo, where those echoes padded by ``WAVE_PAD_SIGMAS`` sigmas fit in it;
+    otherwise each return gets the window centred on its own echo (a dust echo far
+    before the wall). Windows start at range >= 0.
 
     Parameters
     ----------
     ranges, powers : (n, m) array_like of float
-        The chunk's contributions, as for ``waveforms`` (``pulse_echoes`` takes the
-        sub-rays and a particle: stack them the same way).
+        The chunk's contributions, the particle included (``pulse_echoes``'s stacking:
+        the summed waveform the echoes were detected in).
     model : WaveformModel
     return_pulse : (p,) array_like of int
-        Pulse of each return (``ChunkReturns.pulse``).
-    return_range_m : (p,) array_like of float
-        Range of each return (m; the measured one, noise included).
-    direction : (p, 3) array_like of float
-        Unit beam direction of each return, in the frame of the file's coordinates.
-    full_scale : float > 0
-        Relative power of the largest sample value (65535); larger samples clip.
-        DECISION: a device's saturation power (``Physics.saturation_power``) is the
-        natural choice: a white target at normal incidence at the minimum range.
-    first_offset : int
-        Offset of the first packet (60: the record's header; more for later chunks).
+        Pulse (row of ``ranges``) of each return, grouped by pulse
+        (``ChunkReturns.pulse``).
+    echo_range_m : (p,) array_like of float
+        Each return's echo range (m; noise-free, as detected).
+    gain : float > 0
+        Relative power per count (``waveform_gain``).
+    samples : int >= 3, optional
+        Window length; ``sensors.io.fields.WAVE_SAMPLES`` by default.
+    out : (p, samples) uint16 array, optional
+        Where to put the samples (rows may be strided, e.g. a record array's field);
+        a new array by default.
 
     Returns
     -------
-    WavePackets
+    WaveWindows
     """
-    fs = as_number(full_scale, "full_scale", SimulationError, unit="relative power",
-                   lo=0, lo_open=True)
+    from ._kernels.waveform import sample_quantised
+    from .io.fields import WAVE_SAMPLES
+
+    w = WAVE_SAMPLES if samples is None else as_whole(samples, "samples", SimulationError,
+                                                        lo=3)
+    g = as_number(gain, "gain", SimulationError, unit="relative power per count", lo=0,
+                  lo_open=True)
     r, p = _contributions(ranges, powers)
-    pulse = np.asarray(return_pulse, dtype=np.int64)
-    rng_m = np.asarray(return_range_m, dtype=np.float64)
-    d = np.asarray(direction, dtype=np.float64).reshape(-1, 3)
-    if rng_m.shape != pulse.shape or d.shape[0] != len(pulse):
-        raise SimulationError(f"Expected `return_pulse`, `return_range_m` (p,) and "
-                              f"`direction` (p, 3) of one length, got {pulse.shape}, "
-                              f"{rng_m.shape} and {d.shape}.")
-    used = np.unique(pulse)
-    lo, nb = _rows(r[used], p[used], model)
-    start, rows = waveforms(r[used], p[used], model)
-    sizes = np.asarray(WAVE_PACKET_SAMPLES)
-    k = np.minimum(np.searchsorted(sizes, nb), len(sizes) - 1)
-    gain = fs / (2 ** WAVE_BITS - 1)
-    parts, offsets, pos = [], np.empty(len(used), dtype=np.uint64), int(first_offset)
-    for j in range(len(used)):
-        packet = np.zeros(int(sizes[k[j]]), dtype="<u2")
-        row = rows[j, :min(int(nb[j]), len(packet))]
-        packet[:len(row)] = np.clip(np.round(row / gain), 0, 2 ** WAVE_BITS - 1)
-        parts.append(packet.tobytes())
-        offsets[j] = pos
-        pos += packet.nbytes
-    at = np.searchsorted(used, pulse)
-    spacing_ps = int(round(model.bin_s * 1e12))
-    per_ps = SPEED_OF_LIGHT_M_S / 2.0 * 1e-12                      # m of range per ps
-    desc = [(99 + i + 1, _DESCRIPTOR.pack(WAVE_BITS, 0, int(n), spacing_ps, gain, 0.0))
-            for i, n in enumerate(WAVE_PACKET_SAMPLES)]
-    return WavePackets(
-        descriptors=desc, data=b"".join(parts), index=(k[at] + 1).astype(np.uint8),
-        offset=offsets[at], size=(sizes[k[at]] * WAVE_BITS // 8).astype(np.uint32),
-        location_ps=((rng_m - start[at]) / per_ps).astype(np.float32),
-        xyz_t=(-d * per_ps).astype(np.float32), gain=gain)
+    pulse = np.asarray(return_pulse, dtype=np.int64).reshape(-1)
+    x = np.asarray(echo_range_m, dtype=np.float64).reshape(-1)
+    if x.shape != pulse.shape or (len(pulse) and (pulse.min() < 0 or
+                                                   pulse.max() >= len(r))):
+        raise SimulationError(f"Expected `return_pulse` (p,) of rows of `ranges` "
+                              f"({len(r)}) and `echo_range_m` of its length, got "
+                              f"{pulse.shape} and {x.shape}.")
+    if not np.isfinite(x).all():
+        raise SimulationError("Expected finite `echo_range_m`, got inf or NaN.")
+    bm = model.bin_m
+    if len(pulse):
+        first = np.flatnonzero(np.concatenate([[True], pulse[1:] != pulse[:-1]]))
+        lo = np.minimum.reduceat(x, first)
+        hi = np.maximum.reduceat(x, first)
+        group = np.repeat(np.arange(len(first)), np.diff(np.append(first, len(pulse))))
+    else:
+        lo = hi = np.zeros(0)
+        group = np.zeros(0, dtype=np.int64)
+    pad = WAVE_PAD_SIGMAS * model.sigma_m
+    fits = (hi - lo + 2.0 * pad) / bm <= w - 1
+    shared = fits[group]
+    centre = np.where(shared, 0.5 * (lo + hi)[group], x)
+    start = np.maximum(np.round(centre / bm).astype(np.int64) - w // 2, 0)
+    q = np.zeros((len(pulse), w), dtype="<u2") if out is None else out
+    if q.shape != (len(pulse), w) or q.dtype != np.dtype("<u2"):
+        raise SimulationError(f"Expected `out` of shape ({len(pulse)}, {w}) uint16, got "
+                              f"{q.shape} {q.dtype}.")
+    # DECISION: each return's row is computed from its pulse's contributions straight
+    # into ``out`` (e.g. the records' ``wave`` field): a window shared by a dual pair
+    # is built twice, which costs less than building it once and copying rows.
+    if len(pulse):
+        sample_quantised(r, p, pulse, start, bm, model.sigma_m, 1.0 / g,
+                         float(2 ** WAVE_BITS - 1),
+                         np.empty((max(1, -(-len(pulse) // PULSE_BLOCK)), w)), q)
+    return WaveWindows(start_m=start * bm, samples=q, shared=shared,
+                       gain=g, spacing_ps=int(round(model.bin_s * 1e12)))

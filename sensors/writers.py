@@ -26,6 +26,17 @@ written under a temporary name renamed into place on a clean close: an interrupt
   stations, 3x faster to compress). A VLR (user "tunnelsim", record 1) holds the
   sensor, seed and station pose (or the platform mount of a drive) as JSON. Coordinates: scale 0.1 mm, offset = the first
   point rounded to a kilometre, so UTM coordinates keep 0.1 mm.
+  **Full waveform** (chunks of ``WAVEFORM_POINT_DTYPE``, ``Settings(waveform=True)``,
+  ``open_writer(waveform=True)``): LAS 1.4 point format 9 in a .las, 4 in a .laz (the
+  same fields as format 6 but 3-bit return numbers and a whole-degree scan angle:
+  lazrs changes varying wave packet fields of format 9 in LAZ), one wave packet
+  descriptor (``LASF_Spec`` 100: 16 bits, uncompressed, ``WAVE_SAMPLES`` samples, the
+  bin in ps, gain = the device's waveform threshold per count, offset 0) and each
+  point's packet index, offset, size, return point location and x(t), y(t), z(t). The
+  packets (each distinct window once) are spilled to a file beside the output while
+  the points stream, then become the .las's waveform data packet record (EVLR
+  ``LASF_Spec`` 65535, global encoding bit 1) or ``NAME.wdp`` (bit 2; always for
+  .laz, for .las with ``waveform_data="external"``).
 - **PLY** (``sensors.io.ply``, binary little endian): every field as a vertex property;
   the vertex count in the header is patched at the end.
 - **NPZ**: one array per field, as ``numpy.load`` returns them; chunks go to temporary
@@ -60,9 +71,11 @@ a ROS 2 bag in its ``tunnelsim`` metadata (``crs``: the WKT of the ``map`` frame
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
+import struct
 import tempfile
 import zipfile
 from pathlib import Path
@@ -84,6 +97,8 @@ from .io.fields import (
     LAS_COMPACT,
     LAS_EXTRA,
     POINT_DTYPE,
+    WAVE_SAMPLES,
+    WAVEFORM_FIELDS,
     file_records,
 )
 from .io.las import (
@@ -98,6 +113,7 @@ from .io.ply import PlyWriter
 from .spec import SensorSpec, load_sensor
 from .io.stream import Background, Stream, deferred_interrupt
 from .trajectory import Trajectory
+from .waveform import BIN_S, WAVE_BITS
 
 __all__ = ["E57_MAX_POINTS", "FORMATS", "LAS_SCALE", "PointWriter", "format_of",
            "open_writer"]
@@ -234,12 +250,37 @@ LAS_ECHO_EXTRA: tuple[tuple[str, str, str, str], ...] = (
 _RETURN_BITS = ("return_number", "number_of_returns")
 
 
+#: LAS 1.4 R15 wave packet descriptor payload (user ``LASF_Spec``, record 99 + index, 26
+#: bytes): bits per sample, compression type, number of samples, temporal sample
+#: spacing (ps), digitizer gain, digitizer offset.
+WAVE_DESCRIPTOR = struct.Struct("<BBIIdd")
+#: Bytes of the waveform data packet record's header (an EVLR header; a ``.wdp`` file
+#: starts with one too): packet offsets count from its first byte.
+WAVE_RECORD_HEADER = 60
+#: Point formats of full-waveform output: 9 in .las (format 6 plus wave packets, what
+#: every other LAS output of the simulation is), 4 in .laz (see ``_LasPoints``).
+WAVE_FORMAT_LAS, WAVE_FORMAT_LAZ = 9, 4
+#: Where waveform packets go (``open_writer(waveform_data=...)``).
+WAVEFORM_DATA = ("internal", "external")
+
+
 class _LasPoints(PointWriter):
     def __init__(self, path, *, compress: bool, fields: str, copc: bool = False,
-                 **kw) -> None:
+                 waveform: bool = False, wdp: bool = False, **kw) -> None:
         super().__init__(path, **kw)
         self._compress = compress
         self._copc = copc
+        # Full waveform (WAVEFORM_POINT_DTYPE chunks): packets are spilled to a file
+        # beside the target as they come (memory stays bounded by a chunk), then
+        # appended to the .las as its waveform EVLR or copied into NAME.wdp.
+        self._waveform = bool(waveform)
+        self._wdp = bool(wdp)
+        self._wave = False
+        self._spill: Any = None
+        self._n_packets = 0
+        self._packet_bytes = 0
+        self._last_key: tuple[float, int, int, float] | None = None
+        self._wave_desc: tuple[int, float] | None = None
         self._extra = LAS_EXTRA if fields == "full" else \
             tuple(e for e in LAS_EXTRA if e[0] in LAS_COMPACT)
         self._echo: tuple[tuple[str, str, str, str], ...] = ()
@@ -247,10 +288,12 @@ class _LasPoints(PointWriter):
         self._w: LasWriter | CopcWriter | None = None
         self._records: LasRecords | None = None
 
-    def _header(self, first_xyz):
+    def _header(self, first_xyz, wave_samples: int = 0):
         import laspy
 
-        header = laspy.LasHeader(point_format=6, version="1.4")
+        fmt = 6 if not self._wave else (WAVE_FORMAT_LAZ if self._compress else
+                                         WAVE_FORMAT_LAS)
+        header = laspy.LasHeader(point_format=fmt, version="1.4")
         header.scales = np.full(3, LAS_SCALE)
         header.offsets = offsets_near(first_xyz)
         # Each extra dimension described with its unit (sensors.io.fields.FILE_FIELDS).
@@ -266,6 +309,16 @@ class _LasPoints(PointWriter):
                                      record_data=json.dumps(self.info()).encode()))
         if self.crs is not None:
             set_las_crs(header, self.crs)
+        if self._wave:
+            assert self._wave_desc is not None
+            spacing_ps, gain = self._wave_desc
+            # One descriptor, index 1: every packet is one fixed window.
+            header.vlrs.append(laspy.VLR(
+                user_id="LASF_Spec", record_id=100, description="wave packet descriptor",
+                record_data=WAVE_DESCRIPTOR.pack(WAVE_BITS, 0, wave_samples, spacing_ps,
+                                                 gain, 0.0)))
+            if self._wdp:
+                header.global_encoding.waveform_data_packets_external = True
         return header
 
     def _write(self, c):
@@ -278,9 +331,14 @@ class _LasPoints(PointWriter):
             names = c.dtype.names or ()
             self._returns = all(n in names for n in _RETURN_BITS)
             self._echo = tuple(e for e in LAS_ECHO_EXTRA if e[1] in names)
-            self._w = self._open_file(self._header(first))
+            self._start_waves(c)
+            self._w = self._open_file(self._header(
+                first, c.dtype["wave"].shape[0] if self._wave else 0))
             self._records = LasRecords(self._w.header)
         assert self._records is not None
+        if self._wave:
+            self._write_wave(c)
+            return
         # Record fields as LAS point format 6 holds them (LAS 1.4 R15, table 21);
         # every expression is evaluated in the field's own dtype, as since the first
         # writer (files stay byte-identical); the extra bytes are copied as they are.
@@ -297,19 +355,140 @@ class _LasPoints(PointWriter):
         self._w.write_points(self._records.fill(
             (c["x"], c["y"], c["z"]), fields, records=c, copies=copies))
 
+    # ---------------------------------------------------------------- full waveform
+    def _start_waves(self, c) -> None:
+        """Open the packet spill file if the first chunk has waveforms (or refuse)."""
+        names = c.dtype.names or ()
+        self._wave = all(n in names for n, *_ in WAVEFORM_FIELDS)
+        if self._waveform and not self._wave:
+            raise PointFileError(f"Expected full-waveform records "
+                                 f"(sensors.io.fields.WAVEFORM_POINT_DTYPE) for "
+                                 f"'{self.path}', got records without them; simulate "
+                                 "with --waveform (Settings(waveform=True)).")
+        if not self._wave:
+            return
+        if self._copc:
+            raise PointFileError(f"Expected a .las or .laz output for --waveform, got "
+                                 f"'{self.path}' (copc): COPC holds no wave packets; "
+                                 "write -o NAME.las or NAME.laz.")
+        self._wave_desc = (int(c["wave_spacing_ps"][0]), float(c["wave_gain"][0]))
+        self._packet_bytes = int(c.dtype["wave"].itemsize)
+        self._spill = tempfile.NamedTemporaryFile(  # noqa: SIM115 (closed on finish)
+            dir=self.path.parent, prefix="." + self.path.name + ".", suffix=".packets",
+            delete=False)
+
+    def _write_wave(self, c) -> None:
+        """Store a chunk of full-waveform records: each distinct window once in the
+        spill file (consecutive returns of a pulse with the same window share it),
+        the points with their wave packet fields (LAS 1.4 R15, table 14)."""
+        assert self._records is not None and self._w is not None
+        assert self._wave_desc is not None and self._spill is not None
+        n = len(c)
+        if not n:
+            return
+        t, ch, co, ws = c["time"], c["channel"], c["column"], c["wave_start_m"]
+        if (np.any(c["wave_spacing_ps"] != self._wave_desc[0]) or
+                np.any(c["wave_gain"] != self._wave_desc[1])):
+            raise PointFileError(f"Expected one waveform bin and gain in '{self.path}' "
+                                 f"(its wave packet descriptor), got chunks with "
+                                 "others; write one run per file.")
+        same = np.zeros(n, dtype=np.bool_)
+        same[1:] = ((t[1:] == t[:-1]) & (ch[1:] == ch[:-1]) & (co[1:] == co[:-1]) &
+                    (ws[1:] == ws[:-1]))
+        same[0] = self._last_key == (float(t[0]), int(ch[0]), int(co[0]), float(ws[0]))
+        self._last_key = (float(t[-1]), int(ch[-1]), int(co[-1]), float(ws[-1]))
+        new = ~same
+        number = self._n_packets + np.cumsum(new) - 1
+        self._spill.write(np.ascontiguousarray(c["wave"][new], dtype="<u2").data)
+        self._n_packets += int(np.count_nonzero(new))
+        fields: dict[str, Any] = {
+            "gps_time": c["time"], "intensity": np.round(c["intensity"] * 65535),
+            "user_data": c["channel"] % 256, "point_source_id": c["frame"] % 65536,
+            "wavepacket_index": 1,
+            "wavepacket_offset": WAVE_RECORD_HEADER + number * self._packet_bytes,
+            "wavepacket_size": self._packet_bytes,
+            "return_point_wave_location": c["wave_location_ps"],
+            "x_t": c["wave_dx"], "y_t": c["wave_dy"], "z_t": c["wave_dz"]}
+        cls = np.where(c["flag"] == 2, 7, 0)
+        rn = c["return_number"].astype(np.uint8)
+        nr = c["number_of_returns"].astype(np.uint8)
+        if self._w.header.point_format.id == WAVE_FORMAT_LAZ:
+            # Point format 4 (LAS 1.4 R15, formats 1 and 4): 3 + 3 return bits, the
+            # class in the low 5 bits, the scan angle in whole degrees.
+            if nr.max() > 7:
+                raise PointFileError(f"Expected at most 7 returns per pulse in a .laz "
+                                     f"with --waveform (point format 4), got "
+                                     f"{int(nr.max())}; write -o NAME.las (point "
+                                     "format 9).")
+            fields.update(bit_fields=(rn & 0x07) | ((nr & 0x07) << 3),
+                          raw_classification=cls,
+                          scan_angle_rank=np.clip(np.round(np.rad2deg(c["elevation"])),
+                                                  -90, 90))
+        else:
+            fields.update(bit_fields=(rn & 0x0F) | (nr << 4), classification=cls,
+                          scan_angle=np.round(np.rad2deg(c["elevation"]) / 0.006))
+        copies = {name: field for name, field, _ in self._extra}
+        copies.update({name: field for name, field, _, _ in self._echo})
+        self._w.write_points(self._records.fill(
+            (c["x"], c["y"], c["z"]), fields, records=c, copies=copies))
+
+    def _write_wdp(self) -> None:
+        """NAME.wdp beside the output (LAS 1.4 R15, global encoding bit 2): the
+        waveform data packet record's header, then the packets (offsets count from
+        the file's first byte, as in the EVLR)."""
+        assert self._spill is not None
+        size = os.path.getsize(self._spill.name)
+        with atomic_writer(self.path.with_suffix(".wdp")) as out:
+            out.write(struct.pack("<H16sHQ32s", 0, b"LASF_Spec", 65535, size,
+                                  b"waveform data packets"))
+            with open(self._spill.name, "rb") as src:
+                shutil.copyfileobj(src, out, 1 << 24)
+
+    def _drop_spill(self) -> None:
+        if self._spill is not None:
+            self._spill.close()
+            with contextlib.suppress(OSError):
+                os.unlink(self._spill.name)
+            self._spill = None
+
     def _finish(self):
         if self._w is None:   # an empty run still gives a valid, empty file
-            self._w = self._open_file(self._header(np.zeros((0, 3))))
-        self._w.close()
+            if self._waveform:   # an empty full-waveform file: its layout, no packet
+                self._wave = True
+                self._wave_desc = (int(round(BIN_S * 1e12)), 1.0)
+                self._packet_bytes = 2 * WAVE_SAMPLES
+                self._spill = tempfile.NamedTemporaryFile(  # noqa: SIM115
+                    dir=self.path.parent, prefix="." + self.path.name + ".",
+                    suffix=".packets", delete=False)
+            self._w = self._open_file(self._header(np.zeros((0, 3)),
+                                                   WAVE_SAMPLES if self._wave else 0))
+        wdp = None
+        try:
+            if self._spill is not None:
+                self._spill.flush()
+                if self._wdp:   # before the LAS appears, so that it never lacks it
+                    self._write_wdp()
+                    wdp = self.path.with_suffix(".wdp")
+            self._w.close()
+        except BaseException:
+            if wdp is not None:
+                with contextlib.suppress(OSError):
+                    wdp.unlink()
+            raise
+        finally:
+            self._drop_spill()
 
     def _open_file(self, header):
         if self._copc:   # the octree is built on close (sensors.io.copc: bounded memory)
             return CopcWriter(self.path, header)
-        return LasWriter(self.path, header, compress=self._compress)
+        internal = self._spill.name if self._spill is not None and not self._wdp else None
+        return LasWriter(self.path, header, compress=self._compress,
+                         waveform_packets=internal)
 
     def _discard(self, exc):
         if self._w is not None:
             self._w.abort()
+        self._drop_spill()
 
 
 class _PlyPoints(PointWriter):
@@ -449,7 +628,8 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
                 trajectory: Trajectory | None = None,
                 span_s: tuple[float, float] | None = None, crs: Any = None,
                 thread: bool = True, start_time_ns: int | None = None,
-                ros_distro: str | None = None, returns: str | None = None) -> PointWriter:
+                ros_distro: str | None = None, returns: str | None = None,
+                waveform: bool = False, waveform_data: str | None = None) -> PointWriter:
     """A ``PointWriter`` for ``path`` (format from the suffix or ``fmt``: las, laz,
     ply, npz, e57, mcap; no suffix: a rosbag2 folder).
 
@@ -496,12 +676,41 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
     returns : str, optional
         A ROS 2 bag's return mode (``Settings.returns``): a single-echo mode keeps one
         topic, ``dual`` opens the driver's second-return topic where it has one.
+    waveform : bool
+        Full-waveform records (``Settings(waveform=True)``, ``WAVEFORM_POINT_DTYPE``):
+        only LAS and LAZ hold them (other formats are refused here, before any point
+        is simulated). A .las gets LAS 1.4 point format 9, a .laz point format 4
+        (lazrs changes varying wave packet fields of format 9 in LAZ,
+        ``sensors.io.las.LAZ_WAVE_BROKEN``; format 4's LAZ codec keeps them), each
+        point's packet a fixed ``WAVE_SAMPLES``-sample window of 16-bit samples (one
+        wave packet descriptor, index 1), stored once per distinct window.
+    waveform_data : {None, "internal", "external"}
+        Where the packets go: "internal", the .las's waveform data packet record (an
+        EVLR, global encoding bit 1); "external", NAME.wdp beside the output (bit 2).
+        None: internal for .las, external for .laz (refused: "internal" with .laz).
     """
     path = Path(path)
     f = format_of(path, fmt)
     if not path.parent.exists():
         raise PointFileError(f"Expected an existing output folder, got '{path.parent}'; "
                              "create it first.")
+    if waveform_data is not None and waveform_data not in WAVEFORM_DATA:
+        raise PointFileError(f"Expected --waveform {' or '.join(WAVEFORM_DATA)} (or no "
+                             f"value), got {waveform_data!r}.")
+    if waveform_data is not None and not waveform:
+        raise PointFileError(f"Expected --waveform {waveform_data} only for a "
+                             f"full-waveform run, got it without one; simulate with "
+                             "--waveform.")
+    if waveform and f not in ("las", "laz"):
+        raise PointFileError(f"Expected a .las or .laz output for --waveform, got "
+                             f"'{path}' ({f}): only LAS 1.4 wave packets hold the "
+                             "waveform; write -o NAME.las or NAME.laz, or leave "
+                             "--waveform out.")
+    if waveform and f == "laz" and waveform_data == "internal":
+        raise PointFileError(f"Expected --waveform external (or no value) for a .laz "
+                             f"output, got --waveform internal for '{path}': a LAZ keeps "
+                             "its packets in NAME.wdp; write -o NAME.las for packets "
+                             "inside the file.")
     if f in ("mcap", "rosbag2"):
         spec = sensor if isinstance(sensor, SensorSpec) else load_sensor(sensor)
         return _BagPoints(path, spec=spec, single_file=f == "mcap", trajectory=trajectory,
@@ -521,7 +730,8 @@ def open_writer(path: str | os.PathLike[str], *, sensor: str | SensorSpec, seed:
     streamed = dict(kw, threaded=bool(thread))
     if f in ("las", "laz", "copc"):
         return _LasPoints(path, compress=f != "las", fields=fields, copc=f == "copc",
-                          **streamed)
+                          waveform=waveform,
+                          wdp=f == "laz" or waveform_data == "external", **streamed)
     if f == "ply":
         return _PlyPoints(path, **streamed)
     if f == "npz":

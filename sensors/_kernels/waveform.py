@@ -272,3 +272,22 @@ def attribute_returns(pulse, x, r, p, n_sub, half_sep, mixed_spread, j_out, mixe
                     n_in += 1
         j_out[q] = best if best >= 0 else nearest
         mixed_out[q] = (hi - lo > mixed_spread) or n_in < n_sub
+
+
+@njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)
+def sample_quantised(r, p, src, start, bin_m, sigma_m, inv_gain, top, scratch, out):
+    """out[q, b] = min(floor(w(b) inv_gain + 0.5), top) for the waveform w of pulse
+    src[q] (as in ``detect_echoes``) on bins start[q] + b, b < out.shape[1]: digitiser
+    counts (out an unsigned integer array, rows may be strided; w >= 0, so this rounds
+    half up). scratch (k, out.shape[1]) float64: one row per block of rows (k blocks)."""
+    n = src.shape[0]
+    w = out.shape[1]
+    nblk = scratch.shape[0]
+    per = (n + nblk - 1) // nblk
+    for k in prange(nblk):
+        buf = scratch[k]
+        for q in range(k * per, min(n, (k + 1) * per)):
+            _build(r, p, src[q], start[q], w, bin_m, sigma_m, buf)
+            for b in range(w):
+                v = np.floor(buf[b] * inv_gain + 0.5)
+                out[q, b] = top if v > top else v

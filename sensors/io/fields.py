@@ -37,7 +37,8 @@ import numpy as np
 __all__ = ["FIELD_NAMES", "FIELD_UNITS", "FILE_DTYPE", "FILE_FIELDS", "FILE_NAMES",
            "FLAG_MIXED", "FLAG_PARTICLE", "FLAG_SURFACE", "LAS_COMPACT",
            "LAS_DESCRIPTIONS", "LAS_EXTRA", "MIXED_SPREAD_M", "POINT_DTYPE",
-           "RETURN_FIELDS", "RETURN_POINT_DTYPE", "XYZ",
+           "RETURN_FIELDS", "RETURN_POINT_DTYPE", "WAVEFORM_FIELDS",
+           "WAVEFORM_POINT_DTYPE", "WAVE_SAMPLES", "XYZ",
            "FileField", "field_offset", "file_records", "las_description", "point_field"]
 
 #: One simulated return (a structured NumPy dtype, native byte order).
@@ -67,6 +68,33 @@ RETURN_FIELDS: Final = (("return_number", "u1"), ("number_of_returns", "u1"),
 #: sigma, m) and echo_amplitude (its peak, relative power). The LAS writer stores the
 #: first two in the point's return bits and the echo fields as extra bytes.
 RETURN_POINT_DTYPE = np.dtype(POINT_DTYPE.descr + list(RETURN_FIELDS))
+
+#: Samples of the waveform window each return of a full-waveform run carries
+#: (``Settings(waveform=True)``; 0.25 ns bins: 64 ns, 9.59 m of range).
+#: DECISION: a fixed window in the record (not a side table of variable rows), so that
+#: waveform chunks flow through everything a chunk flows through (the replay cache,
+#: ``Run.chunks``, the writer thread) unchanged; 256 x 2 bytes per return, and the
+#: simulation takes smaller chunks in this mode (``sensors.simulate.WAVE_CHUNK_PULSES``)
+#: so that memory stays bounded. A pulse whose reported echoes fit in one window shares
+#: it (the LAS writer stores it once); otherwise each return's window is centred on its
+#: own echo.
+WAVE_SAMPLES: Final = 256
+
+#: Per-point fields of a full-waveform run, after ``RETURN_FIELDS``: ``wave_start_m``
+#: the range of the window's first sample (m; sample k lies at wave_start_m + k x bin),
+#: ``wave_location_ps`` the return's time from the first sample (ps; LAS "return point
+#: waveform location"), ``wave_dx, wave_dy, wave_dz`` the LAS parametric line x(t),
+#: y(t), z(t) (m per ps; see ``sensors.waveform.wave_windows`` for its sense),
+#: ``wave_gain`` the digitiser gain (relative power per count), ``wave_spacing_ps`` the
+#: bin (ps), ``wave`` the window's samples (uint16, little endian: the packet's bytes).
+WAVEFORM_FIELDS: Final = (("wave_start_m", "f8"), ("wave_location_ps", "f4"),
+                          ("wave_dx", "f4"), ("wave_dy", "f4"), ("wave_dz", "f4"),
+                          ("wave_gain", "f8"), ("wave_spacing_ps", "u4"),
+                          ("wave", "<u2", (WAVE_SAMPLES,)))
+
+#: One return of a full-waveform run: ``RETURN_POINT_DTYPE`` + ``WAVEFORM_FIELDS``.
+#: The LAS writer stores them as point format 9 (.las) or 4 (.laz) wave packets.
+WAVEFORM_POINT_DTYPE = np.dtype(RETURN_POINT_DTYPE.descr + list(WAVEFORM_FIELDS))
 
 #: The field names of ``POINT_DTYPE``, in file order.
 FIELD_NAMES: tuple[str, ...] = tuple(POINT_DTYPE.names or ())

@@ -590,6 +590,14 @@ class LasWriter(AtomicStream):
         Scales and offsets must be final: records are stored in them.
     evlrs : iterable of laspy VLRs
         Written after the points (LAS 1.3: only a waveform data record).
+    waveform_packets : path-like, optional
+        LAS 1.4: a file holding the waveform data packets back to back, as the points'
+        ``wavepacket_offset`` index them (the first at byte 60, after the record's
+        header): appended on ``close`` as the waveform data packet record (EVLR
+        ``LASF_Spec`` 65535) after the other EVLRs, streamed (never whole in memory);
+        the header's start of waveform data, EVLR count and (where it has no other
+        EVLR) start of the first EVLR point at it, and the global encoding says
+        "internal" (bit 1). The file is the caller's to remove.
 
     ``write_points`` takes laspy point records of the header's point format; ``close``
     writes the EVLRs, points the header at the waveform data (if any) and moves the
@@ -597,11 +605,21 @@ class LasWriter(AtomicStream):
     """
 
     def __init__(self, path: str | os.PathLike[str], header: Any, *,
-                 compress: bool | None = None, evlrs: Iterable[Any] = ()) -> None:
+                 compress: bool | None = None, evlrs: Iterable[Any] = (),
+                 waveform_packets: str | os.PathLike[str] | None = None) -> None:
         import laspy
 
         path = Path(path)
         self._evlrs = list(evlrs)
+        self._packets = None if waveform_packets is None else Path(waveform_packets)
+        if self._packets is not None:
+            if header.version.minor < 4 or any(
+                    (v.user_id, v.record_id) == WAVEFORM_EVLR for v in self._evlrs):
+                raise PointFileError(f"Expected a LAS 1.4 header without another waveform "
+                                     f"record for waveform packets, got LAS "
+                                     f"{header.version} for '{path}'.")
+            header.global_encoding.waveform_data_packets_internal = True
+            header.global_encoding.waveform_data_packets_external = False
         if header.version.minor < 4 and [v for v in self._evlrs
                                          if (v.user_id, v.record_id) != WAVEFORM_EVLR]:
             raise PointFileError(f"Expected EVLRs only in LAS 1.4 (or a waveform record in "
@@ -663,7 +681,32 @@ class LasWriter(AtomicStream):
             self._writer.close()
         if self._evlrs:
             self._place_evlrs()
+        if self._packets is not None:
+            self._append_packets(self._packets)
         super()._finish()
+
+    def _append_packets(self, packets: Path) -> None:
+        """Append the waveform data packet record (LAS 1.4 R15, 2.6: an EVLR of user
+        ``LASF_Spec``, record 65535) holding ``packets``' bytes, and point the header
+        at it: start of waveform data packet record (byte 227), start of the first
+        EVLR and EVLR count (bytes 235 and 243)."""
+        import shutil
+
+        fh = self._fh
+        pos = fh.seek(0, os.SEEK_END)
+        size = packets.stat().st_size
+        with deferred_interrupt():
+            fh.write(_EVLR_HEAD.pack(0, WAVEFORM_EVLR[0].encode(), WAVEFORM_EVLR[1], size,
+                                     b"waveform data packets"))
+            with open(packets, "rb") as src:
+                shutil.copyfileobj(src, fh, 1 << 24)
+            before = len(self._evlrs)
+            first = int(self.header.start_of_first_evlr) if before else pos
+            fh.seek(_OFFSET_WAVEFORM)
+            fh.write(struct.pack("<Q", pos))
+            fh.seek(_OFFSET_WAVEFORM + 8)
+            fh.write(struct.pack("<QI", first, before + 1))
+            fh.seek(0, os.SEEK_END)
 
     def _place_evlrs(self) -> None:
         """LAS 1.3: append the waveform record laspy does not write. Both versions:
