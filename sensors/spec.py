@@ -67,7 +67,7 @@ TABLE_KEYS: Final[Mapping[str, tuple[str, ...]]] = {
                "intensity_max", "beam_origin_offset_mm", "organized", "no_return",
                "signal_photons_at_threshold", "dual_topic_suffix"),
     # Optional (sensors.waveform.ReturnsSpec): what the device records per pulse.
-    "returns": ("modes", "dual", "max_returns", "pulse_fwhm_ns", "pulse_source"),
+    "returns": ("modes", "dual", "max_returns", "pulse_fwhm_ns", "pulse_source", "waveform"),
 }
 
 

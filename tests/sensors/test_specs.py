@@ -158,3 +158,12 @@ def test_module_docstring_examples_run():
     for mod in (sensors.spec, sensors.trajectory):
         result = doctest.testmod(mod)
         assert result.attempted >= 2 and result.failed == 0, mod.__name__
+
+
+def test_the_waveform_recorders_are_the_survey_scanners():
+    """[returns] waveform = true (ASSUMED in both files) on exactly the two Z+F
+    instruments; every other sensor refuses --waveform."""
+    from sensors.spec import list_sensors, load_sensor
+
+    assert {n for n in list_sensors() if load_sensor(n).returns.waveform} == \
+        {"zf_imager_5016", "zf_profiler_9012"}
