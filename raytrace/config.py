@@ -169,6 +169,9 @@ CUBEMAP_MAX_G = 2048
 #: Use a cube map for a single-origin batch when it has at least this many rays per
 #: triangle (building one costs about as much as casting ~0.1 rays per triangle).
 CUBEMAP_MIN_RAYS_PER_TRI = 0.5
+#: ... and never fewer than this many rays: on a tiny mesh the rule above asked a map
+#: for every run of one origin (a drive against a 2-face wall built 14,464 maps, 148 s).
+CUBEMAP_MIN_RUN = 256
 #: Give up on the cube map (use the BVH) when its lists would exceed this many entries
 #: (4 bytes each): an origin right against large triangles.
 CUBEMAP_MAX_ENTRIES = 64_000_000  # must stay below 2^31 (int32 offsets)
@@ -219,7 +222,8 @@ __all__ = [
     "CACHE", "BUILD_FASTMATH", "ERROR_MODEL", "RAY_BLOCK", "PRANGE_CHUNK",
     "BARY", "AREA_REL", "BOX_PAD_REL",
     "CUBEMAP_PAD", "CUBEMAP_HOT", "CUBEMAP_CELLS_PER_TRI", "CUBEMAP_MIN_G", "CUBEMAP_MAX_G",
-    "CUBEMAP_MIN_RAYS_PER_TRI", "CUBEMAP_MAX_ENTRIES", "ORDER_MIN_RAYS", "ORDER_BITS",
+    "CUBEMAP_MIN_RAYS_PER_TRI", "CUBEMAP_MIN_RUN", "CUBEMAP_MAX_ENTRIES", "ORDER_MIN_RAYS",
+    "ORDER_BITS",
     "ORDER_RUN",
     "SAH_BINS", "SAH_ALL_AXES", "SAH_C_TRAV", "SAH_C_ISECT", "MAX_LEAF_SIZE", "BUILD_TASKS",
     "BUILD_TASK_MIN", "MAX_LEAF_SIZE_FORCED",

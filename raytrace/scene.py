@@ -243,7 +243,8 @@ class Scene:
         # are also found in an (n, 3) array (runs of bit-identical consecutive rows, one
         # O(n) pass): a station's rays passed with one row per ray were 3x slower than
         # the same rays with a (3,) origin (issue 16).
-        min_run = max(1, int(np.ceil(config.CUBEMAP_MIN_RAYS_PER_TRI * self.n_triangles)))
+        min_run = max(config.CUBEMAP_MIN_RUN,
+                      int(np.ceil(config.CUBEMAP_MIN_RAYS_PER_TRI * self.n_triangles)))
         runs = np.empty((0, 2), dtype=np.int64)
         if n and method != "bvh":
             if org.shape[0] == 1:
