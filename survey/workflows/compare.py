@@ -11,26 +11,21 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from raytrace.fileio import atomic_writer
-from survey.errors import CompareError, TunnelsimError
+from survey.errors import CompareError
+from survey.workflows.files import ExecutorArg, opened_executor, output_folder, write_text_file
 
-__all__ = ["CompareResult", "compare_files", "opened_executor", "output_folder",
-           "write_text_file"]
+__all__ = ["CompareResult", "compare_files"]
 
 PathLike = str | os.PathLike[str]
 #: (done, total) after each block of points or each finished tile.
 ProgressFn = Callable[[int, int], None]
-#: What ``compare_files`` runs tiles on: an executor, or a function opening one when the
-#: tiles start (closed when they are done).
-ExecutorArg = Any
 
 #: Title of each kind of comparison, in the tables, the report and the figure.
 TITLES = {"mesh": "C2M (signed)", "cloud": "C2C"}
@@ -79,35 +74,6 @@ class CompareResult:
 
 
 # ---------------------------------------------------------------------------- outputs
-def output_folder(path: PathLike, *, force: bool = False,
-                  error: type[TunnelsimError] = CompareError) -> Path:
-    """An output folder: created when missing; an existing, non-empty one only with
-    ``force`` (its files are then replaced one by one, atomically). Raises ``error``.
-
-    DECISION: the messages are the command line's (they name --force): the workflows
-    write what the commands write, and the commands print these messages unchanged.
-    """
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise error(f"Expected an output folder, got '{p}' which is a file; choose "
-                    "another name.")
-    if p.is_dir() and any(p.iterdir()) and not force:
-        raise error(f"Expected a new or empty output folder, got '{p}' which holds "
-                    "files; pass --force to replace them.")
-    if not p.parent.exists():
-        raise error(f"Expected an existing parent folder for '{p}', got none; create it "
-                    "first.")
-    p.mkdir(exist_ok=True)
-    return p
-
-
-def write_text_file(path: Path, text: str) -> Path:
-    """``text`` to ``path``, atomically (the folder exists)."""
-    with atomic_writer(path, "w") as fh:
-        fh.write(text)
-    return path
-
-
 # ---------------------------------------------------------------------------- checks
 def _load_reference(path: PathLike) -> tuple[Any, str]:
     from sensors.io.clouds import read_reference
@@ -158,21 +124,6 @@ def _check_crs(compared: Sequence[PathLike], reference: PathLike,
                      "filters.reprojection), or pass --allow-crs-mismatch if a label is "
                      "wrong"))
     return stated
-
-
-@contextmanager
-def opened_executor(executor: ExecutorArg) -> Iterator[Any]:
-    """The executor to run tasks on: ``executor`` itself (left open), the one a
-    callable returns (closed at the end), or this process (None)."""
-    from survey.cluster import Executor
-
-    if executor is None:
-        yield Executor()
-    elif isinstance(executor, Executor):
-        yield executor
-    else:
-        with executor() as ex:
-            yield ex
 
 
 # ---------------------------------------------------------------------------- compare

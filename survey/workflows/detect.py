@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from raytrace.fileio import atomic_writer, write_json
+from raytrace.fileio import write_json
 from sensors import SensorSpec, load_sensor
 from survey.analysis.detectability import Detectability, DetectLayout, DetectRow
 from survey.analysis.m3c2 import M3C2Params
@@ -27,6 +27,7 @@ from survey.report.detectability import (
 from survey.report.header import write_headed_report
 from survey.world.mesh import read_tunnel
 from survey.world.presets import preset as make_preset
+from survey.workflows.files import output_folder, write_text_file
 
 __all__ = ["DETECT_FILES", "FULL", "QUICK", "DetectResult", "detect_study"]
 
@@ -79,22 +80,6 @@ class DetectResult:
     plot_path: Path
 
 
-def _out_dir(path: PathLike, force: bool) -> Path:
-    """The output folder: created when missing; a non-empty one only with ``force``."""
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise StudyError(f"Expected an output folder, got '{p}' which is a file; "
-                         "choose another name.")
-    if p.is_dir() and any(p.iterdir()) and not force:
-        raise StudyError(f"Expected a new or empty output folder, got '{p}' which "
-                         "holds files; pass --force to replace them.")
-    if not p.parent.exists():
-        raise StudyError(f"Expected an existing parent folder for '{p}', got none; "
-                         "create it first.")
-    p.mkdir(exist_ok=True)
-    return p
-
-
 def _sensors(sensors: str | Sequence[str | SensorSpec]
              ) -> tuple[list[SensorSpec], str]:
     """The sensor specs and how the header names them."""
@@ -107,12 +92,6 @@ def _sensors(sensors: str | Sequence[str | SensorSpec]
     if not names:
         raise StudyError(f"Expected --sensor NAME[,NAME...], got {sensors!r}.")
     return [s if isinstance(s, SensorSpec) else load_sensor(s) for s in names], words
-
-
-def _write_text(path: Path, text: str) -> Path:
-    with atomic_writer(path, "w") as fh:
-        fh.write(text)
-    return path
 
 
 def detect_study(output: PathLike, *, mesh: PathLike | None = None,
@@ -239,7 +218,7 @@ def detect_study(output: PathLike, *, mesh: PathLike | None = None,
                      reg_error_m)
     study = Detectability(tunnel, layout, params=prm,
                           core_spacing_m=get("core_spacing_m", core_spacing_m), seed=seed)
-    out = _out_dir(output, force)
+    out = output_folder(output, force=force, error=StudyError)
     res = get("resolution", resolution)
     rows = study.grid(specs, speeds_mps=speeds, spacings_m=spacings, noises=noise,
                       progress=progress, resolution=res, rate_hz=rate_hz,
@@ -247,8 +226,8 @@ def detect_study(output: PathLike, *, mesh: PathLike | None = None,
     paths = [out / f for f in DETECT_FILES]
     write_json(paths[0], detect_summary(study, rows, extra={
         "quick": bool(quick), "resolution": res, "rate_hz": rate_hz}))
-    _write_text(paths[1], detect_csv(rows))
-    _write_text(paths[2], targets_csv(rows))
+    write_text_file(paths[1], detect_csv(rows))
+    write_text_file(paths[2], targets_csv(rows))
     md = detect_markdown(study, rows)
     plot_detectability(rows, paths[4])
     write_headed_report(paths[3], md, inputs=[("mesh", mesh, "")] if mesh else [],

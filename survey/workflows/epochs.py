@@ -21,7 +21,7 @@ import numpy as np
 
 from raytrace.fileio import write_json
 from survey.errors import CompareError
-from survey.workflows.compare import opened_executor, output_folder, write_text_file
+from survey.workflows.files import opened_executor, output_folder, write_text_file
 
 __all__ = ["ConvergenceResult", "M3C2FileResult", "convergence_files", "m3c2_to_file"]
 

@@ -370,7 +370,7 @@ def develop_files(source: PathLike, output_dir: PathLike, *, tunnel: PathLike | 
     from survey.analysis.developed import develop_file
     from survey.report.developed import colour_scale, write_developed
     from survey.report.header import write_headed_report
-    from survey.workflows.compare import output_folder
+    from survey.workflows.files import output_folder
 
     fr = _frame(source, tunnel=tunnel, design=design, design_order=design_order,
                 design_shift_m=design_shift_m, cell_m=cell_m, cell_arc_m=cell_arc_m,
@@ -477,7 +477,7 @@ def clearance_files(source: PathLike, output_dir: PathLike, *, envelope: PathLik
     from survey.report.developed import (clearance_markdown, merge_line, regions_csv,
                                          violations_csv, write_developed)
     from survey.report.header import write_headed_report
-    from survey.workflows.compare import output_folder, write_text_file
+    from survey.workflows.files import output_folder, write_text_file
 
     fr = _frame(source, tunnel=tunnel, design=design, design_order=design_order,
                 design_shift_m=design_shift_m, cell_m=cell_m, cell_arc_m=cell_arc_m,

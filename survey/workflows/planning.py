@@ -20,7 +20,7 @@ import numpy as np
 
 from raytrace.fileio import write_json
 from survey.errors import PlanningError, StudyError, TunnelsimError
-from survey.workflows.compare import opened_executor, output_folder, write_text_file
+from survey.workflows.files import opened_executor, output_folder, write_text_file
 
 __all__ = ["PlanResult", "StudyResult", "plan_stations", "resolve_along", "run_study"]
 

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from survey.errors import CompareError
+from survey.workflows.files import output_folder, write_text_file
 
 __all__ = ["DESIGN_ORDERS", "RingsResult", "SectionsResult", "rings_files",
            "section_alignment", "sections_files"]
@@ -102,43 +103,17 @@ class RingsResult:
 # ---------------------------------------------------------------------------- shared
 @contextlib.contextmanager
 def _output_folder(path: PathLike, force: bool) -> Iterator[Path]:
-    """The output folder (``_out_dir``) for the block; removed again when the block
+    """The output folder (``output_folder``) for the block; removed again when the block
     fails and the folder was made here (the files of a folder that existed are
     replaced one by one, atomically, so a failure leaves them whole)."""
     made = not Path(path).exists()
-    out = _out_dir(path, force)
+    out = output_folder(path, force=force, error=CompareError)
     try:
         yield out
     except BaseException:
         if made:
             shutil.rmtree(out, ignore_errors=True)
         raise
-
-
-def _out_dir(path: PathLike, force: bool) -> Path:
-    """An output folder: created when missing; an existing, non-empty one only with
-    ``force`` (files in it are then replaced one by one, atomically)."""
-    p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise CompareError(f"Expected an output folder, got '{p}' which is a file; "
-                           "choose another name.")
-    if p.is_dir() and any(p.iterdir()) and not force:
-        raise CompareError(f"Expected a new or empty output folder, got '{p}' which "
-                           "holds files; pass --force to replace them.")
-    if not p.parent.exists():
-        raise CompareError(f"Expected an existing parent folder for '{p}', got none; "
-                           "create it first.")
-    p.mkdir(exist_ok=True)
-    return p
-
-
-def _write(path: Path, text: str) -> Path:
-    """``text`` written to ``path`` atomically."""
-    from raytrace.fileio import atomic_writer
-
-    with atomic_writer(path, "w") as fh:
-        fh.write(text)
-    return path
 
 
 def _check_input(path: PathLike) -> None:
@@ -385,10 +360,10 @@ def sections_files(input: PathLike, output: PathLike, *,
         cuts = _cuts(input, al, chainages, width_m, max_points, seed, classes)
         rep = compare_sections(cuts, d, alignment=al, bin_m=bin_m,
                                tolerance_edges_m=edges, seed=seed)
-        files = [_write(out / "sections.csv", sections_csv(rep)),
-                 _write(out / "volumes.csv", volumes_csv(rep)),
-                 _write(out / "contours.csv", contours_csv(rep)),
-                 _write(out / "report.json", json_text(rep.to_dict()))]
+        files = [write_text_file(out / "sections.csv", sections_csv(rep)),
+                 write_text_file(out / "volumes.csv", volumes_csv(rep)),
+                 write_text_file(out / "contours.csv", contours_csv(rep)),
+                 write_text_file(out / "report.json", json_text(rep.to_dict()))]
         if plots:
             for s in rep.sections:
                 p = out / section_png_name(s.chainage_m)
@@ -505,7 +480,7 @@ def rings_files(input: PathLike, output: PathLike, *,
                           "ovality mean little; compare it with its design profile with "
                           "'tunnelsim sections --design', or drop the invert with "
                           "--min-height.", UserWarning, stacklevel=2)
-        files = [_write(out / "rings.csv", rings_csv(rings))]
+        files = [write_text_file(out / "rings.csv", rings_csv(rings))]
         files += write_headed_report(
             out / "rings.md", rings_markdown(rings, source=Path(input).name),
             inputs=[("cloud or mesh", input, ""),
@@ -515,7 +490,7 @@ def rings_files(input: PathLike, output: PathLike, *,
         if floors is not None:
             for row, f in zip(rows, sorted(zip([c.chainage_m for c in cuts], floors))):
                 row["floor_height_m"] = f[1]
-        files.append(_write(out / "rings.json", json_text(rows)))
+        files.append(write_text_file(out / "rings.json", json_text(rows)))
         plot_rings(rings, out / "rings.png")
         files.append(out / "rings.png")
     return RingsResult(out, tuple(files), tuple(rings),
