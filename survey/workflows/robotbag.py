@@ -1,0 +1,101 @@
+"""A drive's ROS 2 bag in the frames of its robot (issue 30): what ``tunnelsim drive -o
+NAME.mcap`` (or a rosbag2 folder) writes, for a Python user.
+
+``Run.write`` writes a bag in the sensor's own frames (the points, /tf of the platform
+frame, the IMU at the sensor); a robot adds base_link, /tf_static and wheel odometry.
+``write_robot_bag`` is that writer, the one ``drive_to_file`` calls.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:                     # the writers import NumPy: loaded where they run
+    from sensors.robot import RobotDescription
+    from sensors.simulate import Run
+
+
+def write_robot_bag(path: str | os.PathLike[str], run: Run, robot: RobotDescription, *,
+                    progress: Callable[[int, int], None] | None = None, crs: Any = None,
+                    start_time_ns: int | None = None, ros_distro: str | None = None
+                    ) -> dict[str, Any]:
+    """Write ``run`` as a ROS 2 bag in the frames of ``robot``.
+
+    The bag holds /tf and the ground-truth odometry of base_link
+    (``robot.base_trajectory``), /tf_static base_link -> sensor and base_link ->
+    imu_link, the IMU at its own mount, and /odom wheel odometry
+    (``sensors.bag.DEFAULT_WHEEL_ODOMETRY``, seeded by the run's seed). The points are
+    the run's, in the sensor frame, as ``Run.write`` writes them.
+
+    Parameters
+    ----------
+    path : str or path-like
+        ``NAME.mcap`` (one MCAP file) or a folder name without a suffix (rosbag2).
+    run : sensors.Run
+        A drive (``sensors.simulate_drive``).
+    robot : sensors.robot.RobotDescription
+        What carries the sensor (its mount from base_link, its IMU).
+    progress : callable (done_pulses, total_pulses), optional
+        Called after each chunk.
+    crs : str, optional
+        The mesh's coordinate reference system (EPSG:n, WKT or PROJJSON; needs pyproj),
+        stated in the bag's metadata.
+    start_time_ns : int, optional
+        ROS time of the scan's start, ns since 1970 (default: the trajectory's times).
+    ros_distro : {"humble", "jazzy"}, optional
+        rosbag2 metadata layout of a folder bag (default jazzy).
+
+    Returns
+    -------
+    dict
+        The run's ``stats`` (pulses, points, hit_ratio, seconds, rays_per_s) plus
+        ``path`` (str).
+
+    Raises
+    ------
+    sensors.io.errors.PointFileError
+        For a path that is not a bag, or a bad ``ros_distro``.
+
+    Examples
+    --------
+    >>> from survey.workflows.robotbag import write_robot_bag
+    >>> # write_robot_bag("drive.mcap", run, RobotDescription.from_platform(...))
+    """
+    from sensors.bag import DEFAULT_WHEEL_ODOMETRY, RosbagStream
+    from sensors.io.crs import file_wkt, parse_crs
+    from sensors.writers import format_of
+
+    if run.trajectory is None:
+        from sensors.errors import SimulationError
+
+        raise SimulationError("Expected a drive (a run along a trajectory) for a robot's "
+                              "bag, got a station.")
+    spec = run.sensor
+    mount = robot.sensor_mount_from_base()
+    info = {"sensor": spec.name, "seed": run.seed,
+            "mount_lever_arm_m": list(mount.lever_arm_m),
+            "mount_boresight_xyzw": mount.boresight.as_quat().tolist(),
+            "robot": robot.name, "mast_height_m": robot.mast_height_m}
+    if crs is not None:
+        info["crs"] = file_wkt(parse_crs(crs, metric=True, what="the output CRS"))
+    bag: dict[str, Any] = {}
+    if start_time_ns is not None:
+        bag["start_time_ns"] = start_time_ns
+    if ros_distro is not None:
+        bag["ros_distro"] = ros_distro
+    span = (run.t0, run.t0 + run.duration_s)
+    with RosbagStream(path, spec, single_file=format_of(path) == "mcap", seed=run.seed,
+                      mount=mount, trajectory=robot.base_trajectory(run.trajectory),
+                      span_s=span, info=info, imu_mount=robot.imu_mount(),
+                      wheel_odometry=DEFAULT_WHEEL_ODOMETRY,
+                      returns=run.settings.returns, **bag) as w:
+        for chunk in run:
+            w.write_points(chunk)
+            if progress is not None:
+                progress(int(run.pass_stats["pulses"]), run.n_pulses)
+    return dict(run.stats, path=str(path))
+
+
+__all__ = ["write_robot_bag"]

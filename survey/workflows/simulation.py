@@ -1,0 +1,1299 @@
+"""Simulation workflows: what ``tunnelsim scan`` (one TLS station, or a campaign of
+stations) and ``tunnelsim drive`` (a sensor on a moving platform) do, as library
+functions that take paths and keyword options, write the same files and return what
+the commands print.
+
+- ``scan_to_file``: one station on a mesh -> a point file (LAS/LAZ, PLY, NPZ, E57).
+- ``scan_campaign``: stations every STEP m on the tunnel axis, or a plan's, -> one
+  file per station and ``manifest.json`` in a folder (on an executor).
+- ``drive_to_file``: a drive along a trajectory file, the tunnel's centreline or a
+  route found in the mesh -> points or a ROS 2 bag in the robot's frames, the true
+  trajectory, the robot's URDF and launch file (and with ``slam_drift`` the SLAM files).
+
+Guards (each a ``SimulationError`` naming the command-line option): a station outside
+the mesh's bounding box, a drive whose every pose is beyond the sensor's range of it
+(unless ``allow_outside``), a run that returns no point or, for a drive, fewer than
+``MIN_DRIVE_RETURN`` of its pulses; ``duration_s`` beyond the trajectory's end is
+refused before the mesh is loaded.
+
+DECISION: nothing heavy is imported at module level (NumPy, SciPy, the simulator are
+imported where they run): ``survey.cli.commands.driving`` reads this module's constants
+on every ``tunnelsim`` start, which must not load NumPy.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from sensors.errors import SimulationError
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from sensors.platform_spec import PlatformSpec
+    from sensors.robot import RobotDescription
+    from sensors.simulate import Run
+    from sensors.spec import SensorSpec
+    from sensors.trajectory import Trajectory
+    from survey.adjust.slam import DriftedRun
+    from survey.cluster import Campaign, Executor
+
+#: A callback ``progress(done, total)`` after each chunk (pulses) or task (stations).
+ProgressFn = Callable[[int, int], None]
+
+#: A drive returning fewer points than this share of its pulses is refused (unless
+#: ``allow_outside``). ASSUMED from measurements (1 s drives): inside a tunnel a
+#: platform returns most of its pulses (VLP-16 in the tbm tunnel 94 %, in the shared
+#: 80 m cave 95 %, in a 20 m tile open at both ends 80 %; a RoboSense Airy 92-97 %),
+#: and still 12 % on a path that runs partly outside the walls of an S-bend tile; a
+#: trajectory 100 m off the mesh returned 2 points of 578,704 pulses (issue 21: 6
+#: points). 1 % sits far from both.
+MIN_DRIVE_RETURN = 0.01
+#: ``along="auto"``: the clearance the route keeps from the mesh (``find_route``'s
+#: default), and that the platform's poses must keep too (issue 20).
+ROUTE_CLEARANCE_M = 0.2
+#: A campaign's station file formats (``survey.cluster.campaign.STATION_FORMATS``).
+STATION_FORMATS = ("laz", "las", "ply", "npz", "e57")
+
+
+# ---------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class RunOutput:
+    """What writing a simulated run gave.
+
+    Attributes
+    ----------
+    path : Path
+        The file (or bag folder) written.
+    pulses, points : int
+        Pulses cast, points written.
+    hit_ratio : float
+        Share of the pulses that hit a surface (NaN for a drive in time windows).
+    seconds : float
+        Simulation time (s; NaN for a drive in time windows).
+    rays_per_s : float
+        Rays cast per second (NaN for a drive in time windows).
+    """
+
+    path: Path
+    pulses: int
+    points: int
+    hit_ratio: float
+    seconds: float
+    rays_per_s: float
+
+
+@dataclass(frozen=True)
+class ScanResult:
+    """What ``scan_to_file`` wrote.
+
+    Attributes
+    ----------
+    output : RunOutput
+    sensor : str
+        The sensor's name.
+    resolution : str
+        The resolution preset scanned, or ``"custom step"``.
+    station_xyz : (float, float, float)
+        The station's position (m).
+    crs : str or None
+        The CRS the file states.
+    """
+
+    output: RunOutput
+    sensor: str
+    resolution: str
+    station_xyz: tuple[float, float, float]
+    crs: str | None
+
+    @property
+    def label(self) -> str:
+        """``"<sensor> <resolution>"``, as the command's summary starts."""
+        return f"{self.sensor} {self.resolution}"
+
+
+@dataclass(frozen=True)
+class CampaignResult:
+    """What ``scan_campaign`` wrote.
+
+    Attributes
+    ----------
+    campaign : survey.cluster.Campaign
+        The folder, ``manifest.json`` (and what it holds), each station's time.
+    sensor, resolution : str
+        The sensor's name and the resolution scanned (``"custom step"`` for a step).
+    stations, pulses, points : int
+    wall_s : float
+        Wall-clock time of the campaign (s).
+    simulation_s : float
+        Simulation time summed over the stations (s).
+    where : str
+        Where it ran (``"in-process"``, ``"local, 4 workers"`` ...).
+    """
+
+    campaign: Campaign
+    sensor: str
+    resolution: str
+    stations: int
+    pulses: int
+    points: int
+    wall_s: float
+    simulation_s: float
+    where: str
+
+    @property
+    def manifest_path(self) -> Path:
+        """The campaign's ``manifest.json``."""
+        return self.campaign.manifest_path
+
+
+@dataclass(frozen=True)
+class AutoRoute:
+    """The route a drive with ``along="auto"`` found and drove.
+
+    Attributes
+    ----------
+    csv : Path
+        ``<stem>_route.csv`` beside the output.
+    length_m, min_clearance_m, voxel_m, seconds : float
+        The route's length, its smallest clearance, the voxel it was sought on, the
+        time the search took.
+    platform, motion : str
+        The platform driven and its kind of motion.
+    drive_s : float
+        Duration of the platform's trajectory (s).
+    height_m : float
+        Sensor mount above the floor (m).
+    pose_clearance_m : float
+        Smallest distance of the platform's poses to the mesh (m).
+    """
+
+    csv: Path
+    length_m: float
+    min_clearance_m: float
+    voxel_m: float
+    seconds: float
+    platform: str
+    motion: str
+    drive_s: float
+    height_m: float
+    pose_clearance_m: float
+
+
+@dataclass(frozen=True)
+class SweepCut:
+    """A drive cut back to its last whole sweep (revolution or profile).
+
+    Attributes
+    ----------
+    sweeps : int
+    period_s : float
+        One sweep (s).
+    start_s, end_s : float
+        The drive's start and its new end (s).
+    left_out_s : float
+        The partial sweep left out (s).
+    """
+
+    sweeps: int
+    period_s: float
+    start_s: float
+    end_s: float
+    left_out_s: float
+
+
+@dataclass(frozen=True)
+class SlamFiles:
+    """The files of a drive observed through a drifting SLAM (``slam_drift``).
+
+    Attributes
+    ----------
+    trajectory, true_trajectory, cp_observed, cp_world : Path
+    observed : int
+        Control points observed.
+    """
+
+    trajectory: Path
+    true_trajectory: Path
+    cp_observed: Path
+    cp_world: Path
+    observed: int
+
+
+@dataclass(frozen=True)
+class RobotFiles:
+    """The drive's robot description (``sensors.robot``) and the files written of it.
+
+    Attributes
+    ----------
+    name : str
+    mast_height_m : float
+        base_link below the platform frame (m).
+    urdf, launch : Path
+        ``<stem>_robot.urdf`` and ``<stem>_robot.launch.py``.
+    """
+
+    name: str
+    mast_height_m: float
+    urdf: Path
+    launch: Path
+
+
+@dataclass(frozen=True)
+class DriveResult:
+    """What ``drive_to_file`` wrote.
+
+    Attributes
+    ----------
+    output : RunOutput
+    sensor : str
+    duration_s : float
+        The time driven (s).
+    crs : str or None
+        The CRS the output states (None for a drifted cloud).
+    route : AutoRoute or None
+        With ``along="auto"``.
+    sweeps : SweepCut or None
+        When the drive was cut back to its last whole sweep.
+    true_trajectory : Path or None
+        ``<stem>_true_trajectory.txt`` (also written, as the SLAM's truth, with
+        ``slam_drift``).
+    base_trajectory : Path or None
+        ``<stem>_base_link_trajectory.txt``, where base_link is not the platform frame.
+    poses : int
+        Poses of the true trajectory.
+    slam : SlamFiles or None
+    robot : RobotFiles
+    windows : int
+        Time windows simulated (0: one piece).
+    window_s : float or None
+    where : str or None
+        Where the windows ran.
+    """
+
+    output: RunOutput
+    sensor: str
+    duration_s: float
+    crs: str | None
+    route: AutoRoute | None
+    sweeps: SweepCut | None
+    true_trajectory: Path | None
+    base_trajectory: Path | None
+    poses: int
+    slam: SlamFiles | None
+    robot: RobotFiles
+    windows: int
+    window_s: float | None
+    where: str | None
+
+    @property
+    def label(self) -> str:
+        """``"<sensor> drive <duration> s"``, as the command's summary starts."""
+        return f"{self.sensor} drive {self.duration_s:.1f} s"
+
+
+# ---------------------------------------------------------------------- small pieces
+def sweep_rate_hz(spec: SensorSpec) -> float | None:
+    """Sweeps per second of a sensor: a spinning lidar's revolutions, a profiler's
+    profiles; None for a terrestrial scanner (it has no sweeps a drive is cut at).
+
+    Examples
+    --------
+    >>> from sensors import load_sensor
+    >>> sweep_rate_hz(load_sensor("velodyne_vlp16"))
+    10.0
+    """
+    from sensors.spec import ProfilerPattern, SpinningPattern
+
+    p = spec.pattern
+    if isinstance(p, SpinningPattern):
+        return float(p.rotation_hz)
+    if isinstance(p, ProfilerPattern):
+        return float(p.profile_rate_hz)
+    return None
+
+
+def output_stem(out: str | os.PathLike[str]) -> str:
+    """The stem the files beside an output are named after: ``d`` for ``d.laz`` and
+    for ``d.copc.laz`` (COPC's double suffix), ``d`` for a bag folder ``d``."""
+    name = Path(out).name
+    return name[:-len(".copc.laz")] if name.lower().endswith(".copc.laz") else Path(out).stem
+
+
+def beside(out: str | os.PathLike[str], suffix: str) -> Path:
+    """The file ``<stem><suffix>`` beside output ``out`` (``output_stem``)."""
+    p = Path(out)
+    return p.with_name(f"{output_stem(p)}{suffix}")
+
+
+def station_heading_deg(heading_deg: float | None, azimuth_deg: float | None) -> float:
+    """A station's heading in degrees counter-clockwise from +x (east), from a heading
+    or from an azimuth (clockwise from grid north, +y): heading = 90 - azimuth; 0 when
+    neither is given.
+
+    Examples
+    --------
+    >>> station_heading_deg(None, 30.0)
+    60.0
+    """
+    if azimuth_deg is not None:
+        return 90.0 - azimuth_deg
+    return 0.0 if heading_deg is None else heading_deg
+
+
+def output_crs(mesh: str | os.PathLike[str], crs: str | None = None, *,
+               tunnel_json: str | os.PathLike[str] | None = None) -> str | None:
+    """The CRS a simulation's output states: ``crs`` (``--crs``), else the mesh's (its
+    tunnel JSON's ``crs``, or a ``<mesh>.prj`` sidecar), else None.
+
+    Raises
+    ------
+    sensors.io.crs.CRSError
+        For a ``crs`` that pyproj cannot read, or one against the mesh's own.
+    """
+    from sensors.io.clouds import cloud_crs_text
+    from sensors.io.crs import CRSError, mismatch_message, parse_crs, same_crs
+    from survey.world.mesh import read_meta, tunnel_crs
+
+    where = str(tunnel_json or mesh)
+    stated = tunnel_crs(read_meta(Path(tunnel_json))) if tunnel_json else \
+        cloud_crs_text(mesh)
+    if crs is None:
+        return stated
+    parsed = parse_crs(crs, what="--crs")
+    if stated is not None and not same_crs(parsed, stated):
+        raise CRSError(mismatch_message(("--crs", parsed), (where, stated),
+                                        what="output and the mesh",
+                                        hint="leave --crs out to take the mesh's"))
+    return parsed
+
+
+def trimmed(traj: Trajectory, t_end: float | None) -> Trajectory:
+    """``traj`` up to ``t_end`` (s), its last pose interpolated at ``t_end``: what a
+    drive with a duration covers. The same trajectory when ``t_end`` is None or at its
+    end, or when it is static."""
+    import numpy as np
+
+    from sensors import Trajectory
+
+    if t_end is None or len(traj) < 2 or t_end >= traj.end_s:
+        return traj
+    t = np.append(traj.times[traj.times < t_end], t_end)
+    pos, rot = traj.interpolate(t)
+    return Trajectory(t, pos, rot)
+
+
+def drive_end(duration_s: float | None, traj: Trajectory) -> float | None:
+    """The end time of a drive of ``duration_s`` (None: the whole trajectory).
+
+    Raises
+    ------
+    SimulationError
+        For a duration that is not positive or runs past the trajectory's end.
+    """
+    if duration_s is None:
+        return None
+    if not (math.isfinite(duration_s) and duration_s > 0):
+        raise SimulationError(f"Expected a positive --duration in seconds, got "
+                              f"{duration_s:g}.")
+    if len(traj) > 1 and duration_s > traj.duration_s * (1 + 1e-12) + 1e-9:
+        raise SimulationError(f"Expected --duration at most the trajectory's "
+                              f"{traj.duration_s:g} s (t = {traj.start_s:g} to "
+                              f"{traj.end_s:g} s), got {duration_s:g} s; leave --duration "
+                              "out to drive all of it.")
+    return traj.start_s + duration_s
+
+
+def whole_sweeps_end(spec: SensorSpec, traj: Trajectory, t_end: float | None
+                     ) -> tuple[float | None, SweepCut | None]:
+    """The end time of a drive cut back to its last whole sweep (a spinning lidar's
+    revolution, a profiler's profile; sweeps start at the trajectory's first instant),
+    and what was cut; ``(t_end, None)`` for a terrestrial scanner, a static platform,
+    or a drive shorter than one sweep or ending on a whole sweep."""
+    rate = sweep_rate_hz(spec)
+    if not rate or len(traj) < 2:
+        return t_end, None
+    end = traj.end_s if t_end is None else t_end
+    n = math.floor((end - traj.start_s) * rate + 1e-9)
+    whole = traj.start_s + n / rate
+    if n < 1 or whole >= end - 1e-9:
+        return t_end, None
+    return whole, SweepCut(n, 1 / rate, traj.start_s, whole, end - whole)
+
+
+def _box_text(lo: Any, hi: Any) -> str:
+    return f"{xyz_text(lo)}-{xyz_text(hi)}"
+
+
+def xyz_text(p: Any) -> str:
+    """(x, y, z) to the millimetre (a BVH box is padded by ~1e-6 of its size)."""
+    return "(" + ", ".join(f"{round(float(c), 3) + 0.0:.10g}" for c in p) + ")"
+
+
+def _output(stats: dict[str, Any], path: str | os.PathLike[str]) -> RunOutput:
+    return RunOutput(Path(path), int(stats["pulses"]), int(stats["points"]),
+                     float(stats["hit_ratio"]), float(stats["seconds"]),
+                     float(stats["rays_per_s"]))
+
+
+def _check_returned(label: str, pulses: int, points: int, min_return: float,
+                    where: str, *, share: bool = True) -> None:
+    """Refuse a run that returned no point, or fewer than ``min_return`` of its pulses
+    (``where`` says what the caller knows: the poses, the mesh's box; ``share``: say
+    the share returned)."""
+    if points == 0 or points < min_return * pulses:
+        said = f" ({100 * points / max(pulses, 1):.2g} % returned, below " \
+               f"{100 * min_return:g} %)" if points and share else ""
+        raise SimulationError(f"Expected the {label} to see the mesh, got {points:,} "
+                              f"points from {pulses:,} pulses{said}{where}.")
+
+
+def _write_run(run: Run, output: str | os.PathLike[str], *, fields: str | None,
+               crs: Any, progress: ProgressFn | None,
+               bag: dict[str, Any] | None = None,
+               robot: RobotDescription | None = None,
+               waveform_data: str | None = None) -> RunOutput:
+    """Write ``run`` to ``output``: a bag in the frames of ``robot`` when given and the
+    output is a bag (``survey.workflows.robotbag``), else ``Run.write`` (which refuses
+    a waveform run into a bag)."""
+    from sensors.writers import format_of
+
+    wave: dict[str, Any] = {} if waveform_data is None else \
+        {"waveform_data": waveform_data}
+    if robot is not None and format_of(output) in ("mcap", "rosbag2") and \
+            not getattr(run.settings, "waveform", False):
+        from survey.workflows.robotbag import write_robot_bag
+
+        stats = write_robot_bag(output, run, robot, progress=progress, crs=crs,
+                                **(bag or {}))
+    else:
+        # A drifted run (slam_drift) states no CRS, and its write takes none.
+        stats = run.write(output, progress=progress, fields=fields,
+                          **({} if crs is None else {"crs": crs}), **(bag or {}), **wave)
+    return _output(stats, output)
+
+
+def _lever(lever_arm_m: Sequence[float]) -> tuple[float, float, float]:
+    vals = [float(v) for v in lever_arm_m]
+    if len(vals) != 3 or not all(map(math.isfinite, vals)):
+        raise SimulationError(f"Expected --lever as X,Y,Z in metres, got "
+                              f"{','.join(f'{v:g}' for v in vals)!r}.")
+    return vals[0], vals[1], vals[2]
+
+
+def _settings(settings: Any) -> Any:
+    from sensors import Settings
+
+    return Settings() if settings is None else settings
+
+
+def _sensor(sensor: str | os.PathLike[str] | SensorSpec, rate_hz: float | None = None
+            ) -> SensorSpec:
+    from sensors import load_sensor
+    from sensors.spec import SensorSpec, with_rate
+
+    spec = sensor if isinstance(sensor, SensorSpec) else load_sensor(sensor)
+    return spec if rate_hz is None else with_rate(spec, rate_hz)
+
+
+# ------------------------------------------------------------------------------- scan
+def scan_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], *,
+                 sensor: str | os.PathLike[str] | SensorSpec = "zf_imager_5016",
+                 at: Sequence[float] | None = None, chainage_m: float | None = None,
+                 height_m: float = 1.5, tunnel_json: str | os.PathLike[str] | None = None,
+                 resolution: str | None = None, step_rad: float | None = None,
+                 heading_rad: float = 0.0, allow_outside: bool = False,
+                 crs: str | None = None, settings: Any = None, seed: int = 0,
+                 reflectivity: float = 0.5, fields: str | None = None,
+                 waveform_data: str | None = None,
+                 progress: ProgressFn | None = None) -> ScanResult:
+    """Simulate one terrestrial laser scanner station on a mesh into a point file:
+    what ``tunnelsim scan`` does.
+
+    Parameters
+    ----------
+    mesh : str or path-like
+        Mesh file (PLY with reflectivity, OBJ, ...).
+    output : str or path-like
+        Point file: .laz, .las, .ply, .npz or .e57.
+    sensor : str, path-like or SensorSpec
+        A sensor name, a TOML file or a loaded spec.
+    at : (3,) float, optional
+        Station position (m). Give ``at`` or ``chainage_m``.
+    chainage_m : float, optional
+        Station on the tunnel axis (``tunnel_json`` or the mesh's .json), ``height_m``
+        above the floor.
+    height_m : float
+        Instrument height above the floor with ``chainage_m`` (m).
+    tunnel_json : str or path-like, optional
+        The axis for ``chainage_m`` and the CRS (default: the mesh's .json).
+    resolution : str, optional
+        Resolution preset of the sensor (default its own).
+    step_rad : float, optional
+        Angular step instead of a preset (rad).
+    heading_rad : float
+        Station heading counter-clockwise from +x (rad).
+    allow_outside : bool
+        Scan from a station outside the mesh's bounding box.
+    crs : str, optional
+        CRS of the mesh's coordinates, stated in the file (default the mesh's own).
+    settings : sensors.Settings, optional
+        Physics switches (default ``Settings()``).
+    seed : int
+    reflectivity : float
+        Reflectivity where the mesh has none.
+    fields : {"compact", "full"}, optional
+        LAS/LAZ extra bytes.
+    waveform_data : {"internal", "external"}, optional
+        With ``settings.waveform``: the wave packets in the .las, or in ``NAME.wdp``
+        beside the output (default: the format's, ``sensors.writers``).
+    progress : callable (done_pulses, total_pulses), optional
+
+    Returns
+    -------
+    ScanResult
+
+    Raises
+    ------
+    SimulationError
+        A station outside the mesh's box (unless ``allow_outside``), a station that
+        returns no point, a chainage off the axis.
+    sensors.io.errors.FileFormatError
+        An unreadable mesh or tunnel JSON.
+
+    Examples
+    --------
+    >>> from survey.workflows.simulation import scan_to_file
+    >>> # r = scan_to_file("tunnel.ply", "station.laz", at=(10, 0, 1.5),
+    >>> #                  resolution="low")
+    >>> # r.output.points, r.output.path
+    """
+    import numpy as np
+    from scipy.spatial.transform import Rotation
+
+    from sensors import simulate_station
+    from sensors.io.meshes import load_mesh
+    from sensors.patterns import TLSScan
+
+    spec = _sensor(sensor)
+    scene, refl = load_mesh(mesh)
+    stated = output_crs(mesh, crs, tunnel_json=tunnel_json)
+    if chainage_m is not None:
+        pos = stations_on_axis(mesh, scene, [chainage_m], "--chainage", height_m=height_m,
+                               tunnel_json=tunnel_json)[0]
+    elif at is not None:
+        pos = np.asarray(at, dtype=np.float64)
+    else:
+        raise SimulationError("Expected a station, got neither --at nor --chainage; "
+                              "pass --at X,Y,Z.")
+    lo, hi = scene.bounds
+    if not allow_outside and ((np.asarray(pos) < lo) | (np.asarray(pos) > hi)).any():
+        raise SimulationError(f"Expected a station inside the mesh's bounding box "
+                              f"{_box_text(lo, hi)}, got {xyz_text(pos)}; is it in another "
+                              "coordinate frame? Pass --allow-outside to scan the mesh "
+                              "from outside.")
+    with warnings.catch_warnings():
+        # Refused above, or allowed by allow_outside: the library's warning is said.
+        warnings.filterwarnings("ignore", "Station .* outside the mesh", UserWarning)
+        run = simulate_station(scene, spec, pos, attitude=Rotation.from_euler(
+                                   "z", heading_rad), resolution=resolution,
+                               step_rad=step_rad, settings=_settings(settings), seed=seed,
+                               reflectivity=refl if refl is not None else reflectivity)
+    res = (run.scan.resolution if isinstance(run.scan, TLSScan) else None) or \
+        "custom step"
+    out = _write_run(run, output, fields=fields, crs=stated, progress=progress,
+                     waveform_data=waveform_data)
+    _check_returned(f"{spec.name} {res}", out.pulses, out.points, 0.0,
+                    f" at {xyz_text(pos)}; put the station where it sees the mesh")
+    xyz = tuple(float(c) for c in pos)
+    return ScanResult(out, spec.name, res, (xyz[0], xyz[1], xyz[2]), stated)
+
+
+def stations_on_axis(mesh: str | os.PathLike[str], scene: Any, chainages: ArrayLike,
+                     flag: str, *, height_m: float,
+                     tunnel_json: str | os.PathLike[str] | None = None) -> Any:
+    """Stations (k, 3) float64 on the tunnel axis (``tunnel_json`` or the mesh's .json)
+    at ``chainages`` (k,) m, ``height_m`` above the floor of ``scene``; ``flag`` names
+    the option the chainages came from in the errors."""
+    from survey.analysis.planning import axis_stations
+    from survey.world.mesh import read_axis, sidecar
+
+    js = Path(tunnel_json) if tunnel_json else sidecar(Path(mesh))
+    if not js.is_file():
+        other = " or --at X,Y,Z" if flag == "--chainage" else ""
+        raise SimulationError(f"Expected a tunnel JSON for {flag} ('{js}'), got none; "
+                              f"pass --tunnel-json{other}.")
+    al, hc = read_axis(js)
+    c0, c1 = al.chainage_range
+    import numpy as np
+
+    ch = np.asarray(chainages, dtype=np.float64).reshape(-1)
+    lo, hi = float(ch.min()), float(ch.max())
+    if not (c0 <= lo and hi <= c1):
+        got = f"{lo:g}" if lo == hi else f"{lo:g} to {hi:g} m"
+        raise SimulationError(f"Expected {flag} within [{c0:g}, {c1:g}] m, got {got}.")
+    return axis_stations(scene, al, hc, ch, height_m=height_m)
+
+
+def _number_text(x: float) -> str:
+    """``x`` as a user would type it: ``10`` for 10.0, ``0.1`` for 0.1."""
+    short = f"{x:g}"
+    return short if float(short) == x else repr(float(x))
+
+
+def _campaign_stations(mesh: str | os.PathLike[str], scene: Any, heading_rad: float, *,
+                       chainages_m: Sequence[float] | None, plan: Any,
+                       plan_name: str | None, height_m: float,
+                       tunnel_json: Any) -> tuple[list[Any], dict[str, Any]]:
+    """(the stations of ``chainages_m`` or ``plan``, what the manifest says of them)."""
+    import numpy as np
+
+    from survey.cluster import Station, read_plan
+
+    if plan is not None:
+        name, stations = read_plan(plan, plan_name)
+        return [Station(s.position, heading_rad, s.chainage_m) for s in stations], \
+            {"plan": str(plan), "plan_name": name}
+    start, stop, step = (float(v) for v in chainages_m or ())
+    text = ":".join(_number_text(v) for v in (start, stop, step))
+    if not (all(map(math.isfinite, (start, stop, step))) and step > 0 and stop >= start):
+        raise SimulationError(f"Expected --chainages START:STOP:STEP with STEP > 0 and "
+                              f"STOP >= START, got {text!r}.")
+    # Chainages on the grid START + k STEP up to STOP, STOP included when on it (to a
+    # micrometre: 0.1 steps do not add up exactly in binary).
+    ch = start + step * np.arange(int(math.floor((stop - start) / step + 1e-9)) + 1)
+    xyz = stations_on_axis(mesh, scene, ch, "--chainages", height_m=height_m,
+                           tunnel_json=tunnel_json)
+    return [Station((float(x), float(y), float(z)), heading_rad, float(c))
+            for (x, y, z), c in zip(xyz, ch)], {"chainages": text, "height_m": height_m}
+
+
+def scan_campaign(mesh: str | os.PathLike[str], folder: str | os.PathLike[str], *,
+                  chainages_m: Sequence[float] | None = None,
+                  plan: str | os.PathLike[str] | None = None, plan_name: str | None = None,
+                  sensor: str | os.PathLike[str] | SensorSpec = "zf_imager_5016",
+                  height_m: float = 1.5, tunnel_json: str | os.PathLike[str] | None = None,
+                  resolution: str | None = None, step_rad: float | None = None,
+                  heading_rad: float = 0.0, allow_outside: bool = False,
+                  fmt: str = "laz", crs: str | None = None, settings: Any = None,
+                  seed: int = 0, reflectivity: float = 0.5, fields: str | None = None,
+                  executor: Executor | None = None,
+                  progress: ProgressFn | None = None) -> CampaignResult:
+    """Simulate a campaign of TLS stations into ``folder``: one file per station and
+    ``manifest.json``, on ``executor`` (what ``tunnelsim scan --chainages`` / ``--plan``
+    does).
+
+    Parameters
+    ----------
+    mesh : str or path-like
+    folder : str or path-like
+        Output folder, created when missing (its parent must exist); files in it are
+        replaced one by one.
+    chainages_m : (start, stop, step) float, optional
+        A station every ``step`` m from ``start`` to ``stop`` (included when on the
+        grid) on the tunnel axis, ``height_m`` above the floor.
+    plan : str or path-like, optional
+        A ``plan.json`` of ``tunnelsim plan``; ``plan_name`` picks one of its plans
+        (default the optimised one, or the only one). Give ``chainages_m`` or ``plan``.
+    sensor, height_m, tunnel_json, resolution, step_rad, heading_rad
+        As in ``scan_to_file``.
+    allow_outside, crs, settings, seed, reflectivity, fields
+        As in ``scan_to_file``.
+    fmt : {"laz", "las", "ply", "npz", "e57"}
+        The stations' file format.
+    executor : survey.cluster.Executor, optional
+        Where the stations run (default in this process).
+    progress : callable (done_stations, total_stations), optional
+
+    Returns
+    -------
+    CampaignResult
+
+    Raises
+    ------
+    SimulationError
+        A sensor that is not a TLS, stations outside the mesh's box (unless
+        ``allow_outside``), a station that returns no point, chainages off the axis.
+
+    Examples
+    --------
+    >>> from survey.workflows.simulation import scan_campaign
+    >>> # r = scan_campaign("tunnel.ply", "campaign", chainages_m=(10, 50, 10),
+    >>> #                   resolution="low")
+    >>> # r.manifest_path, r.points
+    """
+    import time
+    from dataclasses import asdict
+
+    import numpy as np
+
+    from sensors.io.meshes import load_mesh
+    from sensors.spec import TLSPattern
+    from survey.cluster import Executor, scan_stations
+
+    if plan_name is not None and plan is None:
+        raise SimulationError("Expected --plan-name with --plan, got it with --chainages.")
+    if (plan is None) == (chainages_m is None):
+        raise SimulationError("Expected one of --chainages START:STOP:STEP or --plan "
+                              "PLAN_JSON, got " + ("both." if plan is not None else
+                                                   "neither."))
+    spec = _sensor(sensor)
+    if not isinstance(spec.pattern, TLSPattern):
+        raise SimulationError(f"Expected a TLS sensor for a campaign of stations, got "
+                              f"{spec.name} ({spec.kind}); use 'tunnelsim drive'.")
+    out = Path(folder)
+    out.mkdir(exist_ok=True)
+    stated = output_crs(mesh, crs, tunnel_json=tunnel_json)
+    ex = Executor() if executor is None else executor
+    scene, refl = load_mesh(mesh)
+    stations, info = _campaign_stations(mesh, scene, heading_rad, chainages_m=chainages_m,
+                                        plan=plan, plan_name=plan_name, height_m=height_m,
+                                        tunnel_json=tunnel_json)
+    lo, hi = scene.bounds
+    at = np.array([s.position for s in stations])
+    outside = np.flatnonzero(((at < lo) | (at > hi)).any(axis=1))
+    if len(outside) and not allow_outside:
+        raise SimulationError(f"Expected every station inside the mesh's bounding box "
+                              f"{_box_text(lo, hi)}, got station {int(outside[0])} at "
+                              f"{xyz_text(at[outside[0]])} ({len(outside)} outside); is "
+                              "the plan of another mesh? Pass --allow-outside to scan "
+                              "them anyway.")
+    settings = _settings(settings)
+    t0 = time.perf_counter()
+    camp = scan_stations(scene, spec, stations, out, executor=ex, resolution=resolution,
+                         step_rad=step_rad, settings=settings, seed=seed,
+                         reflectivity=refl if refl is not None else reflectivity,
+                         fmt=fmt, fields=fields, crs=stated, progress=progress,
+                         info={"mesh": str(mesh), **info, "settings": asdict(settings)})
+    wall = time.perf_counter() - t0
+    empty = [s["station"] for s in camp.manifest["stations"] if s["points"] == 0]
+    if empty:
+        raise SimulationError(f"Expected every station to see the mesh, got no point at "
+                              f"station {empty[0]} ({len(empty)} such); put the stations "
+                              "where they see the mesh.")
+    res = resolution or ("custom step" if step_rad is not None else
+                         spec.pattern.default_resolution)
+    where = f"{ex.kind}, {ex.workers} workers" if ex.workers > 1 else ex.kind
+    return CampaignResult(camp, spec.name, res, len(stations), camp.pulses, camp.points,
+                          wall, float(camp.seconds.sum()), where)
+
+
+# ------------------------------------------------------------------------------ drive
+def _check_drive_options(*, trajectory: Any, along: str | None, waypoints: Any,
+                         clearance_m: float | None, voxel_m: float | None,
+                         platform: Any, level: bool, chainage_m: Any, offset_m: float,
+                         slam_drift: bool, window_s: float | None, mount: str) -> None:
+    """Refuse option combinations a drive does not take (each error names the
+    command-line option)."""
+    if window_s is not None and slam_drift:
+        raise SimulationError("Expected --window-s without --slam-drift (the drifted "
+                              "cloud is written in one piece), got both.")
+    if slam_drift and not along:
+        raise SimulationError("Expected --along centreline with --slam-drift (the control "
+                              "points come from the tunnel's JSON), got a trajectory "
+                              "file.")
+    if along not in (None, "centreline", "auto"):
+        raise SimulationError(f"Expected --along centreline or auto, got {along!r}.")
+    if mount not in ("level", "down"):
+        raise SimulationError(f"Expected --mount level or down, got {mount!r}.")
+    auto = along == "auto" and trajectory is None
+    if waypoints is not None and not auto:
+        other = "--trajectory" if trajectory is not None else "--along centreline"
+        raise SimulationError(f"Expected --waypoints with --along auto, got it with "
+                              f"{other}.")
+    given = [f for f, on in (("--platform", platform is not None), ("--level", level)) if on]
+    if trajectory is not None and given:
+        raise SimulationError(f"Expected {given[0]} with --along, got it with "
+                              "--trajectory (the file gives the platform's poses).")
+    route_opts = [f for f, on in (("--clearance", clearance_m is not None),
+                                  ("--voxel", voxel_m is not None)) if on]
+    if route_opts and not auto:
+        raise SimulationError(f"Expected {route_opts[0]} with --along auto (it shapes "
+                              "the route found in the mesh), got it without.")
+    for flag, value in (("--clearance", clearance_m), ("--voxel", voxel_m)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise SimulationError(f"Expected a positive {flag} in metres, got {value:g}.")
+    bad = [flag for flag, on in (("--slam-drift", slam_drift),
+                                 ("--chainage", chainage_m is not None),
+                                 ("--offset", bool(offset_m))) if on]
+    if auto and bad:
+        hint = ("; use --waypoints and --duration to choose the part driven"
+                if bad[0] == "--chainage" else "")
+        raise SimulationError(f"Expected {bad[0]} with --along centreline (it needs the "
+                              f"tunnel's JSON), got it with --along auto{hint}.")
+
+
+def _bag_options(output: str | os.PathLike[str], start_time: str | float | None,
+                 ros_distro: str | None) -> dict[str, Any]:
+    """``start_time`` and ``ros_distro`` for the bag writer (checked before
+    simulating)."""
+    if start_time is None and ros_distro is None:
+        return {}
+    from sensors.bag import parse_start_time
+    from sensors.writers import format_of
+
+    if format_of(output) not in ("mcap", "rosbag2"):
+        raise SimulationError(f"Expected --start-time and --ros-distro with a ROS 2 bag "
+                              f"(-o NAME.mcap or a folder), got -o {output}.")
+    out: dict[str, Any] = {}
+    if start_time is not None:
+        out["start_time_ns"] = parse_start_time(str(start_time))
+    if ros_distro is not None:
+        out["ros_distro"] = ros_distro
+    return out
+
+
+def _tunnel_meta(mesh: str | os.PathLike[str]) -> dict[str, Any]:
+    """The JSON beside a generated tunnel's mesh (alignment, control points)."""
+    import json
+
+    from sensors.io.errors import TunnelFileError
+    from survey.world.mesh import sidecar
+
+    js = sidecar(Path(mesh))
+    if not js.is_file():
+        raise TunnelFileError(f"Expected the tunnel metadata '{js}' for --along centreline "
+                              "(made by 'tunnelsim tunnel'), got none; pass --trajectory "
+                              "instead.")
+    try:
+        meta = json.loads(js.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise TunnelFileError(f"Expected JSON in '{js}', got unreadable text ({exc}).") \
+            from exc
+    if not isinstance(meta, dict) or "alignment" not in meta:
+        raise TunnelFileError(f"Expected an 'alignment' in '{js}' (a JSON written by "
+                              "'tunnelsim tunnel'), got none.")
+    return meta
+
+
+def _centreline(meta: dict[str, Any], platform: PlatformSpec, speed_mps: float, *,
+                scene: Any, chainage_m: Sequence[float] | None, margin_m: float,
+                offset_m: float, height_m: float | None, accel_mps2: float | None,
+                level: bool) -> Trajectory:
+    """The centreline (or the ``chainage_m`` part of it), ``offset_m`` left and
+    ``height_m`` (default the platform's mast height) above it, driven by
+    ``platform``: a trolley rides it exactly (pitched with the grade unless ``level``);
+    another platform follows it on the floor of ``scene``."""
+    import numpy as np
+
+    from sensors.platform import platform_trajectory
+    from survey.world.alignment import Alignment
+
+    al = Alignment.from_dict(meta["alignment"])
+    c0, c1 = al.chainage_range
+    a, b = c0 + margin_m, c1 - margin_m
+    if chainage_m is not None:
+        a, b = (float(v) for v in chainage_m)
+        if not (c0 <= a < b <= c1):
+            raise SimulationError(f"Expected --chainage within [{c0:g}, {c1:g}] m with "
+                                  f"START < END, got '{_number_text(a)},"
+                                  f"{_number_text(b)}'.")
+    s = np.append(np.arange(a, b, 0.5), b)
+    height = platform.mast_height_m if height_m is None else height_m
+    return platform_trajectory(al.to_world(s, offset_m, height), platform, speed_mps,
+                               scene=scene, accel_mps2=accel_mps2, follow_grade=not level,
+                               height_m=height)
+
+
+def _auto_route(output: str | os.PathLike[str], scene: Any, platform: PlatformSpec,
+                speed_mps: float, *, waypoints: Any, height_m: float | None,
+                clearance_m: float | None, voxel_m: float | None,
+                accel_mps2: float | None, level: bool) -> tuple[Trajectory, AutoRoute]:
+    """The route found in the mesh (``sensors.route.find_route``) at ``height_m``
+    (default the platform's mast height) above the floor, written beside the output as
+    ``_route.csv``, and ``platform`` driven along it (``platform_trajectory``); a
+    trajectory closer to the mesh than the route's clearance is refused."""
+    import numpy as np
+
+    from sensors.platform import platform_trajectory
+    from sensors.route import find_route, free_space, read_waypoints
+
+    wp = None if waypoints is None else read_waypoints(waypoints) \
+        if isinstance(waypoints, (str, os.PathLike)) else np.asarray(waypoints, float)
+    height = platform.mast_height_m if height_m is None else height_m
+    clearance = ROUTE_CLEARANCE_M if clearance_m is None else clearance_m
+    space = free_space(scene, voxel_m=voxel_m)
+    route = find_route(scene, waypoints=wp, height_m=height, space=space,
+                       clearance_m=clearance, platform=platform)
+    traj = platform_trajectory(route, platform, speed_mps, scene=scene,
+                               accel_mps2=accel_mps2, follow_grade=not level,
+                               height_m=height)
+    p = traj.positions
+    # Poses every ~5 cm of travel (and the first and last): the exact distance to the
+    # mesh; the route itself is checked at every point by find_route.
+    step = max(1, int(0.05 / max(float(np.median(np.linalg.norm(np.diff(p, axis=0),
+                                                                axis=1))), 1e-6))) \
+        if len(p) > 1 else 1
+    clear = float(space.distance(np.vstack([p[::step], p[-1:]])).min())
+    # The poses follow a spline through the route's points: they may come a little
+    # nearer than the route where it is narrow (issue 29: the route's own least
+    # clearance, with 1 cm for the spline, is what is asked of them then).
+    need = min(clearance, route.min_clearance_m - 0.01)
+    if clear < need:
+        raise SimulationError(f"Expected the {platform.name} to keep {need:.3g} m from "
+                              f"the mesh, got {clear:.3g} m; use --waypoints to steer it "
+                              "or a smaller --voxel.")
+    path = route.write_csv(beside(output, "_route.csv"))
+    return traj, AutoRoute(Path(path), float(route.length_m), float(route.min_clearance_m),
+                           float(route.voxel_m), float(route.seconds), platform.name,
+                           platform.motion, float(traj.duration_s), float(height), clear)
+
+
+def _check_drive_reach(scene: Any, spec: SensorSpec, traj: Trajectory, mount: Any,
+                       t_end: float | None, allow_outside: bool) -> str:
+    """Refuse (unless ``allow_outside``) a drive whose every sensor position lies
+    farther from the mesh's bounding box than the sensor's maximum range: it cannot
+    return a point. Returns the clause that explains a drive returning (almost)
+    nothing.
+
+    DECISION: the margin is the sensor's range, not a fixed one: a pose within range of
+    the box may see the mesh (a drive starting before a portal), and one beyond it
+    never does, so the refusal before simulating is certain, not a guess. A drive that
+    comes within range but returns almost nothing is refused after the simulation
+    (``MIN_DRIVE_RETURN``)."""
+    import numpy as np
+
+    a, b = traj.start_s, traj.end_s if t_end is None else t_end
+    t = np.unique(np.concatenate([[a, b], traj.times[(traj.times > a) & (traj.times < b)]]))
+    if len(traj) < 2:
+        t = t[:1]
+    pos, _ = traj.sensor_matrices(t, mount)
+    lo, hi = scene.bounds
+    gap = np.linalg.norm(np.maximum(np.maximum(lo - pos, pos - hi), 0.0), axis=1)
+    reach = spec.physics.range_max_m
+    span = f"sensor positions within {_box_text(pos.min(axis=0), pos.max(axis=0))}"
+    if gap.min() > reach and not allow_outside:
+        raise SimulationError(f"Expected a trajectory within the {spec.name}'s "
+                              f"{reach:g} m range of the mesh's bounding box "
+                              f"{_box_text(lo, hi)}, got {span}, {gap.min():.6g} m from it "
+                              "at the nearest; is it in another coordinate frame? Pass "
+                              "--allow-outside if you mean it.")
+    hint = "" if allow_outside else "; pass --allow-outside if you mean it"
+    return (f"; the {span} may lie outside the mesh {_box_text(lo, hi)} or in another "
+            f"coordinate frame{hint}")
+
+
+def drive_robot(spec: SensorSpec, platform: PlatformSpec | None, mount: Any,
+                height_m: float | None = None) -> RobotDescription:
+    """A drive's robot description (``sensors.robot``): the platform's (at
+    ``height_m``) carrying the sensor on ``mount``; without a platform (a trajectory
+    file), base_link is the trajectory's frame."""
+    from sensors.pointcloud2 import GENERIC_DRIVER
+    from sensors.robot import RobotDescription
+
+    frame = (spec.driver or GENERIC_DRIVER).frame_id
+    if platform is None:
+        return RobotDescription("platform", frame, 0.0, mount)
+    return RobotDescription.from_platform(platform, frame, mount, height_m=height_m)
+
+
+def _robot_files(output: str | os.PathLike[str], robot: RobotDescription) -> RobotFiles:
+    """``<stem>_robot.urdf`` and ``<stem>_robot.launch.py`` (robot_state_publisher)
+    beside the output."""
+    urdf = robot.write_urdf(beside(output, "_robot.urdf"))
+    launch = robot.write_launch(beside(output, "_robot.launch.py"), urdf.name)
+    return RobotFiles(robot.name, float(robot.mast_height_m), Path(urdf), Path(launch))
+
+
+def _slam_files(output: str | os.PathLike[str], run: Run, traj: Trajectory,
+                meta: dict[str, Any], *, full: Trajectory, crs: Any, seed: int
+                ) -> tuple[DriftedRun, SlamFiles]:
+    """Observe the drive through a drifting SLAM (``survey.adjust.slam``) and write
+    what a surveyor would have besides the cloud: the SLAM and true trajectories and
+    the control points (world, and observed in the MLS frame). Returns the drifted run.
+
+    ``traj`` is the part driven; when it is a part of ``full`` (a duration), the
+    control points are those the full drive passes nearest (horizontally) within the
+    part's time span, as ``observe_control`` times its observations."""
+    import numpy as np
+
+    from survey.adjust.slam import observe_slam
+
+    cps = meta.get("control_points", [])
+    ids = [c["id"] for c in cps]
+    g = np.array([c["xyz"] for c in cps], dtype=np.float64).reshape(-1, 3)
+    if full is not traj and len(g):
+        near = np.argmin(np.linalg.norm(full.positions[None, :, :2] - g[:, None, :2],
+                                        axis=2), axis=1)
+        keep = full.times[near] <= traj.end_s
+        ids, g = [i for i, k in zip(ids, keep) if k], g[keep]
+    obs = observe_slam(run, traj, ids, g, seed=seed)
+    files = SlamFiles(Path(obs.slam.write(beside(output, "_trajectory.txt"))),
+                      Path(obs.true.write(beside(output, "_true_trajectory.txt"))),
+                      Path(obs.observed.write(beside(output, "_cp_observed.csv"))),
+                      Path(obs.world.write(beside(output, "_cp_world.csv"))),
+                      len(obs.observed))
+    if crs is not None:     # the world points are in the mesh's CRS: say so
+        from sensors.io.crs import crs_comment
+
+        files.cp_world.write_text(crs_comment(crs) + "\n" + files.cp_world.read_text())
+    return obs.run, files
+
+
+def _planned_trajectory(mesh: str | os.PathLike[str], output: str | os.PathLike[str], *,
+                        along: str | None, platform: Any, speed_mps: float | None,
+                        duration_s: float | None, standstill_s: float,
+                        route_opts: dict[str, Any], line_opts: dict[str, Any]) -> tuple:
+    """The trajectory of a drive ``along`` the centreline or a route found in the mesh:
+    (trajectory, platform spec, tunnel JSON or None, (scene, reflectivity) or None,
+    AutoRoute or None)."""
+    from sensors.io.meshes import load_mesh
+    from sensors.platform_spec import PlatformSpec, load_platform
+
+    if along is None:
+        raise SimulationError("Expected --trajectory FILE, or --along centreline (or "
+                              "auto) with --speed V, got neither.")
+    if speed_mps is None:
+        raise SimulationError(f"Expected --speed V (m/s) with --along {along}, got none; "
+                              "pass e.g. --speed 1.")
+    auto = along == "auto"
+    if not isinstance(platform, PlatformSpec):
+        platform = load_platform(platform or ("ground_robot" if auto else "trolley"))
+    if platform.motion == "static" and (duration_s is None or standstill_s):
+        raise SimulationError(f"Expected --duration S (and no --standstill) with the "
+                              f"static platform {platform.name}, got "
+                              f"{'--standstill' if standstill_s else 'none'}.")
+    meta = loaded = route = None
+    if auto:
+        loaded = load_mesh(mesh)
+        traj, route = _auto_route(output, loaded[0], platform, speed_mps, **route_opts)
+    else:
+        meta = _tunnel_meta(mesh)
+        if platform.motion != "rail":      # it finds the floor in the mesh
+            loaded = load_mesh(mesh)
+        traj = _centreline(meta, platform, speed_mps,
+                           scene=None if loaded is None else loaded[0], **line_opts)
+    if standstill_s:
+        traj = traj.with_standstill(standstill_s, standstill_s)
+    return traj, platform, meta, loaded, route
+
+
+def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], *,
+                  sensor: str | os.PathLike[str] | SensorSpec = "robosense_airy",
+                  trajectory: str | os.PathLike[str] | Trajectory | None = None,
+                  along: str | None = None, waypoints: Any = None,
+                  clearance_m: float | None = None, voxel_m: float | None = None,
+                  platform: str | os.PathLike[str] | PlatformSpec | None = None,
+                  level: bool = False, speed_mps: float | None = None,
+                  height_m: float | None = None, offset_m: float = 0.0,
+                  margin_m: float = 1.0, mount: str = "level",
+                  lever_arm_m: Sequence[float] = (0.0, 0.0, 0.0),
+                  duration_s: float | None = None, keep_partial_sweep: bool = False,
+                  chainage_m: Sequence[float] | None = None, rate_hz: float | None = None,
+                  accel_mps2: float | None = None, standstill_s: float = 0.0,
+                  allow_outside: bool = False, slam_drift: bool = False,
+                  start_time: str | float | None = None, ros_distro: str | None = None,
+                  crs: str | None = None, settings: Any = None, seed: int = 0,
+                  reflectivity: float = 0.5, fields: str | None = None,
+                  waveform_data: str | None = None, window_s: float | None = None,
+                  executor: Executor | None = None,
+                  progress: ProgressFn | None = None) -> DriveResult:
+    """Simulate a sensor on a moving platform into a point file or a ROS 2 bag, each
+    pulse cast from the pose at its own time (rolling shutter): what ``tunnelsim
+    drive`` does, with every file it writes.
+
+    Beside ``output`` (named after its stem, ``output_stem``): the true trajectory
+    ``_true_trajectory.txt`` (TUM; and ``_base_link_trajectory.txt`` where base_link
+    is not the platform frame), the robot's ``_robot.urdf`` and ``_robot.launch.py``,
+    ``_route.csv`` with ``along="auto"``; with ``slam_drift`` the SLAM trajectory and
+    the control points (``_trajectory.txt``, ``_cp_world.csv``, ``_cp_observed.csv``)
+    instead of the base_link trajectory. A bag output (``.mcap`` or a name without a
+    suffix) is written in the robot's frames (``survey.workflows.robotbag``).
+
+    Parameters
+    ----------
+    mesh : str or path-like
+        Mesh file.
+    output : str or path-like
+        .laz, .las, .copc.laz, .ply, .npz, or a ROS 2 bag (.mcap, or a folder name).
+    sensor : str, path-like or SensorSpec
+        A sensor name, a TOML file or a loaded spec.
+    trajectory : str, path-like or sensors.Trajectory, optional
+        TUM text (t x y z qx qy qz qw) or CSV trajectory. Give it or ``along``.
+    along : {"centreline", "auto"}, optional
+        Drive along the tunnel centreline (needs the mesh's .json) or along a route
+        found in the mesh (between its farthest ends, or through ``waypoints``).
+    waypoints : str, path-like or (k, 2|3) float, optional
+        With ``along="auto"``: x, y[, z] to drive through in order.
+    clearance_m : float, optional
+        With ``along="auto"``: distance the route keeps from the mesh (default
+        ``ROUTE_CLEARANCE_M``).
+    voxel_m : float, optional
+        With ``along="auto"``: voxel edge of the route's grid (default: automatic).
+    platform : str, path-like or PlatformSpec, optional
+        With ``along``: what carries the sensor (default trolley on the centreline,
+        ground_robot on a route).
+    level : bool
+        With ``along``: keep the platform level.
+    speed_mps : float, optional
+        Speed along the path (m/s), needed with ``along``.
+    height_m : float, optional
+        Sensor mount height above the centreline (above the floor on a route; default
+        the platform's mast height).
+    offset_m, margin_m : float
+        Platform offset left of the centreline; distance kept from the portals (m).
+    mount : {"level", "down"}
+        Sensor z up, or pointing down.
+    lever_arm_m : (3,) float
+        Lever arm platform -> sensor (m).
+    duration_s : float, optional
+        Simulate only the first ``duration_s`` seconds.
+    keep_partial_sweep : bool
+        Keep the last, partial sweep (by default a drive ends at its last whole one).
+    chainage_m : (start, end) float, optional
+        With ``along="centreline"``: drive only this chainage range (m).
+    rate_hz : float, optional
+        Rotation (profile) rate instead of the spec's.
+    accel_mps2 : float, optional
+        With ``along``: start and stop at rest with this acceleration.
+    standstill_s : float
+        With ``along``: stand still this long before and after the drive (s).
+    allow_outside : bool
+        Drive a trajectory beyond the sensor's range of the mesh's box, or one returning
+        fewer than ``MIN_DRIVE_RETURN`` of its pulses, instead of refusing it.
+    slam_drift : bool
+        With ``along="centreline"``: write the cloud in a drifting SLAM frame, with the
+        SLAM and true trajectories and the control points.
+    start_time : str or float, optional
+        With a bag: ROS time of the scan's start, seconds since 1970 or ISO 8601 with
+        its offset.
+    ros_distro : {"humble", "jazzy"}, optional
+        With a bag folder: the rosbag2 metadata layout.
+    crs : str, optional
+        CRS of the mesh's coordinates, stated in the output (default the mesh's own).
+    settings : sensors.Settings, optional
+        Physics switches (default ``Settings()``).
+    seed : int
+    reflectivity : float
+        Reflectivity where the mesh has none.
+    fields : {"compact", "full"}, optional
+        LAS/LAZ extra bytes.
+    waveform_data : {"internal", "external"}, optional
+        With ``settings.waveform``: where the wave packets go (as in ``scan_to_file``).
+    window_s : float, optional
+        Simulate in time windows of about this many seconds (cut at whole sweeps), each
+        a task on ``executor``; the output holds the same points as one piece.
+    executor : survey.cluster.Executor, optional
+        Where the windows run (default in this process); only with ``window_s``.
+    progress : callable (done_pulses, total_pulses), optional
+
+    Returns
+    -------
+    DriveResult
+
+    Raises
+    ------
+    SimulationError
+        Options that do not go together, a duration past the trajectory, a trajectory
+        out of the sensor's reach of the mesh, a drive that returns too few points.
+    sensors.errors.PlatformError, sensors.errors.RouteError
+        A platform that cannot follow the path, no route in the mesh.
+    sensors.io.errors.FileFormatError
+        An unreadable mesh, trajectory or tunnel JSON.
+
+    Examples
+    --------
+    >>> from survey.workflows.simulation import drive_to_file
+    >>> # r = drive_to_file("tunnel.ply", "drive.laz", sensor="velodyne_vlp16",
+    >>> #                   along="centreline", speed_mps=1.0, duration_s=2.0)
+    >>> # r.output.points, r.true_trajectory, r.robot.urdf
+    """
+    from sensors import Mount, Trajectory, simulate_drive
+    from sensors.io.meshes import load_mesh
+
+    _check_drive_options(trajectory=trajectory, along=along, waypoints=waypoints,
+                         clearance_m=clearance_m, voxel_m=voxel_m, platform=platform,
+                         level=level, chainage_m=chainage_m, offset_m=offset_m,
+                         slam_drift=slam_drift, window_s=window_s, mount=mount)
+    if executor is not None and window_s is None:
+        raise SimulationError("Expected --window-s with --workers or --scheduler (a drive "
+                              "is split into time windows to run on a cluster), got no "
+                              "--window-s.")
+    lever = _lever(lever_arm_m)
+    spec = _sensor(sensor, rate_hz)
+    if not Path(mesh).is_file():
+        raise SimulationError(f"Expected a mesh file, got '{mesh}' which does not exist.")
+    stated = output_crs(mesh, crs)      # before the simulation: a bad crs fails at once
+    bag = _bag_options(output, start_time, ros_distro)
+    meta = loaded = plat = route = None
+    if trajectory is not None:
+        traj = trajectory if isinstance(trajectory, Trajectory) else \
+            Trajectory.read(trajectory)
+    else:
+        traj, plat, meta, loaded, route = _planned_trajectory(
+            mesh, output, along=along, platform=platform, speed_mps=speed_mps,
+            duration_s=duration_s, standstill_s=standstill_s,
+            route_opts=dict(waypoints=waypoints, height_m=height_m,
+                            clearance_m=clearance_m, voxel_m=voxel_m,
+                            accel_mps2=accel_mps2, level=level),
+            line_opts=dict(chainage_m=chainage_m, margin_m=margin_m, offset_m=offset_m,
+                           height_m=height_m, accel_mps2=accel_mps2, level=level))
+    # DECISION: checked before the mesh is loaded (a large mesh's BVH takes seconds);
+    # along="auto" needs the mesh to find its route first.
+    t_end = drive_end(duration_s, traj)
+    sweeps = None
+    if not keep_partial_sweep:
+        t_end, sweeps = whole_sweeps_end(spec, traj, t_end)
+    mnt = Mount.pointing_down(lever) if mount == "down" else Mount(lever)
+    scene, refl = load_mesh(mesh) if loaded is None else loaded
+    where = _check_drive_reach(scene, spec, traj, mnt, t_end, allow_outside)
+    robot = drive_robot(spec, plat, mnt, height_m)
+    refl_or = refl if refl is not None else reflectivity
+    # A Run, or with slam_drift the DriftedRun made of it (written alike).
+    run: Any = simulate_drive(scene, spec, traj, mnt, settings=_settings(settings),
+                              seed=seed, reflectivity=refl_or, t_end=t_end)
+    driven = trimmed(traj, t_end)      # every output covers the same time span
+    slam = true_path = base_path = None
+    if slam_drift:
+        assert meta is not None        # slam_drift needs along="centreline"
+        run, slam = _slam_files(output, run, driven, meta, full=traj, crs=stated,
+                                seed=seed)
+        # DECISION: the drifted cloud lies in the SLAM frame, which is not the mesh's
+        # CRS to survey accuracy (that is what 'correct' repairs): it states none; the
+        # world control points state it, and 'correct' gives it to the corrected cloud.
+        stated = None
+    else:                              # every drive writes the truth it drove (issue 22)
+        true_path = Path(driven.write(beside(output, "_true_trajectory.txt")))
+        if robot.mast_height_m > 0:
+            base_path = Path(robot.base_trajectory(driven).write(
+                beside(output, "_base_link_trajectory.txt")))
+    label = f"{spec.name} drive {run.duration_s:.1f} s"
+    min_return = 0.0 if allow_outside else MIN_DRIVE_RETURN
+    n_windows, ran_on = 0, None
+    if window_s is not None:
+        from survey.cluster import Executor, simulate_windows
+
+        ex = Executor() if executor is None else executor
+        ran_on = ex.describe()
+        man = simulate_windows(run, window_s, output, reflectivity=refl_or, executor=ex,
+                               fields=fields, crs=stated, progress=progress)
+        wins = man.get("windows", [])
+        n_windows = len(wins)
+        points = sum(int(w.get("points", 0)) for w in wins)
+        _check_returned(label, run.n_pulses, points, min_return, "", share=False)
+        nan = float("nan")
+        out = RunOutput(Path(output), int(run.n_pulses), points, nan, nan, nan)
+    else:
+        # DECISION: a drifted run's bag keeps its own frames (the SLAM frame's poses).
+        out = _write_run(run, output, fields=fields, crs=stated, progress=progress,
+                         bag=bag, robot=None if slam_drift else robot,
+                         waveform_data=waveform_data)
+        _check_returned(label, out.pulses, out.points, min_return, where)
+    files = _robot_files(output, robot)
+    return DriveResult(out, spec.name, float(run.duration_s), stated, route, sweeps,
+                       true_path, base_path, len(driven), slam, files, n_windows,
+                       window_s, ran_on)
+
+
+__all__ = ["MIN_DRIVE_RETURN", "ROUTE_CLEARANCE_M", "STATION_FORMATS", "AutoRoute",
+           "CampaignResult", "DriveResult", "ProgressFn", "RobotFiles", "RunOutput",
+           "ScanResult", "SlamFiles", "SweepCut", "beside", "drive_end", "drive_robot",
+           "drive_to_file", "output_crs", "output_stem", "scan_campaign", "scan_to_file",
+           "station_heading_deg", "stations_on_axis", "sweep_rate_hz", "trimmed",
+           "whole_sweeps_end", "xyz_text"]
