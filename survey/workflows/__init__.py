@@ -45,6 +45,10 @@ if TYPE_CHECKING:
                              develop_files)
     from .planning import PlanResult, StudyResult, plan_stations, run_study
     from .sections import RingsResult, SectionsResult, rings_files, sections_files
+    from .robotbag import write_robot_bag
+    from .sections import RingsResult, SectionsResult, rings_files, sections_files
+    from .simulation import (CampaignResult, DriveResult, ScanResult, drive_to_file,
+                             scan_campaign, scan_to_file)
     from .slam import SlamResult, slam_file
     from .world import (GazeboResult, SensorModel, SoftwareInfo, TunnelResult, gazebo_files,
                         sensor_models, software_info, tunnel_files)

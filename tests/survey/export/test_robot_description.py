@@ -260,7 +260,7 @@ def test_platform_mounts_are_validated(tmp_path):
         load_platform(name)
     bad = tmp_path / "bad.toml"
     bad.write_text(src.replace("imu_rpy_deg", "imu_rpy"))
-    with pytest.raises(PlatformError, match=r"unknown `imu_rpy` \(did you mean `imu_rpy_deg`"):
+    with pytest.raises(PlatformError, match=r"unknown key `imu_rpy` \(did you mean `imu_rpy_deg`"):
         load_platform(bad)
     bad.write_text(src.replace("imu_xyz_m = [0.0, 0.0, 0.10]", "imu_xyz_m = [0.0, 0.1]"))
     with pytest.raises(PlatformError, match="3 finite numbers"):
