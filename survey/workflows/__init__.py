@@ -44,7 +44,6 @@ if TYPE_CHECKING:
     from .inspection import (ClearanceFilesResult, DevelopFilesResult, clearance_files,
                              develop_files)
     from .planning import PlanResult, StudyResult, plan_stations, run_study
-    from .sections import RingsResult, SectionsResult, rings_files, sections_files
     from .robotbag import write_robot_bag
     from .sections import RingsResult, SectionsResult, rings_files, sections_files
     from .simulation import (CampaignResult, DriveResult, ScanResult, drive_to_file,
