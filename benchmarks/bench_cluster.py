@@ -62,7 +62,8 @@ def _tunnel(tmp: Path) -> Path:
 def _stations(scene, mesh: Path, n: int):
     from survey.analysis.planning import axis_stations
     from survey.cluster import Station
-    from survey.world.mesh import read_axis, sidecar
+    from survey.world.mesh import read_axis
+    from sensors.io.tunnel_json import sidecar
 
     al, hc = read_axis(sidecar(mesh))
     ch = 10.0 + 10.0 * np.arange(n)
@@ -74,7 +75,8 @@ def _drive_run(scene, refl, mesh: Path, duration_s: float):
     from sensors import Trajectory, load_sensor, simulate_drive
     from sensors.platform import platform_trajectory
     from sensors.platform_spec import load_platform
-    from survey.world.mesh import read_axis, sidecar
+    from survey.world.mesh import read_axis
+    from sensors.io.tunnel_json import sidecar
 
     al, _hc = read_axis(sidecar(mesh))
     s = np.append(np.arange(5.0, 5.0 + duration_s + 2, 0.5), 5.0 + duration_s + 2)

@@ -45,7 +45,7 @@ from .errors import ConfigError, MeshError, RayError, SceneFileError
 from .fileio import atomic_writer, npz_memmap
 from .hits import Hits
 
-__all__ = ["FILE_FORMAT", "Hits", "Scene"]
+__all__ = ["FILE_FORMAT", "Scene"]
 
 _NO_ORDER = np.empty(0, dtype=np.int64)
 

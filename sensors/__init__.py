@@ -31,7 +31,8 @@ if TYPE_CHECKING:
     from sensors.simulate import Run, simulate_drive, simulate_station
     from sensors.writers import PointWriter, open_writer
     from sensors.io.copc import CopcWriter
-    from sensors.spec import SensorSpec, list_sensors, load_sensor
+    from sensors.spec_types import SensorSpec
+    from sensors.spec import list_sensors, load_sensor
     from sensors.trajectory import Mount, Trajectory
     from sensors.io.meshes import load_mesh
     from sensors.freespace import FreeSpace, free_space

@@ -99,12 +99,10 @@ from .io.stream import Stream
 from .trajectory import Mount, Trajectory
 from .waveform import RETURN_MODES
 
-__all__ = ["DEFAULT_IMU", "DEFAULT_WHEEL_ODOMETRY", "FRAMES", "GENERIC_DRIVER", "IMU_TOPIC",
+__all__ = ["FRAMES", "IMU_TOPIC",
            "INSTALL_HINT",
-           "LAYOUTS", "METADATA_VERSIONS", "ODOMETRY_TOPIC", "POSE_RATE_HZ",
-           "STANDARD_GRAVITY", "WHEEL_ODOMETRY_TOPIC", "ImuModel", "PointLayout",
-           "RosbagStream", "WheelOdometryModel", "cloud_points",
-           "parse_start_time", "platform_motion"]
+           "METADATA_VERSIONS", "ODOMETRY_TOPIC", "POSE_RATE_HZ",
+           "WHEEL_ODOMETRY_TOPIC", "RosbagStream", "parse_start_time"]
 
 INSTALL_HINT: Final = "pip install 'tunnelsim[ros]' (or: pip install rosbags)"
 #: The tf tree: global frame, odometry frame, platform frame (REP 105).

@@ -52,7 +52,7 @@ from .io.fields import FLAG_MIXED, FLAG_PARTICLE, FLAG_SURFACE, MIXED_SPREAD_M
 from .spec import Physics
 from .waveform import RETURN_MODES
 
-__all__ = ["FLAG_MIXED", "FLAG_PARTICLE", "FLAG_SURFACE", "MIXED_SPREAD_M", "SUBRAY_COUNTS",
+__all__ = ["SUBRAY_COUNTS",
            "Settings", "detection_probability", "intensity", "intensity_constants",
            "noise_constants", "perpendicular_basis", "power", "range_sigma",
            "subray_offsets"]

@@ -69,9 +69,8 @@ from .freespace import (FLOOR_OFFSET_VOX, MAX_VOXELS, MIN_VOXEL_M, FloorGraph, F
 from .platform_spec import PlatformSpec
 from .trajectory import Trajectory
 
-__all__ = ["ASSESS_STEP_M", "END_TRIM_M", "FreeSpace", "MAX_DETOURS", "MAX_VOXELS",
-           "MIN_SENSOR_CLEARANCE_M", "MIN_VOXEL_M", "ROUTE_CSV_COLUMNS", "Route",
-           "find_route", "free_space", "read_waypoints"]
+__all__ = ["ASSESS_STEP_M", "END_TRIM_M", "MAX_DETOURS", "MIN_SENSOR_CLEARANCE_M", "ROUTE_CSV_COLUMNS", "Route",
+           "find_route", "read_waypoints"]
 
 #: A second part of the drivable floor at least this share of it is reported (a
 #: warning): the passage is cut by a pinch, not just a pocket behind a boulder or a

@@ -40,9 +40,7 @@ from .spec_types import (KINDS, NO_RETURN, POINT_LAYOUTS, RING_ORDERS,
                          SpinningPattern, TLSPattern)
 from .waveform import DEFAULT_RETURNS, ReturnsSpec
 
-__all__ = ["KINDS", "POINT_LAYOUTS", "RING_ORDERS", "SPEC_DIR", "TABLE_KEYS", "Driver",
-           "Pattern", "Physics", "ProfilerPattern", "SensorSpec", "SpinningPattern",
-           "TLSPattern", "list_sensors", "load_sensor", "with_rate"]
+__all__ = ["SPEC_DIR", "TABLE_KEYS", "list_sensors", "load_sensor", "with_rate"]
 
 SPEC_DIR: Final = Path(__file__).resolve().parent / "specs"
 

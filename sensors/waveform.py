@@ -80,8 +80,7 @@ class Physics(Protocol):
     def detection_softness(self) -> float: ...
 
 __all__ = ["BIN_S", "ChunkReturns", "DEFAULT_PULSE_FWHM_S", "DEFAULT_RETURNS",
-           "DUAL_KINDS", "Echoes", "MAX_ECHOES", "RANGE_PER_PS_M", "RETURN_FIELDS",
-           "RETURN_MODES", "Returns", "ReturnsSpec", "SPEED_OF_LIGHT_M_S", "WAVE_BITS",
+           "DUAL_KINDS", "Echoes", "MAX_ECHOES", "RANGE_PER_PS_M", "RETURN_MODES", "Returns", "ReturnsSpec", "SPEED_OF_LIGHT_M_S", "WAVE_BITS",
            "WAVE_PAD_SIGMAS", "WaveWindows", "WaveformModel", "chunk_returns",
            "detect_echoes", "detection_threshold", "pulse_echoes", "renumber_returns",
            "select_returns", "wave_windows", "waveform_gain", "waveforms"]

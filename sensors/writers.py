@@ -115,7 +115,7 @@ from .io.stream import Background, Stream, deferred_interrupt
 from .trajectory import Trajectory
 from .waveform import BIN_S, WAVE_BITS
 
-__all__ = ["E57_MAX_POINTS", "FORMATS", "LAS_SCALE", "PointWriter", "format_of",
+__all__ = ["FORMATS", "PointWriter", "format_of",
            "open_writer"]
 
 FORMATS = ("las", "laz", "copc", "ply", "npz", "e57", "mcap", "rosbag2")

@@ -33,8 +33,13 @@ if TYPE_CHECKING:
     from survey.world.profiles import Profile, arched_rectangle, circle, horseshoe
     from survey.world.features import Bolts, Cable, Drainage, Niche, Prisms, WetFloor
     from survey.world.deformation import Bulge, Convergence, Ovalisation
-    from survey.world.mesh import (LABELS, REFLECTIVITY, TunnelMesh, read_axis,
-        read_tunnel, write_ply, write_tunnel)
+    from survey.world.mesh import (LABELS,
+        REFLECTIVITY,
+        TunnelMesh,
+        read_axis,
+        read_tunnel,
+        write_ply,
+        write_tunnel)
     from survey.world.generator import edge_length_for, make_tunnel
     from survey.world.presets import PRESETS, preset
     from survey.world.rock import RockRelief
@@ -47,8 +52,8 @@ if TYPE_CHECKING:
     from survey.adjust.drift import DriftCorrection, fit_drift, leave_one_out
     from survey.adjust.slam import (slam_trajectory, to_slam_frame, DriftedRun,
         SlamObservation, observe_slam, observe_control)
-    from sensors.io.clouds import (read_points, read_reference, annotate_las,
-        cloud_bounds, iter_points, map_cloud, write_points_las)
+    from sensors.io.cloudread import read_points, read_reference, cloud_bounds, iter_points
+    from sensors.io.cloudmap import annotate_las, map_cloud, write_points_las
     from survey.clouds.preprocess import (VoxelGrid, radius_outliers, statistical_outliers,
         voxel_down_sample)
     from survey.clouds.axis import (
@@ -61,8 +66,10 @@ if TYPE_CHECKING:
         unroll_extended,
     )
     from survey.clouds.segment import CLASS_NAMES, TERRAIN, segment_tunnel
-    from survey.clouds.reconstruct import (ReconstructedTunnel, poisson_tunnel,
-        reconstruct_tunnel, reconstruct_within_budget)
+    from survey.clouds.reconstruct import (ReconstructedTunnel,
+        poisson_tunnel,
+        reconstruct_tunnel,
+        reconstruct_within_budget)
     from survey.clouds.detail import attachment_tubes, DetailedMesh, with_detail_layer
     from survey.clouds.drives import (DriveFile, ScanFrame, frames_from_points, iter_frames,
         open_drive, replace_drive)
@@ -93,8 +100,13 @@ if TYPE_CHECKING:
         towards_axis)
     from survey.report.sections import (plot_rings, plot_section, rings_csv, rings_markdown,
         sections_csv, sections_markdown, volumes_csv)
-    from survey.analysis.developed import (DevelopedFrame, DevelopedGrid, DevelopedRaster,
-        RasterAccumulator, develop, develop_file, mesh_samples)
+    from survey.analysis.developed import (DevelopedFrame,
+        DevelopedGrid,
+        DevelopedRaster,
+        RasterAccumulator,
+        develop,
+        develop_file,
+        mesh_samples)
     from survey.analysis.clearance import (ClearanceResult, ViolationRegion, Violations,
         box_envelope, clearance, clearance_file, read_envelope)
     from survey.report.developed import (clearance_markdown, plot_developed, regions_csv,
@@ -104,13 +116,15 @@ if TYPE_CHECKING:
     from survey.clouds.solid import (ScannerVoxelGrid, SolidMesh, nearest_scanner,
         reconstruct_solid)
     from survey.clouds.scanners import iter_scanned, read_positions, station_position
-    from survey.analysis.detectability import (DetectLayout, DetectRow, DetectTarget,
-        Detectability, TargetScore, ahat_a95, detection_limit, with_noise)
+    from survey.analysis.detect_layout import DetectLayout, DetectTarget
+    from survey.analysis.detectability import DetectRow, Detectability, TargetScore, with_noise
+    from survey.analysis.detect_stats import ahat_a95, detection_limit
     from survey.report.detectability import (detect_csv, detect_markdown, detect_summary,
         plot_detectability, targets_csv)
     from survey.report.epochs import (chords_csv, convergence_markdown, m3c2_markdown,
         plot_m3c2_histogram, plot_radial, radial_csv)
-    from survey.export.gazebo import export_gazebo, lidar_sdf
+    from survey.export.gazebo import export_gazebo
+    from survey.export.gazebo_sdf import lidar_sdf
     from survey.errors import (TunnelsimError, AlignmentError, ClusterError, CompareError, ControlPointError, DeformationError, DriftError, FeatureError, GazeboExportError, HelmertError, OdometryError, PipelineError, PlanningError, PreprocessError, ProfileError, ReconstructionError, StudyError, TunnelError, TunnelsimCLIError)
     from sensors.io.errors import (FileFormatError, MeshFileError, PointFileError,
         TableFileError, TunnelFileError)

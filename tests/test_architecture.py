@@ -235,3 +235,45 @@ def test_one_mesh_loader():
                     and isinstance(node.value, ast.Name) and node.value.id == "trimesh":
                 bad.append(f"{mod}:{node.lineno} calls trimesh.{node.attr}")
     assert not bad, "\n".join(bad)
+
+
+#: Packages the command line may not import (the numeric and file work is the library's).
+CLI_FORBIDDEN = ("numpy", "scipy", "trimesh", "laspy", "open3d", "matplotlib", "pyproj")
+#: Longest function of a command module, def line to last line (``register`` functions,
+#: which only declare options, are exempt).
+CLI_MAX_LINES = 60
+
+
+def _cli_modules() -> dict[str, Path]:
+    return {m: p for m, p in MODULES.items() if m.startswith("survey.cli")}
+
+
+def test_the_cli_is_thin():
+    """Issue 32: a command parses, calls one library function and prints. The rule, as
+    the code can check it: no module of ``survey.cli`` imports NumPy, SciPy, trimesh,
+    laspy, Open3D, Matplotlib or pyproj (at module level or in a function), and no
+    function of ``survey.cli.commands`` but a ``register`` is longer than 60 lines."""
+    bad = []
+    for mod, path in _cli_modules().items():
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level \
+                else []
+            bad += [f"{mod}:{node.lineno} imports {n}" for n in names
+                    if n.split(".")[0] in CLI_FORBIDDEN]
+            if mod.startswith("survey.cli.commands") and \
+                    isinstance(node, ast.FunctionDef) and node.name != "register":
+                length = (node.end_lineno or node.lineno) - node.lineno + 1
+                if length > CLI_MAX_LINES:
+                    bad.append(f"{mod}:{node.lineno} {node.name} is {length} lines long "
+                               f"(> {CLI_MAX_LINES}): move its work into survey.workflows")
+    assert not bad, "\n".join(bad)
+
+
+def test_the_thin_cli_rule_catches_a_violation(tmp_path, monkeypatch):
+    fat = tmp_path / "fat.py"
+    fat.write_text("def cmd_x(args):\n    import numpy as np\n" + "    x = 1\n" * 70)
+    monkeypatch.setitem(MODULES, "survey.cli.commands.fat", fat)
+    with pytest.raises(AssertionError, match=r"imports numpy[\s\S]*cmd_x is 72 lines"):
+        test_the_cli_is_thin()

@@ -92,22 +92,22 @@ def _traj_csv(d):
 
 # ---------------------------------------------------------------------- readers
 def _iter_points(p):
-    from sensors.io.clouds import iter_points
+    from sensors.io.cloudread import iter_points
     return sum(len(c) for c in iter_points(p, chunk=7))
 
 
 def _cloud_bounds(p):
-    from sensors.io.clouds import cloud_bounds
+    from sensors.io.cloudread import cloud_bounds
     return cloud_bounds(p, chunk=7)
 
 
 def _map_cloud(p):
-    from sensors.io.clouds import map_cloud
+    from sensors.io.cloudmap import map_cloud
     return map_cloud(p, p.with_name("out" + p.suffix), lambda xyz, t: xyz + 1.0, chunk=7)
 
 
 def _annotate_las(p):
-    from sensors.io.clouds import annotate_las
+    from sensors.io.cloudmap import annotate_las
     return annotate_las(p, p.with_name("out.laz"),
                         lambda xyz: {"d": np.zeros(len(xyz), np.float32)}, chunk=7)
 
@@ -129,7 +129,7 @@ def _mesh_ply(p):
 
 
 def _reference(p):
-    from sensors.io.clouds import read_reference
+    from sensors.io.cloudread import read_reference
     return read_reference(p)
 
 
@@ -288,7 +288,8 @@ def test_a_non_ascii_byte_in_a_ply_comment_is_rewritten_not_a_crash(tmp_path):
     """Found by the property above in a clean-clone CI run: a flipped byte in a PLY
     header comment decoded to U+FFFD, and the rewrite crashed encoding it back (PLY
     headers are ASCII). The rewrite keeps the data and the comment, the byte as '?'."""
-    from sensors.io.clouds import map_cloud, read_points
+    from sensors.io.cloudmap import map_cloud
+    from sensors.io.cloudread import read_points
 
     p = _ply_cloud(tmp_path)
     raw = bytearray(p.read_bytes())

@@ -146,3 +146,32 @@ def test_no_facade_name_is_shadowed_by_a_submodule(path):
     subs = {i.name for i in pkgutil.iter_modules(m.__path__)}
     clash = subs & set(m.__all__) - set(getattr(m, "SUBPACKAGES", ()))
     assert not clash, f"{mod} exports {sorted(clash)}, which are also its modules"
+
+
+def _reexports(mod: str) -> list[str]:
+    """Names ``mod``'s ``__all__`` lists but imports from another module."""
+    path = ROOT / (mod.replace(".", "/") + ".py")
+    tree = ast.parse(path.read_text())
+    imported = {a.asname or a.name for n in tree.body if isinstance(n, ast.ImportFrom)
+                for a in n.names}
+    for n in tree.body:
+        if isinstance(n, (ast.Assign, ast.AnnAssign)) and "__all__" in ast.unparse(
+                n.targets[0] if isinstance(n, ast.Assign) else n.target):
+            return [x for x in ast.literal_eval(n.value) if x in imported
+                    and x != "TunnelsimError"]
+    return []
+
+
+@pytest.mark.parametrize("mod", [m for m in MODULES if (ROOT / (m.replace(".", "/") +
+                                                                 ".py")).is_file()])
+def test_a_module_lists_only_what_it_defines(mod):
+    """Issue 32: no module re-exports another's names (the splits used to leave their
+    old names behind): one name, one home; the package façades are the exception."""
+    assert not _reexports(mod), f"{mod}.__all__ re-exports {_reexports(mod)}"
+
+
+def test_the_reexport_rule_catches_one(tmp_path, monkeypatch):
+    fake = tmp_path / "fake.py"
+    fake.write_text("from os.path import join\n__all__ = ['join', 'mine']\nmine = 1\n")
+    monkeypatch.setattr(__import__(__name__, fromlist=["ROOT"]), "ROOT", tmp_path)
+    assert _reexports("fake") == ["join"]

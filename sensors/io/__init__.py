@@ -20,7 +20,6 @@ this one: ``sensors.writers`` (``open_writer``: one streaming writer per suffix)
 ``cloudread``       any point cloud in, chunk by chunk (``iter_points``, ``read_points``)
 ``cloudmap``        a point cloud rewritten keeping every field (``map_cloud``)
 ``cloudfields``     one named field of any point cloud, chunk by chunk
-``clouds``          the reading and rewriting names gathered
 ``errors``          one error class per kind of file problem
 ==================  ===================================================================
 """

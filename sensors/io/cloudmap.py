@@ -1,5 +1,5 @@
-"""Point clouds rewritten chunk by chunk, for the survey commands (``survey.clouds.
-cloudio`` gathers this module and ``cloudread`` under one name): new coordinates
+"""Point clouds rewritten chunk by chunk (``sensors.io.cloudread`` is the reading
+side): new coordinates
 (``map_cloud``: Helmert transforms, drift corrections, a drive re-placed), new fields
 (``annotate_las``: distances), new files (``write_points_las``).
 
@@ -55,7 +55,7 @@ from sensors.io.cloudread import (
 )
 from sensors.io.errors import PointFileError
 
-__all__ = ["E57_KEEP_TOL_M", "KEEP_CRS", "LAS_SCALE", "PoseFn", "XyzFn", "annotate_las",
+__all__ = ["E57_KEEP_TOL_M", "KEEP_CRS", "PoseFn", "XyzFn", "annotate_las",
            "map_cloud", "write_points_las"]
 
 #: ``map_cloud(..., crs=KEEP_CRS)``: the output states the input's CRS (the default).

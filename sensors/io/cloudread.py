@@ -1,5 +1,5 @@
-"""Point clouds read chunk by chunk, for the survey commands (``sensors.io.clouds``
-gathers this module and ``cloudmap``, the rewriting side, under one name).
+"""Point clouds read chunk by chunk, whatever wrote them (``sensors.io.cloudmap`` is
+the rewriting side).
 
 Reading: ``iter_points`` (LAS/LAZ, binary PLY, XYZ/TXT/CSV text, NPZ, E57),
 ``read_points``, ``read_reference`` (a mesh or a cloud) and ``cloud_bounds``; the CRS a

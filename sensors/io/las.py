@@ -1,6 +1,6 @@
 """LAS and LAZ files (ASPRS LAS 1.0-1.4, LAZ through lazrs), read and written in one
 place for the whole project: simulated clouds (``sensors.writers``), processed and
-rewritten clouds (``sensors.io.clouds``).
+rewritten clouds (``sensors.io.cloudread``, ``sensors.io.cloudmap``).
 
 Reading (``LasSource``) checks what laspy takes on trust, so that a bad file gives one
 ``PointFileError`` naming the file and the problem, never a library traceback and never

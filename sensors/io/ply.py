@@ -1,6 +1,6 @@
 """Binary PLY files (Turk 1994), read and written in one place for the whole project:
 simulated point clouds (``sensors.writers``), tunnel meshes (``survey.world.mesh``) and
-rewritten clouds (``sensors.io.clouds``).
+rewritten clouds (``sensors.io.cloudread``, ``sensors.io.cloudmap``).
 
 Supported: ``binary_little_endian`` and ``binary_big_endian``, scalar properties of the
 eight PLY types (and their ``int32``-style aliases), and list properties with one fixed

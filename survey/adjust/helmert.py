@@ -73,9 +73,8 @@ from survey.errors import HelmertError
 if TYPE_CHECKING:
     from sensors.trajectory import Trajectory
 
-__all__ = ["ALPHA", "ARCSEC", "DELTA0", "FORMS", "MAX_SCALE_PPM", "MODELS", "W_CRITICAL",
-           "HelmertModel", "HelmertResult", "angles_of", "fit_helmert", "from_parameters",
-           "model_name", "rotation_matrix"]
+__all__ = ["FORMS", "HelmertModel", "HelmertResult", "fit_helmert", "from_parameters",
+           "model_name"]
 
 #: What ``model`` accepts: the parameter count as an int or a string.
 HelmertModel = Literal[6, 7, 9, "6", "7", "9"]

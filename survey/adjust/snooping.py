@@ -21,7 +21,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from survey.adjust.helmert import MODELS, HelmertModel, HelmertResult, fit_helmert, model_name
+from survey.adjust.helmert_stats import MODELS
+from survey.adjust.helmert import HelmertModel, HelmertResult, fit_helmert, model_name
 from survey.errors import HelmertError
 
 __all__ = ["SnoopStep", "Snooping", "data_snooping"]

@@ -44,9 +44,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from raytrace.checks import as_points
 from survey.analysis.design import DesignProfile, read_design_profile
-from survey.analysis.developed import (MESH_SAMPLES_PER_CELL, DevelopedFrame, DevelopedGrid,
-                                       DevelopedRaster, RasterAccumulator, file_chunks,
-                                       station_spacing)
+from survey.analysis.developed import (MESH_SAMPLES_PER_CELL,
+    DevelopedFrame,
+    DevelopedGrid,
+    DevelopedRaster,
+    RasterAccumulator,
+    file_chunks,
+    station_spacing)
 from survey.errors import CompareError, ProfileError
 from survey.world.alignment import Alignment
 

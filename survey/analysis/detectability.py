@@ -72,13 +72,13 @@ from .detect_stats import POD_TARGET, ahat_a95, detection_limit
 if TYPE_CHECKING:
     from raytrace import Scene
     from sensors.physics import Settings
-    from sensors.spec import SensorSpec
+    from sensors.spec_types import SensorSpec
     from survey.analysis.m3c2 import M3C2Params
     from survey.world.mesh import TunnelMesh
 
-__all__ = ["BULGE_ANGLES_RAD", "BULGE_CORE_FRACTION", "CUT_M", "KINDS", "LINING_LABELS",
-           "POD_TARGET", "DetectLayout", "DetectRow", "DetectTarget", "Detectability",
-           "TargetScore", "ahat_a95", "detection_limit", "with_noise"]
+__all__ = ["CUT_M", "LINING_LABELS",
+           "DetectRow", "Detectability",
+           "TargetScore", "with_noise"]
 
 Floats = NDArray[np.float64]
 
@@ -365,7 +365,8 @@ class Detectability:
         -------
         DetectRow
         """
-        from sensors.spec import SensorSpec, with_rate
+        from sensors.spec_types import SensorSpec
+        from sensors.spec import with_rate
         from survey.analysis.m3c2 import M3C2, towards_axis
 
         if not isinstance(sensor, SensorSpec):

@@ -47,11 +47,11 @@ from sensors.io.cloudfields import LAS_INTENSITY_SCALE, iter_field
 from survey.errors import CompareError, ProfileError
 from survey.world.alignment import Alignment
 
-__all__ = ["DEFAULT_CELL_M", "FIELDS", "FIELD_UNITS", "LAS_INTENSITY_SCALE", "MESH_CHUNK",
+__all__ = ["DEFAULT_CELL_M", "FIELDS", "FIELD_UNITS", "MESH_CHUNK",
            "MESH_SAMPLES_PER_CELL", "SPACING_BIN_M", "SPACING_SAMPLE", "STATISTICS",
            "DevelopedFrame", "DevelopedGrid", "DevelopedRaster", "RasterAccumulator",
            "crown_t", "default_cell", "develop", "develop_file", "file_chunks",
-           "file_station_spacing", "is_mesh_file", "iter_field", "mesh_samples",
+           "file_station_spacing", "is_mesh_file", "mesh_samples",
            "station_spacing"]
 
 Floats = NDArray[np.float64]
@@ -225,7 +225,7 @@ def file_station_spacing(path: str | os.PathLike[str], alignment: Alignment, *,
     """``station_spacing`` of the first ``sample`` points of a cloud file (0.0 for a
     mesh, whose area samples are dense). Reads only the start of the file: a profile
     scanner writes profile after profile, so the start holds many stations."""
-    from sensors.io.clouds import iter_points
+    from sensors.io.cloudread import iter_points
 
     if is_mesh_file(path):
         return 0.0
@@ -611,7 +611,7 @@ def file_chunks(path: str | os.PathLike[str], field: str, *, spacing_m: float
     """The chunks ``develop`` takes from a file: a mesh's area samples (``spacing_m``
     apart; the deviation only), or a cloud's points streamed, with ``field``'s values
     unless the field is the deviation."""
-    from sensors.io.clouds import iter_points, read_reference
+    from sensors.io.cloudread import iter_points, read_reference
 
     if is_mesh_file(path):
         if field != "deviation":

@@ -36,7 +36,7 @@ from survey.world.alignment import Alignment
 if TYPE_CHECKING:
     from raytrace import Scene
     from sensors.route import Route
-    from sensors.spec import SensorSpec
+    from sensors.spec_types import SensorSpec
 
 __all__ = ["OCCLUSION_EPS_M", "TRIPOD_HEIGHT_M", "Cells", "Plan", "Planner", "RoutePlanner",
            "StationQuality", "Thresholds", "axis_stations", "lining_cells",
@@ -482,7 +482,8 @@ class RoutePlanner(Planner):
                  thresholds: Thresholds | None = None, sample_m: float = 0.25,
                  height_m: float = TRIPOD_HEIGHT_M, clearance_m: float = 0.2,
                  keep_floor: bool = False) -> None:
-        from sensors.route import find_route, free_space
+        from sensors.route import find_route
+        from sensors.freespace import free_space
 
         self._setup(scene, sensor, resolution, thresholds, height_m)
         if route is None:

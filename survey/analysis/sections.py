@@ -6,7 +6,7 @@ left, height above the centreline's elevation, metres). A mesh is cut by the sec
 plane itself (the vertical plane through the centreline point, normal to the plan
 tangent) and the cut polyline is sampled every ``spacing_m``.
 
-Streaming: a cloud file is read chunk by chunk (``sensors.io.clouds.iter_points``)
+Streaming: a cloud file is read chunk by chunk (``sensors.io.cloudread.iter_points``)
 and only the points inside a band are kept, so memory is bounded by the band contents,
 and by ``max_points`` per section beyond that (a uniform random subset: every point
 gets a seeded random key and the ``max_points`` smallest keys are kept, bottom-k
@@ -293,13 +293,13 @@ def cut_file(path: str | os.PathLike[str], alignment: Alignment, chainages: Arra
              classes: Sequence[int] | None = None) -> list[SectionCut]:
     """Sections of a file: a mesh (PLY with faces, OBJ, STL, OFF) is cut by the section
     planes (``cut_mesh``; ``half_width_m`` unused), a cloud (every format of
-    ``sensors.io.clouds.iter_points``) is streamed chunk by chunk (``cut_cloud``).
+    ``sensors.io.cloudread.iter_points``) is streamed chunk by chunk (``cut_cloud``).
     ``classes``: keep only the points of a cloud whose ``classification`` (LAS, or a
     PLY/NPZ/CSV field of that name; ``survey.clouds.segment`` writes lining 64 and
     floor 2) is one of these codes. Raises ``PointFileError`` for an unreadable file
     or a cloud without a classification, ``CompareError`` for classes with a mesh."""
     from sensors.io.ply import read_ply_header
-    from sensors.io.clouds import iter_points, read_reference
+    from sensors.io.cloudread import iter_points, read_reference
 
     p = Path(path)
     kind = p.suffix.lower()

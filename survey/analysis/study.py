@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from sensors.route import Route
     from survey.analysis.surface import RouteFrame, Surface
     from sensors.physics import Settings
-    from sensors.spec import SensorSpec
+    from sensors.spec_types import SensorSpec
     from sensors.trajectory import Mount, Trajectory
 
 __all__ = ["FORWARD_AZ_RAD", "MOUNTS", "Study", "StudyRow"]

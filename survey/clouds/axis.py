@@ -17,7 +17,8 @@ from numpy.typing import ArrayLike, NDArray
 from raytrace.checks import as_points
 from survey.errors import AlignmentError, ReconstructionError
 from survey.world.alignment import Alignment
-from survey.world.mesh import read_axis, read_meta, sidecar
+from survey.world.mesh import read_axis
+from sensors.io.tunnel_json import read_meta, sidecar
 
 if TYPE_CHECKING:
     from raytrace import Scene
@@ -413,7 +414,7 @@ def sample_points(path: str | Path, n: int = AXIS_SAMPLE, *, seed: int = 0) -> F
     """A seeded uniform subset (at most ``n``, 3) float64 of a cloud file's points
     (streamed: bottom-k sampling, every point a random key, the n smallest kept), or
     a mesh's vertices (PLY with faces, OBJ, STL, OFF)."""
-    from sensors.io.clouds import iter_points, read_reference
+    from sensors.io.cloudread import iter_points, read_reference
 
     p = Path(path)
     if p.suffix.lower() in (".ply", ".obj", ".stl", ".off"):

@@ -435,5 +435,5 @@ def reconstruct_within_budget(points: ArrayLike, max_triangles: int, *,
 
 
 __all__ = ["AXIS_END_REACH_M", "BUDGET_MAX_GROWTH", "BUDGET_MIN_GROWTH", "ReconstructedTunnel",
-           "extend_chainage", "poisson_tunnel",
+           "poisson_tunnel",
            "reconstruct_tunnel", "reconstruct_within_budget"]

@@ -32,7 +32,7 @@ from raytrace.errors import TunnelsimError
 from survey.errors import ClusterError
 from survey.report.progress import Progress
 
-__all__ = ["CLUSTER_HINT", "ClusterError", "DaskExecutor", "Executor", "InProcess",
+__all__ = ["CLUSTER_HINT", "DaskExecutor", "Executor", "InProcess",
            "SceneRef", "TaskProgress", "numba_threads_per_worker", "open_executor"]
 
 T = TypeVar("T")

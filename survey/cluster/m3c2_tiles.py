@@ -84,7 +84,7 @@ def halo_of(params: M3C2Params, margin_m: float = HALO_MARGIN_M) -> float:
 def _chunks(src: Source, chunk: int) -> Iterator[Floats]:
     """(k, 3) float64 chunks of a cloud file (``iter_points``) or of an array."""
     if isinstance(src, str | os.PathLike):
-        from sensors.io.clouds import iter_points
+        from sensors.io.cloudread import iter_points
 
         yield from iter_points(src, chunk=chunk)
         return

@@ -31,7 +31,7 @@ metres, the ``map -> odom`` a drive's bag states for a robot starting there
 ``map_origin`` (at -origin: world = local + origin), and is recorded in
 ``model.config``, ``model.sdf`` (a ``tunnelsim:origin`` custom element) and README.
 When the tunnel states a coordinate reference system (its JSON's ``crs``, or a
-``<mesh>.prj`` sidecar; ``sensors.io.clouds.cloud_crs_text``), the same places name
+``<mesh>.prj`` sidecar; ``sensors.io.cloudread.cloud_crs_text``), the same places name
 it (``tunnelsim:crs`` holds the WKT in model.sdf, the name in the frame).
 
 DECISION: no ``<spherical_coordinates>``. Gazebo places that origin on the WGS 84
@@ -92,14 +92,14 @@ from .gazebo_sdf import flavour as flavour_of
 
 if TYPE_CHECKING:
     from raytrace import Scene
-    from sensors.bag import ImuModel
-    from sensors.spec import SensorSpec
+    from sensors.imu import ImuModel
+    from sensors.spec_types import SensorSpec
     from survey.world.alignment import Alignment
 
-__all__ = ["BASE", "COLLISION_MAX_TRIANGLES", "FLAVOURS", "LASER_RETRO_SCALE",
-           "MAX_METRIC_EXTENT_M", "RANGE_RESOLUTION_M", "ROUTE_CLEARANCE_M", "ROUTE_HEIGHT_M",
+__all__ = ["COLLISION_MAX_TRIANGLES", "LASER_RETRO_SCALE",
+           "MAX_METRIC_EXTENT_M", "ROUTE_CLEARANCE_M", "ROUTE_HEIGHT_M",
            "decimate",
-           "export_gazebo", "laser_retro", "lidar_sdf", "unit_warnings", "write_obj"]
+           "export_gazebo", "laser_retro", "unit_warnings", "write_obj"]
 
 Floats = NDArray[np.float64]
 
@@ -191,7 +191,7 @@ def robot_description(sensor: SensorSpec, mount: str) -> Any:
     profiler) turned to scan the cross-section."""
     from scipy.spatial.transform import Rotation
 
-    from sensors.bag import GENERIC_DRIVER
+    from sensors.pointcloud2 import GENERIC_DRIVER
     from sensors.platform_spec import load_platform
     from sensors.robot import RobotDescription
     from sensors.trajectory import Mount
@@ -267,7 +267,7 @@ def laser_retro(reflectivity: ArrayLike | None, vertices: ArrayLike, faces: Arra
 
 def _has_axis_json(mesh_path: str | Path) -> bool:
     """Whether the mesh has the generator's JSON with an alignment and a profile."""
-    from survey.world.mesh import read_meta, sidecar
+    from sensors.io.tunnel_json import read_meta, sidecar
 
     js = sidecar(mesh_path)
     if not js.is_file():
@@ -410,10 +410,12 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
     """
     import trimesh
 
-    from sensors.bag import DEFAULT_IMU, GENERIC_DRIVER, POSE_RATE_HZ
+    from sensors.imu import DEFAULT_IMU
+    from sensors.pointcloud2 import GENERIC_DRIVER
+    from sensors.bag import POSE_RATE_HZ
     from sensors.io.crs import crs_label, parse_crs
     from sensors.io.meshes import load_mesh
-    from sensors.io.clouds import cloud_crs_text
+    from sensors.io.cloudread import cloud_crs_text
 
     fl = flavour_of(flavour)
     out = Path(out_dir)

@@ -57,8 +57,8 @@ import numpy as np
 from survey.errors import GazeboExportError
 
 if TYPE_CHECKING:
-    from sensors.bag import ImuModel
-    from sensors.spec import SensorSpec
+    from sensors.imu import ImuModel
+    from sensors.spec_types import SensorSpec
 
 __all__ = ["BASE", "CLOCK_TOPIC", "CMD_VEL_TOPIC", "FLAVOURS", "GT_ODOMETRY_TOPIC",
            "IMU_BIAS_CORRELATION_S", "IMU_GZ_TOPIC", "LIDAR_GZ_TOPIC", "POINTS_SUFFIX",

@@ -33,7 +33,7 @@ def cloud_c2m_rms(clouds: list[str | os.PathLike[str]], mesh: str | os.PathLike[
     distance, gives None.
     """
     from survey.analysis.compare import ReferenceMesh
-    from sensors.io.clouds import read_points
+    from sensors.io.cloudread import read_points
     from sensors.io.meshes import read_mesh
 
     m = read_mesh(mesh)

@@ -39,7 +39,8 @@ def _pass(r: DetectRow) -> str:
 def detect_summary(study: Detectability, rows: Sequence[DetectRow], *,
                    extra: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """JSON-ready: the layout, the M3C2 parameters, the definitions and every row."""
-    from survey.analysis.detectability import BULGE_CORE_FRACTION, POD_TARGET
+    from survey.analysis.detect_layout import BULGE_CORE_FRACTION
+    from survey.analysis.detect_stats import POD_TARGET
 
     return {
         "format": "tunnelsim-detect/1",
@@ -102,7 +103,7 @@ def _mm(v: float) -> str:
 def detect_markdown(study: Detectability, rows: Sequence[DetectRow]) -> str:
     """Markdown: what was laid out, the definitions and one table line per
     configuration."""
-    from survey.analysis.detectability import POD_TARGET
+    from survey.analysis.detect_stats import POD_TARGET
 
     lay, prm = study.layout, study.params
     conv, bulge = lay.targets
@@ -139,7 +140,7 @@ def plot_detectability(rows: Sequence[DetectRow], path: str | Path) -> str | Pat
     """Three panels: detected share against magnitude for convergence and for bulges
     (one line per configuration, the 95 % line dashed) and the false-alarm rate per
     configuration (the nominal 5 % dashed). Atomic PNG."""
-    from survey.analysis.detectability import POD_TARGET
+    from survey.analysis.detect_stats import POD_TARGET
     from survey.report.plotting import pyplot, save_png
 
     from matplotlib.ticker import FixedLocator, NullLocator, ScalarFormatter

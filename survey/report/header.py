@@ -144,7 +144,7 @@ def crs_words(paths: Iterable[PathLike | None]) -> str | None:
         The CRS in words (``sensors.io.crs.crs_label``); None when no file states one
         (the header then says "none stated").
     """
-    from sensors.io.clouds import cloud_crs_text
+    from sensors.io.cloudread import cloud_crs_text
     from sensors.io.crs import crs_label, parse_crs, text_file_crs
 
     for p in paths:

@@ -32,7 +32,8 @@ from scipy.spatial.transform import Rotation
 
 from raytrace.fileio import write_json
 from sensors import Trajectory
-from sensors.io.clouds import KEEP_CRS, cloud_crs_text, map_cloud
+from sensors.io.cloudmap import KEEP_CRS, map_cloud
+from sensors.io.cloudread import cloud_crs_text
 from sensors.io.crs import (
     CRSError,
     crs_label,
@@ -379,7 +380,7 @@ def _pose_mover(res: HelmertResult, inverse: bool
     DECISION: the attitude takes the Helmert's rotation only: a rotation has no scale,
     so the points of a similarity are the new pose applied to the sensor-frame points
     times (1 + s) (LAS/PLY keep the points' coordinates, E57 the scaled scan-frame
-    ones; ``sensors.io.clouds._map_e57``), as ``HelmertResult.apply_trajectory``
+    ones; ``sensors.io.cloudmap._map_e57``), as ``HelmertResult.apply_trajectory``
     treats attitudes."""
     r_h = np.asarray(res.rotation_matrix, dtype=np.float64)
     rot_h = Rotation.from_matrix(r_h.T if inverse else r_h)
@@ -438,7 +439,7 @@ def transform_file(cloud: PathLike, helmert: PathLike, output: PathLike, *,
     --------
     >>> import tempfile, pathlib
     >>> from survey.adjust.helmert import from_parameters
-    >>> from sensors.io.clouds import write_points_las
+    >>> from sensors.io.cloudmap import write_points_las
     >>> d = pathlib.Path(tempfile.mkdtemp())
     >>> src = np.array([[0.0, 0, 0], [50, 0, 0], [0, 60, 0], [40, 40, 8]])
     >>> h = from_parameters([100.0, 200.0, 5.0], [0.0, 0.0, 0.0], 0.0)

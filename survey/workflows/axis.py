@@ -193,7 +193,7 @@ def axis_file(input: PathLike, output: PathLike, *,
     1250.0
     """
     from raytrace.fileio import write_json
-    from sensors.io.clouds import cloud_crs_text
+    from sensors.io.cloudread import cloud_crs_text
 
     src, out = Path(input), Path(output)
     if not src.is_file():

@@ -115,7 +115,7 @@ def preprocess_file(cloud: PathLike, output: PathLike, *, voxel_m: float | None 
     >>> r.input_points, r.voxel_points, r.kept_points  # doctest: +SKIP
     (1250000, 310421, 309877)
     """
-    from sensors.io.clouds import cloud_bounds
+    from sensors.io.cloudread import cloud_bounds
     from survey.clouds.preprocess import (VoxelGrid, extra_dims, iter_points_extra,
                                           radius_outliers, statistical_outliers,
                                           write_preprocessed)
@@ -373,14 +373,14 @@ def _read_reduced(clouds: Sequence[str], voxel_m: float
 
     Memory bound: one bounds pass, then the grid holds 40 bytes per occupied voxel
     (key, three sums, count), about three times that while chunks merge, plus one chunk
-    of points (``cloudio.CHUNK``); the occupied voxels are about lining area /
+    of points (``sensors.io.cloudread.CHUNK``); the occupied voxels are about lining area /
     voxel_m^2 (times the noise's thickness in voxels), whatever the number of points.
     The mesher then needs ~90 bytes a voxel. Measured peak RSS of ``tunnelsim mesh``
     (a 5 m tube 300 m long, 2 mm noise, 2 cm voxels): 1.26 GB for 10^7 points (8.4 M
     voxels), 2.53 GB for 3 x 10^7 (18.4 M), 4.74 GB for 10^8 (29.0 M); every point in
     memory (``voxel_m`` 0) costs ~86 bytes a point (2.58 GB for 3 x 10^7).
     """
-    from sensors.io.clouds import cloud_bounds, iter_points
+    from sensors.io.cloudread import cloud_bounds, iter_points
     from survey.clouds.preprocess import VoxelGrid
 
     if not (np.isfinite(voxel_m) and voxel_m >= 0):
@@ -603,7 +603,7 @@ def _mesh_solid(job: _MeshJob, choice: dict[str, Any], cells: dict[str, Any]
     """``solid``: the clouds stream through a scanner-aware voxel grid (bounds first,
     one pass each), then ``reconstruct_solid``. ``cells``: the tunnel mesher's cell
     when auto tried it first."""
-    from sensors.io.clouds import cloud_bounds
+    from sensors.io.cloudread import cloud_bounds
     from survey.clouds.scanners import iter_scanned, read_positions
     from survey.clouds.solid import ScannerVoxelGrid, reconstruct_solid
     from survey.world.mesh import write_ply

@@ -76,7 +76,7 @@ class CompareResult:
 # ---------------------------------------------------------------------------- outputs
 # ---------------------------------------------------------------------------- checks
 def _load_reference(path: PathLike) -> tuple[Any, str]:
-    from sensors.io.clouds import read_reference
+    from sensors.io.cloudread import read_reference
     from survey.analysis.compare import ReferenceCloud, ReferenceMesh
 
     v, f = read_reference(path)
@@ -88,7 +88,7 @@ def _compared_boxes(compared: Sequence[PathLike], reference: PathLike, ref: Any,
     """Refuse (unless ``allow_disjoint``) a compared cloud whose bounding box lies more
     than ``OVERLAP_TOL_M`` from the reference's; one pass over each cloud (bounds from
     the points, not a header). Returns the number of points of each compared cloud."""
-    from sensors.io.clouds import cloud_bounds
+    from sensors.io.cloudread import cloud_bounds
     from survey.analysis.compare import check_overlap
 
     total = []
@@ -111,7 +111,7 @@ def _check_crs(compared: Sequence[PathLike], reference: PathLike,
     """Refuse (unless ``allow_mismatch``) inputs that state different coordinate
     reference systems, naming the first two; inputs stating none are not compared.
     Returns {path: CRS text or None} (the outputs state the compared cloud's)."""
-    from sensors.io.clouds import cloud_crs_text
+    from sensors.io.cloudread import cloud_crs_text
     from sensors.io.crs import CRSError, crs_mismatch, mismatch_message
 
     stated = {c: cloud_crs_text(c) for c in [*compared, reference]}
@@ -147,7 +147,7 @@ def compare_files(compared: Sequence[PathLike], reference: PathLike,
     Parameters
     ----------
     compared : sequence of path-like
-        The compared clouds (any format ``sensors.io.clouds`` reads).
+        The compared clouds (any format ``sensors.io.cloudread`` reads).
     reference : path-like
         The reference: a cloud, or a mesh (.ply/.obj/.stl with faces).
     output_dir : path-like
@@ -280,7 +280,7 @@ def _tiled(compared: list[Any], reference: PathLike, output_dir: PathLike,
     distance (or the mesh sent once), each compared cloud spilled and compared tile by
     tile on the executor, then written in its own order (``survey.cluster.compare``).
     Returns (kind, stats rows, distances, tiles run)."""
-    from sensors.io.clouds import iter_points
+    from sensors.io.cloudread import iter_points
     from survey.analysis.developed import is_mesh_file
     from survey.cluster.compare import spill_cloud, tiled_distances
 
@@ -343,7 +343,8 @@ def _distances(compared: list[Any], ref: Any, kind: str, out: Path,
     cloud's CRS ``crs[path]``), block by block (``progress(points done)`` after each);
     returns (stats rows, distances) by cloud name. ``tiled``: {path: TiledDistances}
     computed before (tile by tile), read in the cloud's order."""
-    from sensors.io.clouds import annotate_las, iter_points, write_points_las
+    from sensors.io.cloudmap import annotate_las, write_points_las
+    from sensors.io.cloudread import iter_points
     from survey.analysis.compare import BLOCK, Distances, distance_stats
 
     rows, hist = {}, {}

@@ -14,7 +14,8 @@ from typing import Any
 
 from raytrace.fileio import write_json
 from sensors import SensorSpec, load_sensor
-from survey.analysis.detectability import Detectability, DetectLayout, DetectRow
+from survey.analysis.detectability import Detectability, DetectRow
+from survey.analysis.detect_layout import DetectLayout
 from survey.analysis.m3c2 import M3C2Params
 from survey.errors import StudyError
 from survey.report.detectability import (

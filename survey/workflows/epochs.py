@@ -101,7 +101,7 @@ class ConvergenceResult:
 def _check_crs(paths: Sequence[PathLike], allow_mismatch: bool) -> str | None:
     """Refuse (unless ``allow_mismatch``) inputs stating different CRSs; returns the
     first stated CRS text (the outputs state it)."""
-    from sensors.io.clouds import cloud_crs_text
+    from sensors.io.cloudread import cloud_crs_text
     from sensors.io.crs import CRSError, crs_mismatch, mismatch_message
 
     stated = [(str(p), cloud_crs_text(p)) for p in paths]
@@ -127,7 +127,7 @@ def _tunnel(path: PathLike) -> tuple[Any, Any]:
 
 def _epoch_points(path: PathLike) -> np.ndarray:
     """Points of an epoch: a cloud, or a mesh's vertices."""
-    from sensors.io.clouds import read_reference
+    from sensors.io.cloudread import read_reference
 
     return read_reference(path)[0]
 
@@ -300,7 +300,8 @@ def _m3c2_whole(e1: np.ndarray, e2: np.ndarray, out: Path, prm: Any,
                 core: PathLike | None, core_spacing_m: float | None) -> Any:
     """M3C2 on the whole epochs, core points chunk by chunk; the core points written
     to ``out`` (a LAS/LAZ core streamed with its fields). Returns the M3C2Result."""
-    from sensors.io.clouds import annotate_las, iter_points, write_points_las
+    from sensors.io.cloudmap import annotate_las, write_points_las
+    from sensors.io.cloudread import iter_points
     from survey.analysis.m3c2 import CHUNK, M3C2, M3C2Result, subsample, towards_axis
 
     job = M3C2(e1, e2, prm)
@@ -334,7 +335,7 @@ def _m3c2_tiled(epoch1: PathLike, epoch2: PathLike, out: Path, prm: Any,
     columns of the store on disk, which the caller closes."""
     from functools import partial
 
-    from sensors.io.clouds import annotate_las, write_points_las
+    from sensors.io.cloudmap import annotate_las, write_points_las
     from survey.analysis.m3c2 import CHUNK, towards_axis
     from survey.cluster.m3c2_tiles import m3c2_files
 

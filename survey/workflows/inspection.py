@@ -150,7 +150,7 @@ def _tunnel(source: PathLike, tunnel: PathLike | None) -> tuple[Any, Any, str | 
     """(Alignment, Profile or None, CRS text or None) from ``tunnel`` (a tunnel JSON,
     LandXML or station CSV) or the JSON beside a tunnel PLY ``source``."""
     from survey.world.alignment_io import load_tunnel
-    from survey.world.mesh import sidecar
+    from sensors.io.tunnel_json import sidecar
 
     js = tunnel
     if js is None and Path(source).suffix.lower() == ".ply" and \
@@ -199,7 +199,7 @@ def _frame(source: PathLike, *, tunnel: PathLike | None, design: PathLike | None
            cell_arc_m: float | None, tile_m: float | None, chainage_from_m: float | None,
            chainage_to_m: float | None) -> _Frame:
     """Check the input and the cells, then read the alignment and the design."""
-    from sensors.io.clouds import cloud_crs_text
+    from sensors.io.cloudread import cloud_crs_text
 
     if not Path(source).is_file():
         raise CompareError(f"Expected an input cloud or mesh, got '{source}' which does "

@@ -63,7 +63,8 @@ def write_robot_bag(path: str | os.PathLike[str], run: Run, robot: RobotDescript
     >>> from survey.workflows.robotbag import write_robot_bag
     >>> # write_robot_bag("drive.mcap", run, RobotDescription.from_platform(...))
     """
-    from sensors.bag import DEFAULT_WHEEL_ODOMETRY, RosbagStream
+    from sensors.imu import DEFAULT_WHEEL_ODOMETRY
+    from sensors.bag import RosbagStream
     from sensors.io.crs import file_wkt, parse_crs
     from sensors.writers import format_of
 

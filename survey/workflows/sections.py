@@ -163,7 +163,7 @@ def section_alignment(input: PathLike, *, tunnel_json: PathLike | None = None,
     >>> al, prof = section_alignment("scan.laz", tunnel_json="bfo.json")  # doctest: +SKIP
     """
     from survey.world.alignment_io import load_tunnel
-    from survey.world.mesh import sidecar
+    from sensors.io.tunnel_json import sidecar
 
     js = tunnel_json
     if js is None and not fit_axis and Path(input).suffix.lower() == ".ply" \

@@ -39,7 +39,7 @@ if TYPE_CHECKING:
     from sensors.platform_spec import PlatformSpec
     from sensors.robot import RobotDescription
     from sensors.simulate import Run
-    from sensors.spec import SensorSpec
+    from sensors.spec_types import SensorSpec
     from sensors.trajectory import Trajectory
     from survey.adjust.slam import DriftedRun
     from survey.cluster import Campaign, Executor
@@ -309,7 +309,7 @@ def sweep_rate_hz(spec: SensorSpec) -> float | None:
     >>> sweep_rate_hz(load_sensor("velodyne_vlp16"))
     10.0
     """
-    from sensors.spec import ProfilerPattern, SpinningPattern
+    from sensors.spec_types import ProfilerPattern, SpinningPattern
 
     p = spec.pattern
     if isinstance(p, SpinningPattern):
@@ -357,9 +357,9 @@ def output_crs(mesh: str | os.PathLike[str], crs: str | None = None, *,
     sensors.io.crs.CRSError
         For a ``crs`` that pyproj cannot read, or one against the mesh's own.
     """
-    from sensors.io.clouds import cloud_crs_text
+    from sensors.io.cloudread import cloud_crs_text
     from sensors.io.crs import CRSError, mismatch_message, parse_crs, same_crs
-    from survey.world.mesh import read_meta, tunnel_crs
+    from sensors.io.tunnel_json import read_meta, tunnel_crs
 
     where = str(tunnel_json or mesh)
     stated = tunnel_crs(read_meta(Path(tunnel_json))) if tunnel_json else \
@@ -496,7 +496,8 @@ def _settings(settings: Any) -> Any:
 def _sensor(sensor: str | os.PathLike[str] | SensorSpec, rate_hz: float | None = None
             ) -> SensorSpec:
     from sensors import load_sensor
-    from sensors.spec import SensorSpec, with_rate
+    from sensors.spec_types import SensorSpec
+    from sensors.spec import with_rate
 
     spec = sensor if isinstance(sensor, SensorSpec) else load_sensor(sensor)
     return spec if rate_hz is None else with_rate(spec, rate_hz)
@@ -622,7 +623,8 @@ def stations_on_axis(mesh: str | os.PathLike[str], scene: Any, chainages: ArrayL
     at ``chainages`` (k,) m, ``height_m`` above the floor of ``scene``; ``flag`` names
     the option the chainages came from in the errors."""
     from survey.analysis.planning import axis_stations
-    from survey.world.mesh import read_axis, sidecar
+    from survey.world.mesh import read_axis
+    from sensors.io.tunnel_json import sidecar
 
     js = Path(tunnel_json) if tunnel_json else sidecar(Path(mesh))
     if not js.is_file():
@@ -734,7 +736,7 @@ def scan_campaign(mesh: str | os.PathLike[str], folder: str | os.PathLike[str], 
     import numpy as np
 
     from sensors.io.meshes import load_mesh
-    from sensors.spec import TLSPattern
+    from sensors.spec_types import TLSPattern
     from survey.cluster import Executor, scan_stations
 
     if plan_name is not None and plan is None:
@@ -854,7 +856,7 @@ def _tunnel_meta(mesh: str | os.PathLike[str]) -> dict[str, Any]:
     import json
 
     from sensors.io.errors import TunnelFileError
-    from survey.world.mesh import sidecar
+    from sensors.io.tunnel_json import sidecar
 
     js = sidecar(Path(mesh))
     if not js.is_file():
@@ -912,7 +914,8 @@ def _auto_route(output: str | os.PathLike[str], scene: Any, platform: PlatformSp
     import numpy as np
 
     from sensors.platform import platform_trajectory
-    from sensors.route import find_route, free_space, read_waypoints
+    from sensors.route import find_route, read_waypoints
+    from sensors.freespace import free_space
 
     wp = None if waypoints is None else read_waypoints(waypoints) \
         if isinstance(waypoints, (str, os.PathLike)) else np.asarray(waypoints, float)

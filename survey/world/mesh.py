@@ -41,8 +41,8 @@ from survey.world.alignment import Alignment
 from survey.world.profiles import Profile
 from sensors.io.tunnel_json import FORMAT, read_meta, sidecar, tunnel_crs
 
-__all__ = ["FORMAT", "LABEL", "LABELS", "REFLECTIVITY", "TunnelMesh", "read_axis",
-           "read_meta", "read_tunnel", "sidecar", "tunnel_crs", "write_ply",
+__all__ = ["LABEL", "LABELS", "REFLECTIVITY", "TunnelMesh", "read_axis",
+           "read_tunnel", "write_ply",
            "write_tunnel"]
 
 

@@ -27,7 +27,8 @@ from sensors import (
     simulate_drive,
     simulate_station,
 )
-from sensors.bag import DEFAULT_IMU, STANDARD_GRAVITY, ImuModel, RosbagStream
+from sensors.imu import DEFAULT_IMU, STANDARD_GRAVITY, ImuModel
+from sensors.bag import RosbagStream
 from sensors.patterns import SpinningScan
 from sensors.spec import SPEC_DIR
 from sensors.writers import open_writer
@@ -545,7 +546,7 @@ def test_rings_are_the_elevation_ranks(centidegrees, order):
     (reference: argsort of argsort); a repeated elevation shares its ring."""
     from dataclasses import replace
 
-    from sensors.bag import GENERIC_DRIVER
+    from sensors.pointcloud2 import GENERIC_DRIVER
 
     el = np.deg2rad(np.array(centidegrees) / 100.0)
     driver = replace(GENERIC_DRIVER, ring_order=order)
@@ -566,7 +567,7 @@ def test_rings_are_the_elevation_ranks(centidegrees, order):
 def test_cloud_bytes_decode_with_the_drivers_layout(n, seed, name):
     """Random records through cloud_points, to bytes, decoded with the layouts derived
     in this file from the drivers' definitions: every field where it belongs."""
-    from sensors.bag import LAYOUTS, cloud_points
+    from sensors.pointcloud2 import LAYOUTS, cloud_points
     from sensors.io.fields import POINT_DTYPE
 
     spec = load_sensor(name)

@@ -15,12 +15,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from survey.adjust.drift import fit_drift
-from survey.adjust.helmert import (
-    HelmertResult,
-    fit_helmert,
-    from_parameters,
-    model_name,
-)
+from survey.adjust.helmert import HelmertResult, fit_helmert, from_parameters, model_name
 from survey.analysis.compare import (
     Distances,
     ReferenceCloud,

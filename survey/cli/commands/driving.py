@@ -205,4 +205,4 @@ def drive_lines(res, output) -> list[str]:
     return lines
 
 
-__all__ = ["MIN_DRIVE_RETURN", "ROUTE_CLEARANCE_M", "cmd_drive", "drive_lines", "register"]
+__all__ = ["cmd_drive", "drive_lines", "register"]

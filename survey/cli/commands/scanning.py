@@ -151,4 +151,4 @@ def _scan_campaign(args, heading_deg: float) -> int:
     return 0
 
 
-__all__ = ["STATION_FORMATS", "cmd_scan", "register", "station_heading_deg"]
+__all__ = ["cmd_scan", "register"]

@@ -98,7 +98,7 @@ def _old_ply(path, pts):
 
 @pytest.mark.parametrize("old", [False, True])
 def test_a_rewrite_reads_the_time_under_either_name(drive, points, tmp_path, old):
-    from sensors.io.clouds import map_cloud
+    from sensors.io.cloudmap import map_cloud
 
     src = tmp_path / "d.ply"
     if old:

@@ -187,7 +187,7 @@ def test_leica_las13_format4_without_waveform_data(tmp_path, helmert, capsys, ki
     the end of the points, into the points, past the end, into trailing padding):
     read, transform and compare keep every field and say in one line that the wave
     packet fields point nowhere."""
-    from sensors.io.clouds import read_points
+    from sensors.io.cloudread import read_points
 
     h, res = helmert
     src = tmp_path / "leica.las"
@@ -283,7 +283,7 @@ def test_a_rewrite_keeps_every_byte_but_the_coordinates(tmp_path, case, n, seed)
     and the coordinates to the output scale, whatever the version, format and count."""
     import warnings
 
-    from sensors.io.clouds import map_cloud
+    from sensors.io.cloudmap import map_cloud
 
     minor, fmt = case
     rng = np.random.default_rng(seed)

@@ -8,7 +8,8 @@ from scipy.spatial.transform import Rotation
 
 from survey.errors import ControlPointError
 from survey.adjust.controlpoints import ControlPoints, match, read_control_points
-from survey.adjust.helmert import fit_helmert, from_parameters, rotation_matrix
+from survey.adjust.helmert import fit_helmert, from_parameters
+from survey.adjust.helmert_stats import rotation_matrix
 from survey.errors import HelmertError
 
 UTM = np.array([451_000.0, 5_352_000.0, 600.0])

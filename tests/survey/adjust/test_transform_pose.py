@@ -24,7 +24,7 @@ from sensors import simulate_station
 from sensors.io.e57 import write_e57_scan
 from survey.adjust.helmert import from_parameters
 from survey.cli.main import main
-from sensors.io.clouds import map_cloud
+from sensors.io.cloudmap import map_cloud
 
 T_M = np.array([2_600_120.5, 1_199_960.25, 503.0])
 R_ARCSEC = np.array([40.0, -25.0, 5.0 * 3600.0])     # 5 degrees about z: order matters

@@ -134,7 +134,7 @@ def test_bad_inputs():
 def test_cli_compare_cloud_to_mesh(tmp_path, capsys):
     import laspy
 
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
     from survey.world.mesh import write_ply
 
     v, f = _sphere_and_plate()
@@ -167,7 +167,7 @@ def test_cli_compare_cloud_to_mesh(tmp_path, capsys):
 def test_cli_compare_cloud_to_cloud_split(tmp_path):
     import laspy
 
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     rng = np.random.default_rng(5)
     ref = rng.uniform(0, 5, size=(3000, 3)) + UTM
@@ -188,7 +188,7 @@ def test_cli_compare_cloud_to_cloud_split(tmp_path):
 def test_cli_compare_keeps_the_input_fields(tmp_path):
     import laspy
 
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     rng = np.random.default_rng(6)
     ref = rng.uniform(0, 5, size=(2000, 3)) + UTM

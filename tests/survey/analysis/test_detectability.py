@@ -15,9 +15,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sensors import load_sensor
-from survey.analysis.detectability import (BULGE_CORE_FRACTION, POD_TARGET, DetectLayout,
-                                           Detectability, ahat_a95, detection_limit,
-                                           with_noise)
+from survey.analysis.detect_layout import BULGE_CORE_FRACTION, DetectLayout
+from survey.analysis.detect_stats import POD_TARGET, ahat_a95, detection_limit
+from survey.analysis.detectability import Detectability, with_noise
 from survey.cli.main import main
 from survey.errors import StudyError
 from survey.world.deformation import total_field

@@ -16,9 +16,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from survey.analysis.design import DesignProfile
-from survey.analysis.developed import (DevelopedFrame, DevelopedGrid, RasterAccumulator,
-                                       crown_t, develop, develop_file, iter_field,
-                                       mesh_samples)
+from survey.analysis.developed import (DevelopedFrame,
+    DevelopedGrid,
+    RasterAccumulator,
+    crown_t,
+    develop,
+    develop_file,
+    mesh_samples)
+from sensors.io.cloudfields import iter_field
 from survey.cli.main import main
 from survey.errors import AlignmentError, CompareError
 from sensors.io.errors import PointFileError
@@ -191,7 +196,7 @@ def test_raster_is_invariant_under_a_utm_offset_and_rotation(seed, heading):
 
 # ---------------------------------------------------------------------- fields in files
 def test_intensity_and_distance_fields_stream_from_files(tmp_path):
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     al = Alignment([straight(4.0)], start_xy=UTM)
     design = DesignProfile.from_profile(circle(R))

@@ -349,7 +349,7 @@ def test_generated_5mm_convergence_is_recovered_and_significant(tunnel_epochs):
 @pytest.fixture(scope="module")
 def epoch_files(tmp_path_factory):
     """Two epochs of a wavy surface at UTM coordinates as LAZ (epoch 2 raised 20 mm)."""
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     d = tmp_path_factory.mktemp("m3c2")
     rng = np.random.default_rng(7)
@@ -366,7 +366,7 @@ def test_cli_writes_the_fields_the_library_computes(epoch_files, capsys):
     import laspy
 
     from survey.cli.main import main
-    from sensors.io.clouds import read_points
+    from sensors.io.cloudread import read_points
 
     d = epoch_files
     out = d / "m.laz"
@@ -396,7 +396,8 @@ def _one_line_error(capsys, *words):
 
 def test_cli_refuses_epochs_in_different_frames_or_crs(epoch_files, tmp_path, capsys):
     from survey.cli.main import main
-    from sensors.io.clouds import read_points, write_points_las
+    from sensors.io.cloudread import read_points
+    from sensors.io.cloudmap import write_points_las
 
     d = epoch_files
     far = tmp_path / "far.laz"

@@ -32,7 +32,7 @@ from survey.analysis.clearance import clearance
 from survey.analysis.design import DesignProfile
 from survey.analysis.developed import DevelopedFrame, station_spacing
 from survey.cli.main import main
-from sensors.io.clouds import write_points_las
+from sensors.io.cloudmap import write_points_las
 from survey.world.alignment import Alignment, straight
 from survey.world.generator import make_tunnel
 from survey.world.mesh import write_tunnel

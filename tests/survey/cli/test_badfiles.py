@@ -304,7 +304,7 @@ def test_header_bounds_1000x_wrong_use_the_points_and_warn(tmp_path, aux, capsys
 
 # ---------------------------------------------------------------------- the library
 def test_read_reference_tells_meshes_from_clouds(tmp_path):
-    from sensors.io.clouds import read_reference
+    from sensors.io.cloudread import read_reference
 
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
     f = np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]])
@@ -325,7 +325,7 @@ def test_read_reference_tells_meshes_from_clouds(tmp_path):
 
 @pytest.mark.parametrize("suffix", [".npz", ".csv", ".txt"])
 def test_text_and_npz_clouds_name_their_nan(tmp_path, suffix):
-    from sensors.io.clouds import read_points
+    from sensors.io.cloudread import read_points
     from sensors.io.errors import PointFileError
 
     xyz = F.tunnel_points(40)
@@ -370,7 +370,7 @@ def test_ply_transform_keeps_fields_comments_and_byte_values(tmp_path, aux, caps
 def test_cloud_bounds_are_the_points_own(tmp_path, suffix):
     import warnings
 
-    from sensors.io.clouds import cloud_bounds
+    from sensors.io.cloudread import cloud_bounds
 
     src = F.las_file(tmp_path / f"a{suffix}", point_format=7, extra=True)
     xyz = np.stack([src.x, src.y, src.z], 1)
@@ -390,7 +390,7 @@ def test_cloud_bounds_are_the_points_own(tmp_path, suffix):
 def test_text_cloud_with_a_header_reads_its_named_columns(tmp_path, header):
     """A CSV cloud with a header line (CloudCompare writes '//X,Y,Z,...') is read by the
     names in it, whatever the column order; without x, y and z it is refused by name."""
-    from sensors.io.clouds import read_points
+    from sensors.io.cloudread import read_points
 
     xyz = np.random.default_rng(3).uniform(-5, 5, (50, 3))
     names = [w.lstrip("/").lower() for w in header.split(",")]

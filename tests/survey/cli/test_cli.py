@@ -281,7 +281,7 @@ def test_correct_end_to_end(tmp_path, capsys):
 def test_preprocess_streams_a_cloud(tmp_path, capsys):
     import laspy
 
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
     from survey.clouds.preprocess import statistical_outliers, voxel_down_sample
     rng = np.random.default_rng(5)
     p = rng.normal(0, 2, (30_000, 3)) + [451_000.0, 5_352_000.0, 600.0]
@@ -319,7 +319,7 @@ def test_preprocess_bad_input(tmp_path, capsys):
 def test_mesh_reconstructs_a_generated_tunnel(tbm, tmp_path, capsys):
     """Points sampled on the tbm tunnel's lining (with 1 mm noise): the mesh command
     rebuilds it, with support per vertex, using the tunnel's own alignment."""
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
     from survey.world.mesh import LABEL
     from survey.world.mesh import read_tunnel
     from tests.iofiles import mesh_fields as read_ply
@@ -343,7 +343,7 @@ def test_mesh_reconstructs_a_generated_tunnel(tbm, tmp_path, capsys):
 def test_preprocess_segment_writes_classes(tbm, tmp_path, capsys):
     import laspy
 
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
     from survey.world.mesh import LABEL
     from survey.world.mesh import read_tunnel
     tun = read_tunnel(tbm)
@@ -372,7 +372,7 @@ def test_preprocess_segment_writes_classes(tbm, tmp_path, capsys):
 def test_mesh_budget_crop_and_coarse_las(tbm, tmp_path, capsys):
     import laspy
 
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
     from survey.world.mesh import LABEL
     from survey.world.mesh import read_tunnel
     from tests.iofiles import mesh_fields as read_ply
@@ -405,7 +405,7 @@ def test_mesh_budget_crop_and_coarse_las(tbm, tmp_path, capsys):
 def test_mesh_detail_layer_keeps_the_cable(tbm, tmp_path, capsys):
     import trimesh
 
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
     from survey.world.mesh import read_tunnel
     from tests.iofiles import mesh_fields as read_ply
     tun = read_tunnel(tbm)

@@ -160,7 +160,7 @@ def test_failed_drive_leaves_no_trajectories(tbm, tmp_path, capsys):
 
 
 def test_failed_mesh_leaves_no_ply(tbm, tmp_path, capsys):
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
     from survey.world.mesh import LABEL, read_tunnel
 
     tun = read_tunnel(tbm)
@@ -181,7 +181,7 @@ def test_failed_mesh_leaves_no_ply(tbm, tmp_path, capsys):
 def test_failed_compare_leaves_no_folder(tmp_path, capsys, force):
     """The compared cloud is unreadable; the output folder (new, or existing with the
     user's file and --force) ends as it was."""
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     write_points_las(tmp_path / "ref.laz", np.random.default_rng(1).normal(size=(500, 3)))
     (tmp_path / "bad.xyz").write_text("1 2 3\n4 5 x\n")

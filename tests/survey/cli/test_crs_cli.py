@@ -22,9 +22,10 @@ from sensors import simulate_station
 from sensors.io.meshes import load_mesh
 from survey.adjust.controlpoints import ControlPoints
 from survey.cli.main import main
-from sensors.io.clouds import KEEP_CRS, cloud_crs, cloud_crs_text, map_cloud
+from sensors.io.cloudmap import KEEP_CRS, map_cloud
+from sensors.io.cloudread import cloud_crs, cloud_crs_text
 from survey.world.alignment import Alignment
-from survey.world.mesh import read_meta
+from sensors.io.tunnel_json import read_meta
 
 pyproj = pytest.importorskip("pyproj", reason="CRS handling needs pyproj (pip install "
                               "'tunnelsim[crs]'); every test here uses it")

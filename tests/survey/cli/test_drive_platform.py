@@ -15,7 +15,7 @@ import pytest
 
 from raytrace.shapes import tunnel_tube
 from sensors import Trajectory
-from sensors.bag import platform_motion
+from sensors.imu import platform_motion
 from sensors.platform_spec import load_platform
 from survey.cli.main import main
 from tests.naive import naive_cast, naive_point_mesh

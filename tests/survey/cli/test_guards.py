@@ -23,10 +23,10 @@ from scipy.spatial.transform import Rotation
 
 from sensors import Trajectory
 from survey.analysis.compare import OVERLAP_TOL_M, box_gap, check_overlap
-from survey.cli.commands.driving import MIN_DRIVE_RETURN
+from survey.workflows.simulation import MIN_DRIVE_RETURN
 from survey.cli.common import radian_like
 from survey.cli.main import main
-from sensors.io.clouds import write_points_las
+from sensors.io.cloudmap import write_points_las
 from survey.errors import CompareError
 
 
@@ -368,7 +368,7 @@ def test_correct_refuses_control_times_outside_the_trajectory(tmp_path, capsys):
     refused in one line naming both time bases, and nothing written (it used to fit
     on the control points and apply the correction 1.7e9 s away, exit 0)."""
     from sensors import Trajectory
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     t = np.linspace(0.0, 10.0, 11)
     traj = Trajectory(t + 1.7e9, np.stack([t, 0 * t, 0 * t], 1), np.tile([0, 0, 0, 1.0], (11, 1)))

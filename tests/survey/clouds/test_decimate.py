@@ -22,7 +22,7 @@ pytest.importorskip("open3d", reason="the decimation needs Open3D (test extra)")
 def tube_cloud(path, seed=0, n=120_000):
     """Points on a gently bent, bumpy 30 m tube of radius 2.5 m (1 mm noise), written
     as a LAZ without a scanner pose."""
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     rng = np.random.default_rng(seed)
     s = rng.uniform(0, 30, n)

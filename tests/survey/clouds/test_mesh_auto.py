@@ -189,7 +189,7 @@ def test_the_rejected_tunnel_mesh_is_bad_and_judged_by_its_own_figures(mine, aut
     auto = auto_run[2]["auto"]
     assert auto["extrapolated_share"] == pytest.approx(q["extrapolated_share"])
     # The judgement's invented share, recomputed by brute force on the tunnel mesh.
-    from sensors.io.clouds import read_points
+    from sensors.io.cloudread import read_points
     from tests.naive import naive_nearest
 
     pts = np.concatenate([read_points(p) for p in paths])
@@ -205,7 +205,8 @@ def test_the_rejected_tunnel_mesh_is_bad_and_judged_by_its_own_figures(mine, aut
 
 
 def test_auto_refuses_the_fallback_without_scanner_positions(mine, tmp_path, capsys):
-    from sensors.io.clouds import read_points, write_points_las
+    from sensors.io.cloudread import read_points
+    from sensors.io.cloudmap import write_points_las
 
     _, _, paths = mine
     plain = tmp_path / "plain.laz"
@@ -221,7 +222,7 @@ def test_auto_refuses_the_fallback_without_scanner_positions(mine, tmp_path, cap
 def tube_cloud(tmp_path, seed=0, n=150_000):
     """Points on a gently bent 30 m tube of radius 2.5 m (1 mm noise), no scanner
     pose: (path of the LAZ)."""
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     rng = np.random.default_rng(seed)
     s = rng.uniform(0, 30, n)

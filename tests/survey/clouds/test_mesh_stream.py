@@ -76,7 +76,7 @@ def test_extent_of_a_tunnel_without_portal_is_the_whole_cloud():
 def test_mesh_command_streams_through_the_voxel_grid(tmp_path, capsys):
     """`tunnelsim mesh` with the default voxel grid and with --voxel 0 (every point in
     memory): both within noise of the true lobed tube, and of each other."""
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
     from tests.iofiles import mesh_fields as read_ply
 
     rng = np.random.default_rng(3)

@@ -28,7 +28,8 @@ import pytest
 
 from survey.analysis.compare import cloud_to_mesh
 from survey.clouds.axis import lining_extent, unroll
-from survey.clouds.reconstruct import extend_chainage, reconstruct_tunnel
+from survey.clouds.axis import extend_chainage
+from survey.clouds.reconstruct import reconstruct_tunnel
 from survey.clouds.segment import FLOOR, LINING, TERRAIN, segment_tunnel
 from survey.world.alignment import Alignment, curve, straight
 from survey.world.profiles import horseshoe

@@ -111,7 +111,7 @@ def test_profiles_tilted_across_the_axis_keep_their_end_rings(tilt_deg):
     drifts across the track): the end profiles reach beyond the axis's ends on one side.
     Their rings keep those points (the alignment extended straight), so the end rings
     are the true circle, not a chord across the missing side (as at Ringo's portal)."""
-    from survey.clouds.reconstruct import extend_chainage
+    from survey.clouds.axis import extend_chainage
 
     tilt = np.radians(tilt_deg)
     al = Alignment([straight(10.0)])

@@ -13,7 +13,8 @@ from scipy.spatial.transform import Rotation
 
 from raytrace import Scene
 from survey.clouds.axis import estimate_axis
-from survey.clouds.reconstruct import extend_chainage, reconstruct_tunnel
+from survey.clouds.axis import extend_chainage
+from survey.clouds.reconstruct import reconstruct_tunnel
 from survey.world.alignment import Alignment, curve, straight
 from survey.world.generator import make_tunnel
 from survey.world.profiles import horseshoe

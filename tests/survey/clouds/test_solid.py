@@ -358,7 +358,8 @@ def test_cli_mesh_auto_meshes_a_cavern_solid(station_files, tmp_path, capsys):
 
 
 def test_cli_mesh_bad_input_is_one_line(station_files, tmp_path, capsys):
-    from sensors.io.clouds import read_points, write_points_las
+    from sensors.io.cloudread import read_points
+    from sensors.io.cloudmap import write_points_las
 
     v, f, paths = station_files
     plain = tmp_path / "plain.laz"

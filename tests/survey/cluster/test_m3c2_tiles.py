@@ -158,7 +158,7 @@ def test_tiled_m3c2_refuses_bad_input(epochs, tmp_path):
 # ---------------------------------------------------------------------- the command
 @pytest.fixture(scope="module")
 def epoch_files(tmp_path_factory, epochs):
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     d = tmp_path_factory.mktemp("m3c2tiles")
     e1, e2 = epochs

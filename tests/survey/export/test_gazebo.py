@@ -14,7 +14,8 @@ from sensors import load_sensor
 from survey.world.alignment import Alignment, straight
 from survey.cli.main import main
 from survey.errors import GazeboExportError
-from survey.export.gazebo import decimate, export_gazebo, lidar_sdf, unit_warnings
+from survey.export.gazebo import decimate, export_gazebo, unit_warnings
+from survey.export.gazebo_sdf import lidar_sdf
 from survey.world.profiles import horseshoe
 from survey.world.generator import make_tunnel
 

@@ -14,12 +14,14 @@ import pytest
 import yaml  # PyYAML: installed with evo (test extra); parses the bridge file
 
 from sensors import load_sensor
-from sensors.bag import DEFAULT_IMU, IMU_TOPIC, ODOMETRY_TOPIC, ImuModel
+from sensors.imu import DEFAULT_IMU, ImuModel
+from sensors.bag import IMU_TOPIC, ODOMETRY_TOPIC
 from sensors.io.meshes import load_mesh
 from sensors.route import find_route
 from survey.cli.main import main
 from survey.errors import GazeboExportError
-from survey.export.gazebo import export_gazebo, lidar_sdf
+from survey.export.gazebo import export_gazebo
+from survey.export.gazebo_sdf import lidar_sdf
 from survey.world.alignment import Alignment, straight
 from survey.world.generator import make_tunnel
 from survey.world.mesh import write_ply

@@ -20,7 +20,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sensors.io.clouds import write_points_las
+from sensors.io.cloudmap import write_points_las
 from survey.analysis.compare import STAT_FIELDS
 from survey.cli.main import main
 from survey.errors import CompareError

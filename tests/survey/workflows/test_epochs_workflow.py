@@ -18,7 +18,7 @@ import laspy
 import numpy as np
 import pytest
 
-from sensors.io.clouds import write_points_las
+from sensors.io.cloudmap import write_points_las
 from survey.cli.main import main
 from survey.errors import CompareError
 from survey.workflows.epochs import (

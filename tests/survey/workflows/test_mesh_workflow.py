@@ -75,7 +75,7 @@ N_TUBE = 40_000
 def tube(tmp_path_factory):
     """(true alignment, the tube's LAZ, its axis as a chainage,E,N,H CSV: the true
     alignment raised to the profile centre)."""
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     d = tmp_path_factory.mktemp("tube")
     al, pts = _tube(N_TUBE)
@@ -133,7 +133,7 @@ def test_tunnel_mesh_with_decimation_is_the_commands(tube, tmp_path):
 def test_profile_cloud_cell_is_chosen_as_the_command_chooses_it(tmp_path):
     """A profile cloud (profiles every 0.5 m) without --cell: one cell per profile, said
     in the result as the command prints it, in the same files."""
-    from sensors.io.clouds import write_points_las
+    from sensors.io.cloudmap import write_points_las
 
     rng = np.random.default_rng(4)
     al, _ = _tube(1)
