@@ -23,6 +23,7 @@ axis                    ``axis_file``                             ``.axis``
 sections, rings         ``sections_files``, ``rings_files``       ``.sections``
 scan, drive             ``scan_to_file``, ``scan_campaign``,      ``.simulation``
                         ``drive_to_file``
+render, cameras         ``render_frame``, ``camera_models``       ``.render``
 ======================  ========================================  ============================
 """
 
@@ -44,6 +45,7 @@ if TYPE_CHECKING:
     from .inspection import (ClearanceFilesResult, DevelopFilesResult, clearance_files,
                              develop_files)
     from .planning import PlanResult, StudyResult, plan_stations, run_study
+    from .render import CameraModel, RenderResult, camera_models, render_frame
     from .robotbag import write_robot_bag
     from .sections import RingsResult, SectionsResult, rings_files, sections_files
     from .simulation import (CampaignResult, DriveResult, ScanResult, drive_to_file,

@@ -1,0 +1,311 @@
+"""``tunnelsim render`` and ``tunnelsim cameras`` as library calls: one camera frame
+from a mesh (colour, depth or thermal, lit by a headlamp beside the camera) written
+as image files with their ``camera_info.json``, and the shipped camera models.
+
+The command line parses its options, calls one of these and prints from the result.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["CameraModel", "RenderResult", "camera_models", "render_frame"]
+
+PathLike = str | os.PathLike[str]
+
+
+# ---------------------------------------------------------------------------- cameras
+@dataclass(frozen=True)
+class CameraModel:
+    """One shipped camera model (``tunnelsim cameras``).
+
+    Attributes
+    ----------
+    name, kind, vendor, model : str
+        Registry name, "color" / "depth" / "thermal", maker and model.
+    width, height : int
+        Pixels.
+    frame_rate_hz : float
+    hfov_deg, vfov_deg : float
+        Horizontal and vertical field of view through the pixel edges, degrees.
+    lens : str
+        "pinhole" (Brown-Conrady) or "fisheye" (Kannala-Brandt).
+    shutter : str
+        "global" or "rolling".
+    sources : tuple of str
+    path : str
+        The TOML file.
+    """
+
+    name: str
+    kind: str
+    vendor: str
+    model: str
+    width: int
+    height: int
+    frame_rate_hz: float
+    hfov_deg: float
+    vfov_deg: float
+    lens: str
+    shutter: str
+    sources: tuple[str, ...]
+    path: str
+
+
+def _fov_deg(cam, n: int, f: float) -> float:
+    half = n / 2.0 / f
+    return math.degrees(2.0 * (math.atan(half) if cam.model == "pinhole" else half))
+
+
+def camera_models() -> tuple[CameraModel, ...]:
+    """The shipped camera models, sorted by name (``sensors.camera.list_cameras``).
+
+    Returns
+    -------
+    tuple of CameraModel
+
+    Examples
+    --------
+    >>> [m.name for m in camera_models()][:2]
+    ['lwir_640', 'realsense_d435_color']
+    >>> round(camera_models()[2].hfov_deg, 3)
+    87.0
+    """
+    from sensors.camera import list_cameras, load_camera
+
+    out = []
+    for name in list_cameras():
+        c = load_camera(name)
+        out.append(CameraModel(c.name, c.kind, c.vendor, c.model_name, c.width, c.height,
+                               c.frame_rate_hz, _fov_deg(c, c.width, c.fx),
+                               _fov_deg(c, c.height, c.fy), c.model,
+                               "global" if c.global_shutter else "rolling", c.sources,
+                               c.path))
+    return tuple(out)
+
+
+# ---------------------------------------------------------------------------- render
+@dataclass(frozen=True)
+class RenderResult:
+    """What ``render_frame`` wrote and saw.
+
+    Attributes
+    ----------
+    files : tuple of Path
+        Every file written (``rgb.png`` / ``thermal.png`` as the camera's kind has
+        them, ``depth.png``, ``depth.npy``, ``camera_info.json``).
+    folder : Path
+    camera, kind : str
+        The camera's name and kind.
+    width, height : int
+    world_from_camera : (4, 4) float64
+        Pose of the OpenCV optical frame.
+    hit_fraction : float
+        Pixels whose ray meets the mesh.
+    valid_fraction : float
+        Pixels with a depth (hit, and within a depth camera's range).
+    depth_min_m, depth_median_m, depth_max_m : float
+        Of the valid pixels' z-depth (NaN when none).
+    depth_clipped : int
+        Valid pixels beyond ``depth.png``'s 65.535 m (0 there, kept in ``depth.npy``).
+    lamp_cd : float
+        The headlamp's intensity.
+    mean_value : float
+        Colour: the mean linear value of the RGB image (0-1, of full scale);
+        thermal: the mean apparent temperature (K); depth: NaN.
+    saturated_fraction : float
+        Colour: pixel channels at full well (raise the exposure's light less, or pass
+        a weaker --lamp-cd); otherwise 0.
+    appearance : dict of str to str
+        Where albedo, temperature and emissivity came from ("vertex", "label",
+        "default").
+    seconds : float
+    """
+
+    files: tuple[Path, ...]
+    folder: Path
+    camera: str
+    kind: str
+    width: int
+    height: int
+    world_from_camera: NDArray[np.float64]
+    hit_fraction: float
+    valid_fraction: float
+    depth_min_m: float
+    depth_median_m: float
+    depth_max_m: float
+    depth_clipped: int
+    lamp_cd: float
+    mean_value: float
+    saturated_fraction: float
+    appearance: dict[str, str]
+    seconds: float
+
+
+def _label_names(mesh_path: Path) -> tuple[str, ...]:
+    """Names of the face labels: the tunnel JSON's ``labels`` beside the mesh, else the
+    generator's ``LABELS``."""
+    from sensors.io.errors import TunnelFileError
+    from sensors.io.tunnel_json import read_meta, sidecar
+    from survey.world.mesh import LABELS
+
+    js = sidecar(mesh_path)
+    if js.is_file():
+        try:
+            labels = read_meta(js).get("labels")
+        except TunnelFileError:    # a JSON that is not a tunnel's: the labels stay default
+            labels = None
+        if isinstance(labels, dict) and labels:
+            try:
+                n = max(int(k) for k in labels) + 1
+                return tuple(str(labels.get(str(i), "")) for i in range(n))
+            except ValueError:
+                pass
+    return tuple(LABELS)
+
+
+def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: PathLike,
+                 *, heading_deg: float, pitch_deg: float = 0.0, roll_deg: float = 0.0,
+                 lamp_cd: float = 1000.0, seed: int = 0, noise: bool = True,
+                 ambient_k: float | None = None, time_s: float = 0.0) -> RenderResult:
+    """Render one frame of ``camera`` at ``at`` in ``mesh`` and write its files.
+
+    The frame's light is one spot lamp 5 cm above the camera along its axis
+    (``sensors.shading.headlamp``: a 30/45 degree beam, ASSUMED). Colour cameras get
+    Lambertian shading with a shadow ray, the exposure's shot and read noise and the
+    sRGB PNG; thermal cameras the apparent temperature of each surface's temperature
+    and emissivity (``sensors.shading.apparent_temperature``); every camera the
+    z-depth. Albedo, temperature and emissivity come from the mesh's vertex
+    properties, else its face labels, else grey (``sensors.appearance``).
+
+    Parameters
+    ----------
+    mesh : str or path
+        A mesh file (``sensors.io.meshes.read_mesh``).
+    camera : str or path
+        A shipped camera's name (``camera_models``) or a camera TOML file.
+    at : (3,) array_like
+        The camera's optical centre, metres, in the mesh's coordinates.
+    output : str or path
+        The folder for the files (created; files of the same names are replaced).
+    heading_deg, pitch_deg, roll_deg : float
+        The optical axis's azimuth from +x towards +y, its tilt up, and the roll
+        clockwise seen from behind (degrees).
+    lamp_cd : float
+        The headlamp's luminous intensity on its axis (candela); 0 for none.
+    seed : int
+        Seed of the exposure's (or thermal camera's) noise.
+    noise : bool
+        Add the sensor's noise (shot and read noise, or NETD).
+    ambient_k : float, optional
+        Temperature of the surroundings a thermal surface reflects (default:
+        ``sensors.appearance.ROCK_K``, the tunnel's own rock).
+    time_s : float
+        Time stamp written into ``camera_info.json``.
+
+    Returns
+    -------
+    RenderResult
+
+    Raises
+    ------
+    sensors.errors.CameraSpecError
+        An unknown camera or a bad camera file.
+    sensors.io.errors.MeshFileError
+        A mesh that cannot be read (a point cloud without faces ...).
+    sensors.errors.SimulationError
+        A pose that is not finite, a negative lamp intensity, or a camera from which no
+        pixel's ray meets the mesh (outside it, or looking out of it).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from survey.workflows.world import tunnel_files
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = tunnel_files(d / "t.ply", preset="tbm", edge_length_m=0.5)
+    >>> r = render_frame(d / "t.ply", "lwir_640", [5.0, 0.0, 1.5], d / "frame",
+    ...                  heading_deg=0.0)
+    >>> [p.name for p in r.files], r.hit_fraction > 0.9
+    (['depth.png', 'depth.npy', 'thermal.png', 'camera_info.json'], True)
+    """
+    from sensors.appearance import ROCK_K, mesh_appearance
+    from sensors.camera import load_camera
+    from sensors.camera_io import write_frame
+    from sensors.errors import CameraSpecError, SimulationError
+    from sensors.io.errors import MeshFileError
+    from sensors.io.meshes import read_mesh
+    from sensors.render import camera_pose, render_depth
+    from sensors.shading import apparent_temperature, expose, headlamp, luminance
+
+    from raytrace import Scene
+
+    t0 = time.perf_counter()
+    try:
+        cam = load_camera(camera)
+    except CameraSpecError as exc:
+        raise CameraSpecError(f"--camera: {exc} 'tunnelsim cameras' lists the names."
+                              ) from None
+    if not (math.isfinite(lamp_cd) and lamp_cd >= 0):
+        raise SimulationError(f"Expected --lamp-cd >= 0 (candela), got {lamp_cd}; pass "
+                              "--lamp-cd 0 for no light.")
+    p = np.asarray(at, dtype=np.float64).reshape(-1)
+    if p.shape != (3,) or not np.isfinite(p).all():
+        raise SimulationError(f"Expected --at as 3 finite numbers X,Y,Z in metres, got "
+                              f"{p.tolist()}.")
+    for name, a in (("--heading-deg", heading_deg), ("--pitch-deg", pitch_deg),
+                    ("--roll-deg", roll_deg)):
+        if not math.isfinite(a):
+            raise SimulationError(f"Expected a finite {name}, got {a}.")
+    try:
+        m = read_mesh(mesh)
+    except MeshFileError as exc:
+        raise MeshFileError(f"--mesh: {exc}") from None
+    lo, hi = m.vertices.min(axis=0), m.vertices.max(axis=0)
+    if np.any(p < lo) or np.any(p > hi):
+        warnings.warn(f"--at {','.join(f'{x:g}' for x in p)} lies outside the mesh's "
+                      f"bounding box ({', '.join(f'{a:.2f}..{b:.2f}' for a, b in zip(lo, hi))}"
+                      "); the camera sees the mesh from outside.", stacklevel=2)
+    T = camera_pose(p, math.radians(heading_deg), math.radians(pitch_deg),
+                    math.radians(roll_deg))
+    scene = Scene(m.vertices, m.faces)
+    frame = render_depth(scene, cam, T)
+    if not frame.hit.any():
+        raise SimulationError(
+            f"Expected the camera at --at {','.join(f'{x:g}' for x in p)} to see the "
+            f"mesh, got no pixel whose ray meets it (outside the tunnel, or looking out "
+            "of an open end); pass --at inside the mesh or another --heading-deg.")
+    app = mesh_appearance(m, _label_names(Path(mesh)) if "label" in m.face_fields
+                          else None)
+    px = app.at(frame)
+    rgb = thermal = None
+    mean_value, saturated = math.nan, 0.0
+    if cam.kind == "color":
+        lamps = [headlamp(T, lamp_cd)] if lamp_cd > 0 else []
+        lum = luminance(scene, frame, lamps, np.nan_to_num(px.albedo, nan=0.0))
+        full = 2.0 ** cam.bit_depth - 1
+        rgb = expose(cam, lum, seed=seed, noise=noise) / full
+        mean_value, saturated = float(rgb.mean()), float((rgb >= 1.0).mean())
+    elif cam.kind == "thermal":
+        amb = ROCK_K if ambient_k is None else float(ambient_k)
+        thermal = np.full(frame.hit.shape, np.nan)
+        thermal[frame.hit] = apparent_temperature(
+            cam, px.temperature_k[frame.hit], px.emissivity[frame.hit], amb, seed=seed,
+            noise=noise)
+        mean_value = float(np.nanmean(thermal))
+    files = write_frame(output, cam, frame, rgb_linear=rgb, thermal_k=thermal,
+                        time_s=time_s)
+    z = frame.depth_z_m[frame.valid]
+    stats = (float(z.min()), float(np.median(z)), float(z.max())) if z.size else \
+        (math.nan,) * 3
+    return RenderResult(files.paths, files.folder, cam.name, cam.kind, cam.width,
+                        cam.height, T, float(frame.hit.mean()), float(frame.valid.mean()),
+                        *stats, files.depth_clipped, float(lamp_cd), mean_value, saturated,
+                        dict(app.source), time.perf_counter() - t0)
