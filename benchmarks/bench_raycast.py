@@ -38,11 +38,17 @@ a shared origin includes building the station's cube map), and each engine's rat
 Open3D. Agreement of hit/miss and t with Open3D on the first 200k rays of each set is
 printed too (a benchmark that is fast and wrong is useless).
 
+Build rounds (``--build-rounds N``): builds only, no rays and no memory figures. All
+engines are built in one process, N rounds, the engine order reversed every other round,
+so that a loaded machine slows every engine alike; each engine's best and median, and
+their ratios to Open3D's best and median, are reported.
+
 Usage::
 
     python benchmarks/bench_raycast.py                      # tubes 0.1M, 1M, 4M; bfo
     python benchmarks/bench_raycast.py --sizes 1e6 --rays 2e6 --json out.json
     python benchmarks/bench_raycast.py --sizes "" --engines ours,open3d   # bfo only
+    python benchmarks/bench_raycast.py --sizes "" --build-rounds 10       # bfo builds
 
 Needs the ``bench`` extra (open3d, embreex); Open3D also needs the system library
 libusb-1.0 (Debian: ``apt-get install libusb-1.0-0``).
@@ -59,6 +65,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -174,7 +181,7 @@ class Embreex:
         return t
 
 
-ENGINES = {"ours": Ours, "open3d": Open3D, "embreex": Embreex}
+ENGINES: dict[str, Any] = {"ours": Ours, "open3d": Open3D, "embreex": Embreex}
 
 
 def worker(engine: str, mesh_path: str, rays_path: str, out_dir: str) -> dict:
@@ -289,6 +296,47 @@ def _compare(results, label, tmp):
     return rows
 
 
+def build_rounds(engines, v, f, rounds: int, label: str) -> list[dict[str, Any]]:
+    """Build seconds of every engine on (v, f), ``rounds`` alternated rounds in this
+    process (order reversed every other round); rows with best, median, all rounds
+    and the ratios of best and median to Open3D's."""
+    for eng in engines:
+        ENGINES[eng].warm()
+    times: dict[str, list[float]] = {eng: [] for eng in engines}
+    for r in range(rounds):
+        for eng in (engines if r % 2 == 0 else engines[::-1]):
+            t0 = time.perf_counter()
+            obj = ENGINES[eng](v, f)
+            times[eng].append(time.perf_counter() - t0)
+            del obj
+    rows = []
+    ref = times.get("open3d")
+    for eng, ts in times.items():
+        best, median = float(np.min(ts)), float(np.median(ts))
+        row: dict[str, Any] = dict(engine=eng, mesh=label, triangles=int(len(f)),
+                                   rounds=rounds, build_best_s=best, build_median_s=median,
+                                   build_s_all=[float(t) for t in ts])
+        if ref:
+            row["build_ratio_best"] = best / float(np.min(ref))
+            row["build_ratio_median"] = median / float(np.median(ref))
+        rows.append(row)
+    return rows
+
+
+def _print_build_table(rows):
+    r0 = rows[0]
+    print(f"\n### {r0['mesh']}: {r0['triangles']:,} triangles; builds, {r0['rounds']} "
+          "alternated rounds in one process\n")
+    print("| engine | best s | median s | ratio to Open3D (best / median) |")
+    print("|---|---:|---:|---|")
+    for r in rows:
+        ratio = (f"{r['build_ratio_best']:.2f} / {r['build_ratio_median']:.2f}"
+                 if "build_ratio_best" in r else "-")
+        print(f"| {r['engine']} | {r['build_best_s']:.3f} | {r['build_median_s']:.3f} | "
+              f"{ratio} |")
+    sys.stdout.flush()
+
+
 def _agreement(a, b):
     ha, hb = np.isfinite(a), np.isfinite(b)
     both = ha & hb
@@ -310,6 +358,9 @@ def main(argv=None):
     ap.add_argument("--random-rays", type=float, default=4e6,
                     help="random rays near the drive's path (default 4M)")
     ap.add_argument("--engines", default="ours,open3d,embreex")
+    ap.add_argument("--build-rounds", type=int, default=0,
+                    help="builds only: this many alternated rounds of every engine in "
+                    "one process (best and median); no rays")
     ap.add_argument("--json", help="write all figures to this JSON file")
     ap.add_argument("--worker", help=argparse.SUPPRESS)
     ap.add_argument("--mesh", help=argparse.SUPPRESS)
@@ -329,6 +380,11 @@ def main(argv=None):
         mesh, rays = Path(tmp) / "mesh.npz", Path(tmp) / "rays.npz"
         for size in (int(float(s)) for s in args.sizes.split(",") if s.strip()):
             v, f = tunnel_tube(size, length_m=300.0, roughness_m=0.002, seed=0)
+            if args.build_rounds > 0:
+                new = build_rounds(engines, v, f, args.build_rounds, "tube")
+                _print_build_table(new)
+                rows += new
+                continue
             np.savez(mesh, v=v, f=f)
             so, sd = coherent_rays(int(args.rays))
             io, idir = incoherent_rays(int(args.rays))
@@ -342,6 +398,14 @@ def main(argv=None):
             from survey.world.presets import preset
 
             tun, _ = preset("bfo", edge_length_m=args.bfo_edge)
+            if args.build_rounds > 0:
+                new = build_rounds(engines, np.asarray(tun.vertices),
+                                   np.asarray(tun.faces), args.build_rounds, "bfo")
+                _print_build_table(new)
+                rows += new
+                if args.json:
+                    Path(args.json).write_text(json.dumps(rows, indent=1))
+                return 0
             np.savez(mesh, v=tun.vertices, f=tun.faces)
             do, dd = drive_rays(tun, args.drive_s)
             so, sd = station_rays(tun, args.station_step_deg)
