@@ -25,6 +25,8 @@ XYZ_LINES = {
     ("scan", "at"): ["scan", "--mesh", "m.ply", "-o", "s.laz", "--at"],
     ("drive", "lever"): ["drive", "--mesh", "m.ply", "-o", "d.laz", "--lever"],
     ("tunnel", "origin"): ["tunnel", "-o", "t.ply", "--origin"],
+    ("render", "at"): ["render", "--mesh", "m.ply", "--camera", "lwir_640", "-o", "f",
+                       "--heading-deg", "0", "--at"],
 }
 
 

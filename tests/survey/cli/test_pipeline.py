@@ -24,9 +24,9 @@ from survey.report.demo import DRIFT_MODEL, ran_slam
 
 #: Commands that draw random numbers (they take --seed).
 SEEDED = {"tunnel", "scan", "drive", "slam", "study", "demo", "run", "sections", "rings",
-          "detect"}
+          "detect", "render"}
 #: Commands that only print (no --quiet, no --threads).
-PRINTING = {"info", "sensors"}
+PRINTING = {"info", "sensors", "cameras"}
 
 
 def _commands():
