@@ -323,6 +323,7 @@ def test_every_example_has_a_check():
     assert found == set(CHECKS), "docs Python examples and their checks differ"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("page", sorted(EXAMPLES))
 def test_page_examples(page, tmp_path, monkeypatch, capsys):
     """Run the page's blocks in order in one namespace; check each after it ran."""

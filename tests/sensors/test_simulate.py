@@ -40,6 +40,7 @@ def _all(run):
     return np.concatenate(list(run))
 
 
+@pytest.mark.slow
 def test_ranges_in_a_cylinder_match_the_analytic_distance(cyl):
     """From a station on the axis, a ray with radial component rho meets the circle at
     R / rho; the inscribed 512-gon lies between R cos(pi/K) / rho and R / rho."""

@@ -153,6 +153,7 @@ def drive_dir(tmp_path_factory):
     return d
 
 
+@pytest.mark.slow
 def test_drive_records_mount_and_truth(drive_dir):
     prof = open_drive(drive_dir / "prof.laz")
     assert prof.mount_recorded and prof.mount.lever_arm_m == (0.3, 0.0, 0.2)
@@ -247,6 +248,7 @@ def test_slam_cloud_is_the_placed_drive_and_control_is_observed_in_it(slam_run):
     assert np.all((obs["time"] > truth.start_s) & (obs["time"] < truth.end_s))
 
 
+@pytest.mark.slow
 def test_genz_icp_runs_behind_the_same_interface(slam_run, tmp_path):
     d = slam_run
     assert main(["slam", str(d / "airy.laz"), "-o", str(tmp_path / "g.txt"), "--odometry",
@@ -287,6 +289,7 @@ def test_slam_refuses_bad_input_in_one_line_and_writes_nothing(drive_dir, tmp_pa
             str(tmp_path / "c.laz")], capsys, "whole scan frames", tmp_path)
 
 
+@pytest.mark.slow
 def test_slam_reads_a_ros2_bag_as_the_laz(drive_dir, tmp_path, capsys):
     """The same drive as a ROS 2 bag (rslidar_sdk layout, float32 sensor points, mount
     in /tf_static) gives the trajectory the LAZ gives, within the odometry's own

@@ -34,6 +34,7 @@ def quick(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_quick_study_writes_its_files(quick):
     for name in ("detect.json", "detect.csv", "targets.csv", "detect.md", "detect.png"):
         assert (quick / name).is_file() and (quick / name).stat().st_size > 0
@@ -130,6 +131,7 @@ def _run(small, seed):
                    resolution="preview").to_dict()
 
 
+@pytest.mark.slow
 def test_seeded_runs_repeat(small):
     a, b = _run(small, 3), _run(small, 3)
     assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)

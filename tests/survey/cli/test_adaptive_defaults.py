@@ -404,6 +404,7 @@ def test_rings_min_height_is_measured_from_the_floor_on_a_fitted_axis(floored_ri
     assert "warning" not in said.err
 
 
+@pytest.mark.slow
 def test_rings_rail_height_sets_the_floor(floored_ring, tmp_path):
     out = tmp_path / "rings"
     assert main(["rings", str(floored_ring), "--fit-axis", "--at", "30", "--min-height",
@@ -574,6 +575,7 @@ def _profile_cloud(spacing_m: float, rng) -> np.ndarray:
     return al.to_world(ss.ravel(), off.ravel(), up.ravel())
 
 
+@pytest.mark.slow
 def test_mesh_cell_is_the_profile_spacing_and_interpolates_less(tmp_path, capsys):
     # A profile cloud (0.5 m apart): without --cell the mesher takes one cell per
     # profile, says so, and records it; its interpolated share is far below that of
@@ -598,6 +600,7 @@ def test_mesh_cell_is_the_profile_spacing_and_interpolates_less(tmp_path, capsys
     assert (tmp_path / "auto.ply").read_bytes() != (tmp_path / "fixed.ply").read_bytes()
 
 
+@pytest.mark.slow
 def test_mesh_cell_stays_fixed_on_a_dense_cloud(tmp_path, capsys):
     # Profiles 1 cm apart (a dense MLS cloud) are no profile cloud: the old default.
     pts = _profile_cloud(0.01, np.random.default_rng(3))[::40]

@@ -47,6 +47,7 @@ def _quick_span_m(pipe) -> float:
     return b - a
 
 
+@pytest.mark.slow
 def test_demo_quick_key_numbers_are_sane(demo):
     s = json.loads((demo / "summary.json").read_text())
     # The slam extra is in the test extra: the demo ran real SLAM (GenZ-ICP), and says so.

@@ -140,6 +140,7 @@ def auto_run(mine, tmp_path_factory):
     return rc, text.getvalue(), q, d / "m.ply"
 
 
+@pytest.mark.slow
 def test_auto_falls_back_to_solid_on_a_branching_mine(mine, auto_run):
     """The acceptance test of issue 29: auto tries the tunnel mesher (the mine has an
     axis), rejects its result with the numbers, meshes solid under the budget, and the

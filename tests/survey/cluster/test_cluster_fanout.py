@@ -69,6 +69,7 @@ def _rows(path):
     return list(csv.DictReader(io.StringIO(path.read_text())))
 
 
+@pytest.mark.slow
 def test_plan_and_study_on_two_workers_equal_in_process(tunnel, tmp_path, capsys):
     pytest.importorskip("distributed")
     plan = ["plan", "--mesh", str(tunnel), "--spacing", "10,20", "--optimize",
