@@ -246,7 +246,7 @@ def test_large_scattered_batches_are_ordered_without_changing_results(small_tunn
 
 
 def test_build_is_identical_for_any_thread_count():
-    """The parallel parts of the build (top-phase binning of nodes >= 65,536 triangles,
+    """The parallel parts of the build (the breadth-first top phase, binned and partitioned in parallel work items,
     subtrees) must give the same tree as a one-thread build, bit for bit."""
     v, f = tunnel_tube(150_000, length_m=100.0, roughness_m=0.002, seed=6)
     before = numba.get_num_threads()
