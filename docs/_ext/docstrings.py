@@ -47,7 +47,7 @@ BARS = re.compile(r"(?<![\w\\|`])\|([A-Za-z_](?:[\w.()+\- ]*?[\w)])?)\|(?![\w|`]
 
 #: Modules (or packages: their sub-modules too) whose docstrings are still rewritten,
 #: owned by other work when issue 32 fixed the rest (see the module doc).
-PENDING = ("sensors.io.fields", "survey.workflows.robotbag", "survey.workflows.simulation")
+PENDING: tuple[str, ...] = ()
 
 
 def home_module(obj: object, name: str = "") -> str:

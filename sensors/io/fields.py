@@ -112,6 +112,8 @@ LAS_DESCRIPTION_BYTES = 32
 class FileField:
     """How one ``POINT_DTYPE`` field is named and stored in files.
 
+    Attributes
+    ----------
     field : str
         The ``POINT_DTYPE`` name (in memory).
     name : str
