@@ -221,7 +221,7 @@ def plot_developed(raster: DevelopedRaster, path: str | Path, *, stat: str = "me
             (float(np.nanmax(np.abs(shown))) if ok.any() else 1.0)
         lim = lim if lim > 0 else 1.0
         vmin, vmax = -lim, lim
-    cmap.set_bad((0, 0, 0, 0))
+    cmap = cmap.with_extremes(bad=(0, 0, 0, 0))
     width = float(np.clip(0.12 * (s1 - s0) + 3.0, 8.0, 18.0))
     fig, ax = plt.subplots(figsize=(width, 4.8), dpi=110)
     ax.add_patch(mpatches.Rectangle((s0, a0), s1 - s0, a1 - a0, fill=False, hatch="///",
