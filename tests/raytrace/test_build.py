@@ -15,6 +15,7 @@ from numba import njit, prange
 
 from raytrace import config
 from raytrace._kernels import bounds8, build, tasks
+from tests.raytrace.cpu import needs_avx2
 
 _ARGS = (config.SAH_BINS, True, config.SAH_C_TRAV, config.SAH_C_ISECT, config.MAX_LEAF_SIZE,
          config.MAX_LEAF_SIZE_FORCED)
@@ -227,17 +228,7 @@ def test_grow8_equals_its_scalar_twin(dst, src, src_off):
     np.testing.assert_array_equal(b[ok], want[ok])
 
 
-def _has_avx2():
-    import llvmlite.binding as llvm
-    from numba.core import config as nconfig
-
-    if nconfig.CPU_NAME or nconfig.CPU_FEATURES:
-        return False
-    return bool(llvm.get_host_cpu_features().get("avx2", False))
-
-
-@pytest.mark.skipif(not _has_avx2(), reason="packed 8-lane float instructions need AVX2 "
-                    "on the host and NUMBA_CPU_NAME/NUMBA_CPU_FEATURES unset")
+@needs_avx2
 def test_grow8_compiles_to_packed_avx():
     """A refactor that silently falls back to scalar code fails here: one packed
     maximum on 256 bits, a packed minimum (LLVM narrows it to the 128-bit half holding

@@ -20,6 +20,7 @@ from hypothesis.extra.numpy import arrays
 from numba import njit
 
 from raytrace._kernels import simd
+from tests.raytrace.cpu import needs_avx2
 
 _F32_ANY = st.floats(width=32, allow_nan=True, allow_infinity=True)
 _SPECIAL = st.sampled_from([0.0, -0.0, np.inf, -np.inf, np.nan, 1.0, -1.0, 1e-30, 3e38])
@@ -228,17 +229,7 @@ def test_slab8_tiny_direction_component_whose_inverse_overflows_float32(tiny):
     assert dist.tolist() == [1.0] * 8
 
 
-def _has_avx2():
-    import llvmlite.binding as llvm
-    from numba.core import config as nconfig
-
-    if nconfig.CPU_NAME or nconfig.CPU_FEATURES:
-        return False
-    return bool(llvm.get_host_cpu_features().get("avx2", False))
-
-
-@pytest.mark.skipif(not _has_avx2(), reason="packed 8-lane float instructions need AVX2 "
-                    "on the host and NUMBA_CPU_NAME/NUMBA_CPU_FEATURES unset")
+@needs_avx2
 def test_slab8_compiles_to_packed_avx():
     """A refactor that silently falls back to scalar code fails here: the node test
     must contain packed compares and maxima on 256-bit registers."""
