@@ -5,6 +5,24 @@ platform's motion does not use is refused with the valid ones (pbrt's
 ``ReportUnused``). TOML carries degrees; the dataclasses hold SI units and radians.
 ``sensors.platform`` moves a platform along a path.
 
+Lamps (issue 35): an optional ``[[lamps]]`` array of tables, one table per lamp, in
+the platform's base_link (x forward, y left, z up) as ``sensors.robot`` places it: a
+wheeled base's on the ground contact plane under its centre (the sensor on the mast
+``body.mast_height_m`` above it, as ``[mounts]``), any other platform's at the platform
+frame itself (the sensor's carrier: a walker's handheld scanner, a trolley's or a
+tripod's sensor)::
+
+    [[lamps]]
+    kind = "spot"              # or "point"
+    xyz_m = [0.16, 0.08, 0.20]
+    rpy_deg = [0.0, 5.0, 0.0]  # spot only: the beam is +x of the lamp frame after rpy
+    intensity_cd = 1200.0      # luminous intensity on the beam axis
+    beam_deg = 20.0            # spot only: full intensity within this half-angle,
+    cutoff_deg = 30.0          # falling linearly in angle to 0 at this one (Mitsuba 3's
+                               # spot ``beam_width`` / ``cutoff_angle``)
+
+``sensors.shading.platform_lamps`` places them in the world.
+
 >>> load_platform("ground_robot")
 PlatformSpec(ground_robot: wheeled, mast 0.5 m, up to 1 m/s, 60 deg/s)
 """
@@ -21,8 +39,9 @@ from typing import Final
 from .errors import PlatformError
 from .specfile import Catalogue, SpecTable, read_toml
 
-__all__ = ["MOTIONS", "PLATFORM_DIR", "TABLE_KEYS", "Gait", "Limits", "PlatformSpec",
-           "Traversability", "list_platforms", "load_platform"]
+__all__ = ["LAMP_KEYS", "LAMP_KINDS", "MOTIONS", "PLATFORM_DIR", "TABLE_KEYS", "Gait",
+           "Limits", "PlatformLamp", "PlatformSpec", "Traversability", "list_platforms",
+           "load_platform"]
 
 PLATFORM_DIR: Final = Path(__file__).resolve().parent / "platforms"
 MOTIONS: Final = ("wheeled", "walking", "rail", "static")
@@ -49,6 +68,46 @@ TABLE_KEYS: Final[Mapping[str, Mapping[str, tuple[str, ...]]]] = {
              "limits": ("max_speed_mps",)},
     "static": {"platform": _PLATFORM_KEYS, "body": ("mast_height_m",)},
 }
+
+#: What a ``[[lamps]]`` entry may be: a spot (a beam along the lamp frame's +x) or a
+#: point lamp (the same intensity in every direction).
+LAMP_KINDS: Final = ("spot", "point")
+#: Keys of one ``[[lamps]]`` table, by kind: all required, nothing else allowed (a point
+#: lamp has no direction, so no ``rpy_deg`` and no beam).
+LAMP_KEYS: Final[Mapping[str, tuple[str, ...]]] = {
+    "spot": ("kind", "xyz_m", "rpy_deg", "intensity_cd", "beam_deg", "cutoff_deg"),
+    "point": ("kind", "xyz_m", "intensity_cd"),
+}
+
+
+@dataclass(frozen=True)
+class PlatformLamp:
+    """One lamp on a platform (``[[lamps]]``), in the platform frame, SI units.
+
+    Attributes
+    ----------
+    kind : {"spot", "point"}
+    xyz_m : (float, float, float)
+        Position in base_link (x forward, y left, z up; module doc: on the ground for
+        a wheeled base, at the platform frame otherwise).
+    rpy_rad : (float, float, float)
+        Roll, pitch, yaw of the lamp frame in base_link (fixed axes x, y, z, as URDF);
+        the beam is the lamp frame's +x. Zero for a point lamp.
+    intensity_cd : float
+        Luminous intensity on the beam axis (candela; a point lamp's in every
+        direction).
+    beam_half_angle_rad, cutoff_half_angle_rad : float
+        Full intensity within ``beam``, falling linearly in angle to 0 at ``cutoff``
+        (``sensors.shading.Lamp``); pi for a point lamp.
+    """
+
+    kind: str
+    xyz_m: tuple[float, float, float]
+    rpy_rad: tuple[float, float, float]
+    intensity_cd: float
+    beam_half_angle_rad: float = math.pi
+    cutoff_half_angle_rad: float = math.pi
+
 
 @dataclass(frozen=True)
 class Limits:
@@ -119,6 +178,8 @@ class PlatformSpec:
         The IMU's roll, pitch, yaw in base_link (fixed axes x, y, z; rad).
     wheel_radius_m : float
         A wheeled base's wheel radius (m; 0 when not given or not wheeled).
+    lamps : tuple of PlatformLamp
+        The platform's own lights (``[[lamps]]``; empty when the file has none).
     path : str
         The file it was read from.
     """
@@ -137,6 +198,7 @@ class PlatformSpec:
     imu_xyz_m: tuple[float, float, float] | None = None
     imu_rpy_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
     wheel_radius_m: float = 0.0
+    lamps: tuple[PlatformLamp, ...] = ()
 
     def __repr__(self) -> str:
         out = f"PlatformSpec({self.name}: {self.motion}, mast {self.mast_height_m:g} m"
@@ -156,6 +218,41 @@ def _nonneg(t: SpecTable, key: str) -> float:
     return t.num(key, lo=0.0, what="a finite number >= 0")
 
 
+def _lamps(data: object, f: str) -> tuple[PlatformLamp, ...]:
+    """The ``[[lamps]]`` array of tables (module doc)."""
+    # DECISION: SpecTable reads one table; an array of tables is a TOML list of dicts,
+    # each read as its own SpecTable named ``lamps[i]`` (its keys refused like any
+    # table's, the valid set picked by the entry's kind).
+    if not isinstance(data, list) or not data or not all(isinstance(x, dict) for x in data):
+        raise PlatformError(f"Expected `lamps` in {f} to be an array of tables "
+                            f"([[lamps]] entries), got {data!r}; fix the platform file.")
+    out = []
+    for i, entry in enumerate(data):
+        name = f"lamps[{i}]"
+        kind = entry.get("kind")
+        if kind not in LAMP_KINDS:
+            raise PlatformError(f"Expected `{name}.kind` in {f} to be one of {LAMP_KINDS}, "
+                                f"got {kind!r}; fix the platform file.")
+        t = SpecTable(entry, f, name, PlatformError, "platform", valid=LAMP_KEYS[kind],
+                      required=True)
+        xyz = t.vec3("xyz_m")
+        cd = t.num("intensity_cd", lo=0.0, what="a finite number >= 0 (candela)")
+        if kind == "point":
+            out.append(PlatformLamp(kind, xyz, (0.0, 0.0, 0.0), cd))
+            continue
+        r, p, y = t.vec3("rpy_deg")
+        beam = t.num("beam_deg", positive=True, what="a half-angle in (0, 180) degrees")
+        cut = t.num("cutoff_deg", positive=True, what="a half-angle in (0, 180) degrees")
+        if not beam <= cut < 180.0:
+            raise PlatformError(f"Expected 0 < `{name}.beam_deg` <= `{name}.cutoff_deg` "
+                                f"< 180 in {f}, got {beam:g} and {cut:g}; fix the platform "
+                                "file.")
+        out.append(PlatformLamp(kind, xyz, (math.radians(r), math.radians(p),
+                                            math.radians(y)), cd, math.radians(beam),
+                                math.radians(cut)))
+    return tuple(out)
+
+
 def _load(path: Path) -> PlatformSpec:
     data = read_toml(path, PlatformError, "platform")
     f = path.name
@@ -170,7 +267,12 @@ def _load(path: Path) -> PlatformSpec:
     # its IMU stays at the platform frame); when present, all its keys are required.
     if "mounts" in data:
         keys["mounts"] = mount_keys
-    SpecTable(data, f, "", PlatformError, "platform", valid=tuple(keys), required=True)
+    # [[lamps]] is optional too (an array of tables, read by ``_lamps``): unknown
+    # tables are refused with it among the valid ones, the others are required.
+    SpecTable(data, f, "", PlatformError, "platform", valid=tuple(keys) + ("lamps",))
+    SpecTable({k: v for k, v in data.items() if k != "lamps"}, f, "", PlatformError,
+              "platform", valid=tuple(keys), required=True)
+    lamps = _lamps(data["lamps"], f) if "lamps" in data else ()
     t = {name: SpecTable(data[name], f, name, PlatformError, "platform", valid=valid,
                          required=True, schema=keys) for name, valid in keys.items()}
     src = t["platform"].data["sources"]
@@ -218,7 +320,7 @@ def _load(path: Path) -> PlatformSpec:
                         motion, tuple(src), _pos(body, "mast_height_m"),
                         _pos(body, "wheelbase_m") if wheeled else 0.0,
                         _pos(body, "track_m") if wheeled else 0.0, limits, gait, str(path),
-                        trav, imu_xyz, imu_rpy, wheel_r)
+                        trav, imu_xyz, imu_rpy, wheel_r, lamps)
 
 
 #: The shipped platform files (``sensors/platforms/*.toml``) by name.

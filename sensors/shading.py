@@ -13,6 +13,12 @@ luminance in cd/m^2; each colour channel scaled by the surface's albedo):
   emitter: ``beam_width`` and ``cutoff_angle``, the same ramp), 1 everywhere for a
   point lamp; 0 if a shadow ray from the point meets the mesh before the lamp.
 - A Lambertian surface of albedo ``rho`` has luminance ``L = rho E / pi``.
+- Lamps: ``headlamp`` (a spot beside the camera) and ``platform_lamps`` (a platform
+  file's ``[[lamps]]`` placed with its base_link's pose).
+- Anti-aliasing (``radiance_frame``): the luminance of a k x k grid of stratified rays
+  through each pixel, averaged (a box filter over the pixel, Mitsuba's ``box``); the
+  depth stays the pixel centre's. A thermal camera's pixel (``thermal_frame``) averages
+  the band radiance of its rays that meet a surface, then inverts it.
 - The sensor (Holst & Lomheim, *CMOS/CCD Sensors and Camera Systems*, 2nd ed. 2011,
   ch. 3): image-plane exposure ``H = L t pi / (4 N^2)`` (lux s) for f-number ``N``
   and exposure ``t``; electrons ``e = QE K_v H A_pix`` with ``K_v = 4.1e15`` photons
@@ -30,6 +36,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -38,10 +45,19 @@ from raytrace import Scene
 
 from .camera import CameraSpec
 from .errors import SimulationError
-from .render import Frame
+from .platform_spec import PlatformSpec
+from .render import Frame, render_depth
+
+
+class _Surfaces(Protocol):
+    """What ``radiance_frame`` needs of a mesh's appearance
+    (``sensors.appearance.Appearance``, not imported: it imports this module)."""
+
+    def at(self, frame: Frame) -> Any: ...
 
 __all__ = ["Lamp", "K_V", "apparent_temperature", "expose", "headlamp", "luminance",
-           "srgb_decode", "srgb_encode"]
+           "platform_lamps", "radiance_frame", "srgb_decode", "srgb_encode",
+           "stratified_offsets", "thermal_frame"]
 
 #: Photons per lux second per square metre at 555 nm (683 lm/W; Holst & Lomheim ch. 2).
 K_V = 4.1e15
@@ -114,6 +130,68 @@ def headlamp(world_from_camera: ArrayLike, intensity_cd: float = 1000.0,
                 intensity_cd, beam_half_angle_rad, cutoff_half_angle_rad)
 
 
+def _rpy_matrix(roll: float, pitch: float, yaw: float) -> NDArray[np.float64]:
+    """R = Rz(yaw) Ry(pitch) Rx(roll): roll, pitch, yaw about the fixed x, y, z axes
+    (URDF's ``rpy``, REP 103)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array([[cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                     [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                     [-sp, cp * sr, cp * cr]])
+
+
+def platform_lamps(platform: PlatformSpec, world_from_base: ArrayLike) -> list[Lamp]:
+    """The lamps of ``platform`` (its ``[[lamps]]``) in the world, for the platform's
+    base_link posed at ``world_from_base``.
+
+    Parameters
+    ----------
+    platform : PlatformSpec
+        ``sensors.platform_spec.load_platform``; its ``lamps`` are in base_link (x
+        forward, y left, z up), a spot's beam along its lamp frame's +x after
+        ``rpy``.
+    world_from_base : (4, 4) array_like of float
+        Pose of base_link in the world (a rigid transform).
+
+    Returns
+    -------
+    list of Lamp
+        One per platform lamp, in the file's order (empty for a platform without
+        lamps): position ``T p``, beam ``R R_rpy e_x``; a point lamp keeps
+        ``cutoff_half_angle_rad`` = pi (its direction, +x of base_link, is unused).
+
+    Raises
+    ------
+    SimulationError
+        ``world_from_base`` not a finite 4x4 rigid transform.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from sensors.platform_spec import load_platform
+    >>> lamps = platform_lamps(load_platform("ground_robot"), np.eye(4))
+    >>> len(lamps), lamps[0].position.round(3).tolist()
+    (2, [0.161, 0.07, 0.2])
+    """
+    T = np.asarray(world_from_base, dtype=np.float64)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise SimulationError(f"Expected world_from_base as a finite 4x4 matrix, got "
+                              f"shape {T.shape}.")
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-9) or np.linalg.det(R) < 0 or \
+            not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise SimulationError("Expected world_from_base to be a rigid transform (a proper "
+                              "rotation, last row 0 0 0 1), got one that is not.")
+    out = []
+    for lamp in platform.lamps:
+        beam = R @ _rpy_matrix(*lamp.rpy_rad)[:, 0]
+        out.append(Lamp(R @ np.asarray(lamp.xyz_m, dtype=np.float64) + T[:3, 3], beam,
+                        lamp.intensity_cd, lamp.beam_half_angle_rad,
+                        lamp.cutoff_half_angle_rad))
+    return out
+
+
 def luminance(scene: Scene, frame: Frame, lamps: Sequence[Lamp],
               albedo: NDArray[np.float64]) -> NDArray[np.float64]:
     """(h, w, c) float64 luminance (cd/m^2) of each pixel's surface point: Lambertian,
@@ -147,6 +225,88 @@ def luminance(scene: Scene, frame: Frame, lamps: Sequence[Lamp],
             e[check[blocked]] = 0.0
         E.ravel()[idx] += e
     return alb * (E / math.pi)[:, :, None]
+
+
+def stratified_offsets(samples_per_pixel: int) -> NDArray[np.float64]:
+    """(n, 2) float64 sub-pixel offsets (dx, dy) in pixels from the pixel centre: the
+    centres of a k x k grid of strata over the pixel (-0.5..0.5), n = k^2, row by row.
+
+    One sample is the pixel centre (0, 0). Stratified sampling (Mitchell 1996,
+    "Consequences of stratified sampling in graphics", SIGGRAPH; Pharr, Jakob &
+    Humphreys, *PBR* 4th ed., 8.5) with each stratum's centre instead of a random
+    point: deterministic (frames and tests reproduce), and the average is the
+    midpoint rule for the integral over the pixel a box filter takes.
+
+    >>> stratified_offsets(4).tolist()
+    [[-0.25, -0.25], [0.25, -0.25], [-0.25, 0.25], [0.25, 0.25]]
+    """
+    n = samples_per_pixel
+    k = math.isqrt(n) if isinstance(n, (int, np.integer)) and n > 0 else 0
+    if k * k != n or k == 0:
+        raise SimulationError(f"Expected --samples to be a square number of samples per "
+                              f"pixel (1, 4, 9, 16, ...), got {n!r}; pass --samples "
+                              f"{max(k, 1) ** 2}.")
+    c = (np.arange(k) + 0.5) / k - 0.5
+    dx, dy = np.meshgrid(c, c)
+    return np.column_stack([dx.ravel(), dy.ravel()])
+
+
+def radiance_frame(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike,
+                   lamps: Sequence[Lamp], appearance: _Surfaces | ArrayLike,
+                   samples_per_pixel: int = 1) -> tuple[Frame, NDArray[np.float64]]:
+    """The pixel-centre frame and the (h, w, c) luminance of each pixel averaged over
+    ``samples_per_pixel`` stratified rays through the pixel (anti-aliasing).
+
+    Parameters
+    ----------
+    scene : raytrace.Scene
+    cam : CameraSpec
+    world_from_camera : (4, 4) or (height, 4, 4) array_like
+        As ``sensors.render.render_depth`` (per-row poses for a rolling shutter).
+    lamps : sequence of Lamp
+    appearance : sensors.appearance.Appearance or (c,) array_like of float
+        The mesh's appearance (albedo looked up at every sample's hit) or one albedo
+        for the whole mesh.
+    samples_per_pixel : int
+        A square number (``stratified_offsets``); 1: one ray through the pixel centre.
+
+    Returns
+    -------
+    frame : Frame
+        The pixel-centre frame (depth, normals, triangles: a depth camera does not
+        average).
+    luminance : (h, w, c) float64
+        cd/m^2, the mean over the samples of ``luminance`` (linear radiance, averaged
+        before the exposure); a sample that misses the mesh adds 0. With one sample it
+        is ``luminance(scene, frame, lamps, albedo)`` exactly.
+
+    Raises
+    ------
+    SimulationError
+        ``samples_per_pixel`` not a square number >= 1, or what ``render_depth``
+        refuses.
+    """
+    offsets = stratified_offsets(samples_per_pixel)
+
+    def albedo_at(fr: Frame) -> NDArray[np.float64]:
+        if hasattr(appearance, "at"):
+            return np.nan_to_num(appearance.at(fr).albedo, nan=0.0)
+        return np.asarray(appearance, dtype=np.float64)
+
+    centre = render_depth(scene, cam, world_from_camera)
+    if len(offsets) == 1:
+        return centre, luminance(scene, centre, lamps, albedo_at(centre))
+    total: NDArray[np.float64] | None = None
+    for dx, dy in offsets:
+        # DECISION: each sample is a whole frame through render_depth's offset lens
+        # (its ray cache holds 16 offsets), shaded alone and summed: memory stays one
+        # frame's whatever the count. An odd k's middle stratum is the centre frame.
+        fr = centre if dx == 0.0 and dy == 0.0 else \
+            render_depth(scene, cam, world_from_camera, pixel_offset=(dx, dy))
+        lum = luminance(scene, fr, lamps, albedo_at(fr))
+        total = lum if total is None else total + lum
+    assert total is not None
+    return centre, total / len(offsets)
 
 
 def expose(cam: CameraSpec, lum: NDArray[np.float64], *, seed: int = 0,
@@ -225,11 +385,92 @@ def apparent_temperature(cam: CameraSpec, temperature_k: NDArray[np.float64],
     if cam.band_m is None:
         raise SimulationError(f"Expected a thermal camera for a temperature image, got "
                               f"{cam.name} ({cam.kind}); pass --camera lwir_640.")
+    return _apparent(cam, _surface_radiance(cam, temperature_k, emissivity, ambient_k),
+                     seed, noise)
+
+
+def _surface_radiance(cam: CameraSpec, temperature_k: ArrayLike,
+                      emissivity: ArrayLike | float, ambient_k: float
+                      ) -> NDArray[np.float64]:
+    """Band radiance (W m^-2 sr^-1) ``eps B(T) + (1 - eps) B(T_ambient)``."""
     T = np.asarray(temperature_k, dtype=np.float64)
     eps = np.broadcast_to(np.asarray(emissivity, dtype=np.float64), T.shape)
-    L = eps * _band_radiance(T, cam.band_m) + (1 - eps) * _band_radiance(
+    assert cam.band_m is not None
+    return eps * _band_radiance(T, cam.band_m) + (1 - eps) * _band_radiance(
         np.full(T.shape, ambient_k), cam.band_m)
+
+
+def _apparent(cam: CameraSpec, L: NDArray[np.float64], seed: int, noise: bool
+              ) -> NDArray[np.float64]:
+    """The black body's temperature of band radiances ``L``, plus the NETD's noise."""
+    assert cam.band_m is not None
     out = _invert_band_radiance(L, cam.band_m)
     if noise:
         out = out + np.random.default_rng(seed).normal(0.0, cam.netd_k, out.shape)
     return out
+
+
+def thermal_frame(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike,
+                  appearance: _Surfaces, ambient_k: float, samples_per_pixel: int = 1,
+                  *, seed: int = 0, noise: bool = True
+                  ) -> tuple[Frame, NDArray[np.float64]]:
+    """The pixel-centre frame and the (h, w) apparent temperature (K) of a thermal
+    camera, its band radiance averaged over ``samples_per_pixel`` stratified rays.
+
+    Parameters
+    ----------
+    scene, cam, world_from_camera
+        As ``radiance_frame`` (``cam`` a thermal camera).
+    appearance : sensors.appearance.Appearance
+        Temperature and emissivity at every sample's hit.
+    ambient_k : float
+        The surroundings each surface reflects (K).
+    samples_per_pixel : int
+        A square number (``stratified_offsets``).
+    seed, noise
+        The NETD's noise, as ``apparent_temperature``.
+
+    Returns
+    -------
+    frame : Frame
+    temperature_k : (h, w) float64
+        NaN where the pixel centre's ray misses (the depth's mask); elsewhere the
+        temperature of the mean band radiance of the pixel's rays that meet a surface.
+        DECISION: a ray that misses (an open portal) sees no surface of known
+        temperature: it is left out of the mean, not counted as 0 K. With one sample
+        it is ``apparent_temperature`` of the centre's surface exactly.
+
+    Raises
+    ------
+    SimulationError
+        Not a thermal camera, or ``samples_per_pixel`` not a square number.
+    """
+    if cam.band_m is None:
+        raise SimulationError(f"Expected a thermal camera for a temperature image, got "
+                              f"{cam.name} ({cam.kind}); pass --camera lwir_640.")
+    offsets = stratified_offsets(samples_per_pixel)
+    centre = render_depth(scene, cam, world_from_camera)
+    total = np.zeros(centre.hit.shape)
+    count = np.zeros(centre.hit.shape)
+    for dx, dy in offsets:
+        fr = centre if dx == 0.0 and dy == 0.0 else \
+            render_depth(scene, cam, world_from_camera, pixel_offset=(dx, dy))
+        px = appearance.at(fr)
+        # Evaluated on the hits alone, as ``apparent_temperature`` on the centre's.
+        total[fr.hit] += _surface_radiance(cam, px.temperature_k[fr.hit],
+                                           px.emissivity[fr.hit], ambient_k)
+        count[fr.hit] += 1
+    out = np.full(centre.hit.shape, np.nan)
+    hit = centre.hit
+    if len(offsets) == 1:
+        L = total[hit]
+    else:
+        n = count[hit]
+        L = total[hit] / np.maximum(n, 1)
+        none = n == 0       # the centre hits a sliver none of the strata's rays meet
+        if none.any():
+            px = appearance.at(centre)
+            L[none] = _surface_radiance(cam, px.temperature_k[hit][none],
+                                        px.emissivity[hit][none], ambient_k)
+    out[hit] = _apparent(cam, L, seed, noise)
+    return centre, out

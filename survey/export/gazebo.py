@@ -48,6 +48,14 @@ with ``waypoints``, at the start of the route ``sensors.route.find_route`` finds
 one ``tunnelsim drive --along auto`` drives), facing along it; the lamps then hang
 along that route.
 
+With a camera (``camera``, ``tunnelsim gazebo --camera``): its sensor on the chassis
+where a drive's camera sits by default (``sensors.camera_drive.default_camera_mount``:
+10 cm below the lidar's origin, level, looking ahead), its optical frame as a model
+``<frame>``, its image and CameraInfo in bridge.yaml, and the ground_robot platform's
+``[[lamps]]`` as spot lights on the chassis (``gazebo_sdf.camera_sdf``,
+``lamp_light_sdf``). DECISION: the lamps come with the camera only: the lidar needs no
+light, and a world exported before the camera existed stays as it was.
+
 The lidar is translated from our spec into ``<sensor type="gpu_lidar">``
 (``gazebo_sdf.lidar_sdf``); the IMU carries ``sensors.bag.ImuModel``'s noise
 (``gazebo_sdf.imu_sdf``). What SDF cannot express is listed in a comment inside
@@ -86,12 +94,14 @@ from sensors.robot import rpy_of
 from survey.errors import GazeboExportError
 
 from .gazebo_sdf import (BASE, FLAVOURS, RANGE_RESOLUTION_M, ROBOT, Flavour,
-                         bridge_entries, bridge_yaml, chassis_z, crs_suffix, imu_sdf, lidar_sdf, model_config,
-                         model_sdf, origin_frame, robot_sdf, world_sdf)
+                         bridge_entries, bridge_yaml, camera_sdf, chassis_z, crs_suffix,
+                         imu_sdf, lamp_light_sdf, lidar_sdf, model_config, model_sdf,
+                         optical_frame_sdf, origin_frame, robot_sdf, world_sdf)
 from .gazebo_sdf import flavour as flavour_of
 
 if TYPE_CHECKING:
     from raytrace import Scene
+    from sensors.camera import CameraSpec
     from sensors.imu import ImuModel
     from sensors.spec_types import SensorSpec
     from survey.world.alignment import Alignment
@@ -213,6 +223,42 @@ def _pose_in_chassis(xyz: Floats, rot: Any) -> str:
     return " ".join(f"{x:.15g}" for x in (*p, *rpy_of(rot)))
 
 
+def _camera_parts(cam: CameraSpec, desc: Any) -> tuple[str, str, dict[str, Any]]:
+    """(XML for the chassis link: the camera sensor and the platform's lamp lights,
+    XML of the optical frame, facts for the result) of ``cam`` on the world's robot
+    ``desc`` (module doc)."""
+    from scipy.spatial.transform import Rotation
+
+    from sensors.bag import camera_topics
+    from sensors.camera_drive import LINK_FROM_OPTICAL, default_camera_mount
+    from sensors.platform_spec import load_platform
+    from sensors.shading import platform_lamps
+    from sensors.trajectory import Mount
+
+    topics = camera_topics(cam)
+    lidar_xyz, _ = desc.base_to_sensor()
+    link = default_camera_mount(Mount(tuple(np.asarray(lidar_xyz).tolist())))
+    xyz = np.asarray(link.lever_arm_m, dtype=np.float64)
+    sensor_xml, limits = camera_sdf(cam, topic=topics.image,
+                                    pose=_pose_in_chassis(xyz, link.boresight))
+    optical = link.boresight * Rotation.from_matrix(LINK_FROM_OPTICAL)
+    frame_xml = optical_frame_sdf(topics.frame_id, _pose_in_chassis(xyz, optical))
+    # The lamps of the world's robot (ground_robot), in the chassis link's frame.
+    spec = load_platform("ground_robot")
+    T = np.eye(4)
+    T[2, 3] = -chassis_z()
+    lamps = platform_lamps(spec, T)
+    lights = [lamp_light_sdf(f"headlight_{i}", pl.kind, lp.position, lp.direction,
+                             lp.intensity_cd, lp.beam_half_angle_rad,
+                             lp.cutoff_half_angle_rad)
+              for i, (pl, lp) in enumerate(zip(spec.lamps, lamps))]
+    facts = {"name": cam.name, "kind": cam.kind, "topic": topics.image,
+             "info_topic": topics.info, "optical_frame": topics.frame_id,
+             "camera_link_xyz_m": xyz.tolist(), "lamps": len(lights),
+             "limitations": limits}
+    return "\n".join([sensor_xml, *lights]), frame_xml, facts
+
+
 def _lamps(points: Floats, spacing_m: float) -> str:
     """Point lights at ``points`` (k, 3), local coordinates, lighting ``spacing_m``."""
     return "\n".join(f"""    <light name="lamp_{i}" type="point">
@@ -328,7 +374,8 @@ def _placement(mesh_path: str | Path, scene: Scene, chainage_m: float | None,
 
 def _readme(fl: Flavour, mesh_name: str, sensor_name: str, out_name: str, org: str,
             origin: Floats, lim_text: str, start: str, crs_name: str | None = None,
-            crs_wkt: str | None = None, frame_id: str = "lidar") -> str:
+            crs_wkt: str | None = None, frame_id: str = "lidar",
+            camera: dict[str, Any] | None = None) -> str:
     crs = "Coordinate reference system: none stated (local coordinates)\n" \
         if crs_wkt is None else (f"Coordinate reference system: {crs_name}\n  WKT: "
                                  f"{' '.join(crs_wkt.split())}\n")
@@ -355,6 +402,11 @@ def _readme(fl: Flavour, mesh_name: str, sensor_name: str, out_name: str, org: s
             f"mast_link -> {frame_id}, base_link -> imu_link, as the drive's bag\n"
             "Ground truth: /tf (PosePublisher) and /odometry/ground_truth "
             "(OdometryPublisher, frame tunnel_world)\n"
+            + ("" if camera is None else
+               f"Camera: {camera['name']} ({camera['kind']}) on {ROBOT}::chassis, "
+               f"{camera['topic']} and {camera['info_topic']} (bridged); optical frame "
+               f"{ROBOT}::{camera['optical_frame']}; {camera['lamps']} headlights on the "
+               "chassis\n") +
             f"Not expressible in SDF:\n{lim_text}\n")
 
 
@@ -364,7 +416,8 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
                   flavour: str = "harmonic", waypoints: ArrayLike | None = None,
                   route_height_m: float = ROUTE_HEIGHT_M, imu: ImuModel | None = None,
                   reflectivity: float = 0.5, route_clearance_m: float | None = None,
-                  voxel_m: float | None = None) -> dict[str, Any]:
+                  voxel_m: float | None = None,
+                  camera: CameraSpec | None = None) -> dict[str, Any]:
     """Write the world folder (see module doc).
 
     Parameters
@@ -390,6 +443,8 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
         and the voxel it is sought on (``find_route``'s ``clearance_m`` and
         ``voxel_m``; drive's ``--clearance`` and ``--voxel``); refused for a generated
         tunnel's axis.
+    camera : sensors.camera.CameraSpec, optional
+        A camera on the robot, with the ground_robot platform's lamps (module doc).
 
     Returns
     -------
@@ -398,13 +453,15 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
         "EPSG:2056 (CH1903+ / LV95)", or None), crs_wkt (or None), limitations,
         warnings, robot_pose (x, y, z in m, local coordinates; yaw in radians),
         route (None, or length_m and min_clearance_m of the route found), laser_retro,
-        bridge (the entries of bridge.yaml), run (the launch line).
+        bridge (the entries of bridge.yaml), run (the launch line), camera (None, or
+        name, kind, topic, info_topic, optical_frame, camera_link_xyz_m, lamps,
+        limitations).
 
     Raises
     ------
     GazeboExportError
         An existing folder without ``force``, an unknown mount or flavour, a chainage
-        without a tunnel axis, a TLS sensor.
+        without a tunnel axis, a TLS sensor, a fisheye depth or thermal camera.
     sensors.errors.TrajectoryError
         No route in the mesh (``find_route``).
     """
@@ -430,6 +487,8 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
     desc = robot_description(sensor, mount)
     sensor_xml, limits = lidar_sdf(sensor, name=sensor.name,
                                    pose=_pose_in_chassis(*desc.base_to_sensor()))
+    cam_xml, frame_xml, cam_facts = ("", "", None) if camera is None else \
+        _camera_parts(camera, desc)
     floor, yaw, lamps, route = _placement(mesh_path, scene, chainage_m, waypoints,
                                           route_height_m, light_spacing_m,
                                           route_clearance_m, voxel_m)
@@ -442,14 +501,20 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
                         default=reflectivity)
     cv, cf = _decimate_to(v - origin, f, COLLISION_MAX_TRIANGLES)
     lim_text = "\n".join(f"  - {x}" for x in limits)
+    if cam_facts is not None:
+        lim_text += f"\n  camera {camera.name if camera else ''}:\n" + "\n".join(
+            f"  - {x}" for x in cam_facts["limitations"])
     org = " ".join(f"{x:.3f}" for x in origin)
     name = Path(mesh_path).name
     robot = robot_sdf(fl, f"{floor[0]:.6f} {floor[1]:.6f} {floor[2]:.6f} 0 0 {yaw:.9f}",
                       sensor_xml, imu_sdf(imu or DEFAULT_IMU,
-                                          pose=_pose_in_chassis(*desc.base_to_imu())),
+                                          pose=_pose_in_chassis(*desc.base_to_imu()))
+                      + ("\n" + cam_xml if cam_xml else ""),
                       POSE_RATE_HZ, track_m=desc.track_m,
-                      wheel_radius_m=desc.wheel_radius_m)
-    entries = bridge_entries(fl, (sensor.driver or GENERIC_DRIVER).topic)
+                      wheel_radius_m=desc.wheel_radius_m, frames_xml=frame_xml)
+    entries = bridge_entries(fl, (sensor.driver or GENERIC_DRIVER).topic,
+                             None if cam_facts is None else
+                             (cam_facts["topic"], cam_facts["info_topic"]))
     start = (f"route start ({route.length_m:.1f} m route, smallest clearance "
              f"{route.min_clearance_m:.2f} m)" if route is not None else "tunnel axis") + \
         f" at local {floor[0]:.3f} {floor[1]:.3f} {floor[2]:.3f} m, yaw {yaw:.4f} rad"
@@ -469,7 +534,7 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
         trimesh.Trimesh(cv, cf, process=False).export(mdir / "tunnel_collision.stl")
         _write(tmp / "README.txt", _readme(fl, name, sensor.name, out.name, org, origin,
                                            lim_text, start, crs_name, crs_wkt,
-                                           desc.sensor_frame))
+                                           desc.sensor_frame, cam_facts))
         desc.write_urdf(tmp / "robot.urdf")
         desc.write_launch(tmp / "robot.launch.py", "robot.urdf")
 
@@ -480,7 +545,8 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
             "robot_pose": [float(floor[0]), float(floor[1]), float(floor[2]), yaw],
             "route": None if route is None else
             {"length_m": route.length_m, "min_clearance_m": route.min_clearance_m},
-            "laser_retro": retro, "bridge": entries, "run": fl.run_line()}
+            "laser_retro": retro, "bridge": entries, "run": fl.run_line(),
+            "camera": cam_facts}
 
 
 def _replace_folder(out: Path, fill: Callable[[Path], None]) -> None:

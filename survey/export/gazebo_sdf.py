@@ -38,6 +38,17 @@ partition-free name is the one the bridge asks for):
 - ``/clock``: published by the server itself (gz-sim's ``SimulationRunner``
   advertises ``/clock`` next to ``/world/<name>/clock``).
 
+The camera (``camera_sdf``, ``tunnelsim gazebo --camera``): a ``camera`` /
+``depth_camera`` / ``thermal_camera`` sensor (``wideanglecamera`` for a fisheye) on
+the image topic the bag uses (``sensors.bag.camera_topics``: the RealSense wrapper's
+``/camera/color/image_raw`` for the D435, ``/NAME/image_raw`` otherwise); gz-sensors
+advertises the CameraInfo beside it, the image topic's last part replaced by
+``camera_info`` (``CameraSensor::AdvertiseInfo``), which is the bag's info topic too.
+Gazebo's camera looks along its sensor frame's +x with +z up (camera_link, REP 103's
+body axes); the optical frame (z forward, x right, y down) is a ``<frame>`` of the
+robot model named as the bag's ``*_optical_frame``. The platform's ``[[lamps]]``
+become ``<light>``s of the chassis link (``lamp_light_sdf``).
+
 DECISION: the ROS topic names are the ones ``sensors.bag`` writes in a bag of a drive
 (cloud: the driver's topic; ``/imu/data_raw``; ``/odometry/ground_truth``; ``/tf``), so
 that a stack set up on a recorded drive runs on the simulation unchanged. The frames
@@ -57,10 +68,12 @@ import numpy as np
 from survey.errors import GazeboExportError
 
 if TYPE_CHECKING:
+    from sensors.camera import CameraSpec
     from sensors.imu import ImuModel
     from sensors.spec_types import SensorSpec
 
-__all__ = ["BASE", "CLOCK_TOPIC", "CMD_VEL_TOPIC", "FLAVOURS", "GT_ODOMETRY_TOPIC",
+__all__ = ["BASE", "CAMERA_CLIP_M", "CLOCK_TOPIC", "LIGHT_RANGE_LUX", "LIGHT_REF_CD",
+           "camera_sdf", "lamp_light_sdf", "optical_frame_sdf", "CMD_VEL_TOPIC", "FLAVOURS", "GT_ODOMETRY_TOPIC",
            "IMU_BIAS_CORRELATION_S", "IMU_GZ_TOPIC", "LIDAR_GZ_TOPIC", "POINTS_SUFFIX",
            "RANGE_RESOLUTION_M", "ROBOT", "Flavour", "bridge_entries", "bridge_yaml",
            "crs_suffix", "flavour", "imu_sdf", "lidar_sdf", "model_config", "model_sdf",
@@ -90,6 +103,22 @@ CLOCK_TOPIC: Final = "/clock"
 #: Kalibr parameter ``sensors.bag.ImuModel`` holds. ASSUMED: 1000 s (Rotors' ADIS16448
 #: default), long against a drive, so the bias wanders as ImuModel's does.
 IMU_BIAS_CORRELATION_S: Final = 1000.0
+#: Near and far clip planes (m) of a colour or thermal camera (a depth camera's are its
+#: depth range): ASSUMED, nearer than any wall a robot touches, beyond any sight line
+#: along a tunnel; our renderer has none.
+CAMERA_CLIP_M: Final = (0.02, 1000.0)
+#: Candela of a light of SDF ``<intensity>`` 1. Gazebo's lights are not photometric
+#: (``<intensity>`` is a relative scale, the camera has no exposure): DECISION, 1000 cd
+#: (``render``'s headlamp) is 1, so the lamps keep their ratios.
+LIGHT_REF_CD: Final = 1000.0
+#: A lamp's ``<attenuation><range>`` ends where its axis illuminance I / d^2 falls to
+#: this (lux): ASSUMED, a moonlit night's order; OGRE cuts the light off there.
+LIGHT_RANGE_LUX: Final = 0.1
+#: SDF ``<image><format>`` by camera kind (gz-sensors' formats: RGB8, depth as 32-bit
+#: float metres, thermal as 16-bit counts of 0.01 K).
+IMAGE_FORMATS: Final = {"color": "R8G8B8", "depth": "R_FLOAT32", "thermal": "L16"}
+_SENSOR_TYPES: Final = {"color": "camera", "depth": "depth_camera",
+                        "thermal": "thermal_camera"}
 
 
 @dataclass(frozen=True)
@@ -272,11 +301,180 @@ def imu_sdf(imu: ImuModel, *, name: str = "imu", topic: str = IMU_GZ_TOPIC,
     return _indent(xml, indent)
 
 
+def _f(x: float) -> str:
+    """A float written so that it reads back exactly (repr's 17 digits)."""
+    return repr(float(x))
+
+
+def camera_sdf(cam: CameraSpec, *, name: str | None = None, topic: str,
+               pose: str = "0 0 0 0 0 0", indent: int = 8) -> tuple[str, list[str]]:
+    """(XML of the camera's ``<sensor>``, list of what SDF cannot express about it).
+
+    Intrinsics, exactly (``_f``): ``<horizontal_fov>`` = 2 atan(w / (2 fx)) for a
+    pinhole, w / fx for a fisheye (equidistant: r = f theta, through the image's edges),
+    ``<image>`` w x h, ``<clip>`` (a depth camera's depth range), ``<update_rate>`` the
+    frame rate; a pinhole's Brown-Conrady ``<distortion>`` k1 k2 k3 p1 p2 (OpenCV's
+    definitions, which gz-rendering's distortion pass applies) and ``<center>``, and
+    ``<lens><intrinsics>`` fx fy cx cy.
+
+    DECISION: SDF's image coordinates start at the top-left pixel's outer corner: its
+    defaults put the principal point at the image's centre as ``<cx>`` = w / 2 (160 for
+    320 pixels) and ``<center>`` = 0.5 0.5; ours (OpenCV's) start at that pixel's
+    centre, so ``<cx>`` = cx + 0.5 and ``<center>`` = ((cx + 0.5) / w, (cy + 0.5) / h)
+    (a centred camera's (w - 1) / 2 gives exactly w / 2 and 0.5). gz-sensors copies
+    ``<intrinsics>`` into the CameraInfo it publishes, which therefore reads 0.5 px more
+    than OpenCV's cx, cy (every Gazebo camera's camera_info does: cx = w / 2)."""
+    if cam.model == "fisheye" and cam.kind != "color":
+        raise GazeboExportError(f"Expected a pinhole lens for a {cam.kind} camera in "
+                                f"Gazebo, got the fisheye {cam.name}; gz-sensors' wide-"
+                                "angle camera is colour only: pass a pinhole --camera.")
+    w, h = cam.width, cam.height
+    limits = ["exposure, shot and read noise and the full well's clip (written without "
+              "image noise: SDF has one Gaussian sigma in image units)",
+              "the tunnel's albedo per surface (one material for the whole lining)",
+              "photometric lamps: Gazebo's <intensity> is relative (1 = "
+              f"{LIGHT_REF_CD:g} cd), the spot's ramp is OGRE's falloff between the "
+              "cones, not linear in angle"]
+    if not cam.global_shutter:
+        limits.append(f"the rolling shutter ({cam.line_time_s * 1e6:g} us per row; "
+                      "Gazebo renders a frame at one instant)")
+    if cam.kind == "depth":
+        limits.append("depth as 32-bit float metres (Gazebo), not the RealSense "
+                      "driver's 16UC1 millimetres")
+    if cam.kind == "thermal":
+        limits.append("surface temperatures and emissivities (Gazebo's thermal camera "
+                      "sees a visual's <temperature> or the world's ambient), the "
+                      "spectral band and the NETD")
+    near, far = cam.depth_range_m if cam.depth_range_m is not None else CAMERA_CLIP_M
+    cx_sdf, cy_sdf = cam.cx + 0.5, cam.cy + 0.5
+    if cam.model == "pinhole":
+        stype = _SENSOR_TYPES[cam.kind]
+        hfov = 2.0 * np.arctan(w / (2.0 * cam.fx))
+        k1, k2, p1, p2, k3 = (float(x) for x in cam.distortion)
+        lens = f"""  <distortion>
+    <k1>{_f(k1)}</k1>
+    <k2>{_f(k2)}</k2>
+    <k3>{_f(k3)}</k3>
+    <p1>{_f(p1)}</p1>
+    <p2>{_f(p2)}</p2>
+    <center>{_f(cx_sdf / w)} {_f(cy_sdf / h)}</center>
+  </distortion>
+  <lens>
+    <type>gnomonical</type>
+    <scale_to_hfov>true</scale_to_hfov>
+    <intrinsics>
+      <fx>{_f(cam.fx)}</fx>
+      <fy>{_f(cam.fy)}</fy>
+      <cx>{_f(cx_sdf)}</cx>
+      <cy>{_f(cy_sdf)}</cy>
+      <s>0</s>
+    </intrinsics>
+  </lens>"""
+    else:
+        stype = "wideanglecamera"
+        hfov = w / cam.fx
+        if np.any(cam.distortion != 0):
+            limits.append("the Kannala-Brandt distortion k1-k4 (the wide-angle camera's "
+                          "equidistant lens is written without it)")
+        if abs(cam.fy - cam.fx) > 1e-9 * cam.fx or abs(cx_sdf - w / 2) > 1e-9 * w or \
+                abs(cy_sdf - h / 2) > 1e-9 * h:
+            limits.append("a fisheye's fy != fx or off-centre principal point (the "
+                          "wide-angle camera scales its lens to <horizontal_fov>)")
+        # The corners see furthest off the axis: theta = r / f (equidistant).
+        cutoff = min(float(np.hypot(w / 2.0, h / 2.0) / cam.fx), np.pi)
+        lens = f"""  <lens>
+    <type>equidistant</type>
+    <scale_to_hfov>true</scale_to_hfov>
+    <cutoff_angle>{_f(cutoff)}</cutoff_angle>
+    <env_texture_size>1024</env_texture_size>
+  </lens>"""
+    if hfov < 0.1 or hfov > 2 * np.pi:
+        raise GazeboExportError(f"Expected a camera whose horizontal field of view SDF "
+                                f"can hold (0.1-6.283 rad), got {hfov:.4g} rad for "
+                                f"{cam.name}; pass another --camera.")
+    depth = "" if cam.kind != "depth" else f"""
+  <depth_camera>
+    <output>depths</output>
+    <clip>
+      <near>{_f(near)}</near>
+      <far>{_f(far)}</far>
+    </clip>
+  </depth_camera>"""
+    xml = f"""<sensor name="{escape(name or cam.name)}" type="{stype}">
+  <pose>{pose}</pose>
+  <topic>{escape(topic)}</topic>
+  <update_rate>{_f(cam.frame_rate_hz)}</update_rate>
+  <always_on>true</always_on>
+  <visualize>false</visualize>
+  <camera name="{escape(name or cam.name)}">
+  <horizontal_fov>{_f(hfov)}</horizontal_fov>
+  <image>
+    <width>{w}</width>
+    <height>{h}</height>
+    <format>{IMAGE_FORMATS[cam.kind]}</format>
+  </image>
+  <clip>
+    <near>{_f(near)}</near>
+    <far>{_f(far)}</far>
+  </clip>{depth}
+{lens}
+  </camera>
+</sensor>"""
+    # The camera's children sit one level in.
+    lines = xml.splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.startswith("  <camera "))
+    end = next(i for i, ln in enumerate(lines) if ln == "  </camera>")
+    lines[start + 1:end] = ["  " + ln for ln in lines[start + 1:end]]
+    return _indent("\n".join(lines), indent), limits
+
+
+def optical_frame_sdf(name: str, pose: str, link: str = "chassis", indent: int = 6) -> str:
+    """A model ``<frame>`` ``name`` attached to ``link`` at ``pose`` (in ``link``): the
+    camera's optical frame (z forward, x right, y down; REP 103)."""
+    pad = " " * indent
+    return (f'{pad}<frame name="{escape(name)}" attached_to="{escape(link)}">\n'
+            f'{pad}  <pose relative_to="{escape(link)}">{pose}</pose>\n{pad}</frame>')
+
+
+def lamp_light_sdf(name: str, kind: str, position: Any, direction: Any,
+                   intensity_cd: float, beam_half_angle_rad: float,
+                   cutoff_half_angle_rad: float, indent: int = 8) -> str:
+    """A ``<light>`` of a lamp, its position and beam ``direction`` (unit) in the
+    parent's frame (the light's pose carries no rotation: the direction is the
+    link's).
+
+    Inverse-square falloff (``<constant>`` 0, ``<linear>`` 0, ``<quadratic>`` 1, OGRE's
+    1 / (c + l d + q d^2)) out to ``<range>`` where I / d^2 = ``LIGHT_RANGE_LUX``;
+    ``<intensity>`` I / ``LIGHT_REF_CD``. A spot's ``<inner_angle>`` and
+    ``<outer_angle>`` are the full cone angles (2 x the beam and cutoff half-angles: SDF
+    describes them as OGRE does its spotlight range, "the angle covered by the bright
+    inner cone"), ``<falloff>`` 1 (linear)."""
+    p = np.asarray(position, dtype=np.float64)
+    d = np.asarray(direction, dtype=np.float64)
+    pad = " " * indent
+    rng = float(np.sqrt(max(intensity_cd, 0.0) / LIGHT_RANGE_LUX))
+    spot = "" if kind != "spot" else (
+        f"\n{pad}  <spot><inner_angle>{_f(2 * beam_half_angle_rad)}</inner_angle>"
+        f"<outer_angle>{_f(2 * cutoff_half_angle_rad)}</outer_angle>"
+        "<falloff>1</falloff></spot>")
+    return (f'{pad}<light name="{escape(name)}" type="{"spot" if kind == "spot" else "point"}">\n'
+            f"{pad}  <pose>{' '.join(_f(x) for x in p)} 0 0 0</pose>\n"
+            f"{pad}  <cast_shadows>true</cast_shadows>\n"
+            f"{pad}  <intensity>{_f(intensity_cd / LIGHT_REF_CD)}</intensity>\n"
+            f"{pad}  <diffuse>1 1 1 1</diffuse><specular>0.1 0.1 0.1 1</specular>\n"
+            f"{pad}  <attenuation><range>{_f(max(rng, 0.1))}</range><constant>0</constant>"
+            "<linear>0</linear><quadratic>1</quadratic></attenuation>\n"
+            f"{pad}  <direction>{' '.join(_f(x) for x in d)}</direction>{spot}\n"
+            f"{pad}</light>")
+
+
 # ----------------------------------------------------------------------------- bridge
-def bridge_entries(fl: Flavour, cloud_ros_topic: str) -> list[dict[str, str]]:
+def bridge_entries(fl: Flavour, cloud_ros_topic: str,
+                   camera_topics: tuple[str, str] | None = None) -> list[dict[str, str]]:
     """The ``ros_gz_bridge`` entries of the world (module doc), in the documented YAML
     config's keys: ros_topic_name, gz_topic_name, ros_type_name, gz_type_name,
-    direction (ros_gz_bridge ``bridge_config.cpp``)."""
+    direction (ros_gz_bridge ``bridge_config.cpp``); with ``camera_topics`` (image,
+    info), the camera's Image and CameraInfo, the same names on both sides."""
     from sensors.bag import IMU_TOPIC, ODOMETRY_TOPIC
 
     m = fl.msgs
@@ -289,6 +487,10 @@ def bridge_entries(fl: Flavour, cloud_ros_topic: str) -> list[dict[str, str]]:
             ("/tf", pose_topic(), "tf2_msgs/msg/TFMessage", "Pose_V", "GZ_TO_ROS"),
             (CMD_VEL_TOPIC, CMD_VEL_TOPIC, "geometry_msgs/msg/Twist", "Twist",
              "ROS_TO_GZ")]
+    if camera_topics is not None:
+        image, info = camera_topics
+        rows += [(image, image, "sensor_msgs/msg/Image", "Image", "GZ_TO_ROS"),
+                 (info, info, "sensor_msgs/msg/CameraInfo", "CameraInfo", "GZ_TO_ROS")]
     return [{"ros_topic_name": r, "gz_topic_name": g, "ros_type_name": rt,
              "gz_type_name": m + gt, "direction": d} for r, g, rt, gt, d in rows]
 
@@ -319,12 +521,13 @@ def chassis_z() -> float:
 
 def robot_sdf(fl: Flavour, pose: str, sensor_xml: str, imu_xml: str,
               pose_rate_hz: float, *, track_m: float | None = None,
-              wheel_radius_m: float | None = None) -> str:
+              wheel_radius_m: float | None = None, frames_xml: str = "") -> str:
     """The robot model: chassis (carrying the lidar and the IMU), two driven wheels and
     a caster; DiffDrive, PosePublisher and OdometryPublisher systems (module doc).
     The model's origin is base_link (the ground contact plane); ``track_m`` and
     ``wheel_radius_m`` (the platform's; ``BASE``'s by default) place the wheels,
-    centred ``track_m`` apart."""
+    centred ``track_m`` apart. ``frames_xml``: model-level ``<frame>``s (a camera's
+    optical frame)."""
     b = dict(BASE)
     if track_m:
         b["track"] = track_m
@@ -395,6 +598,7 @@ def robot_sdf(fl: Flavour, pose: str, sensor_xml: str, imu_xml: str,
       </link>
 {chr(10).join(wheels)}
 {chr(10).join(joints)}
+{frames_xml}
       <joint name="caster_joint" type="ball"><parent>chassis</parent><child>caster</child>
       </joint>
 {drive}

@@ -1,6 +1,16 @@
 """``tunnelsim render`` and ``tunnelsim cameras`` as library calls: one camera frame
-from a mesh (colour, depth or thermal, lit by a headlamp beside the camera) written
-as image files with their ``camera_info.json``, and the shipped camera models.
+from a mesh (colour, depth or thermal, lit by a headlamp beside the camera and/or a
+platform's lamps, anti-aliased by supersampling) written as image files with their
+``camera_info.json``, and the shipped camera models.
+
+The camera and a platform (``platform=``): the camera at ``at`` is the platform's
+camera mount, at its platform frame (the mast's top, where its sensor sits), and the
+platform stands level facing ``heading_deg``. base_link is where ``sensors.robot``
+puts it: a wheeled base's ``body.mast_height_m`` below the mount (on the ground
+contact plane), any other platform's at the mount itself. ``world_from_base`` is a
+turn by the heading about z and the translation to ``at - (0, 0, that height)``. The
+camera's pitch and roll are its own on the mount (the platform does not tilt with
+them). The platform's ``[[lamps]]`` are placed with ``sensors.shading.platform_lamps``.
 
 The command line parses its options, calls one of these and prints from the result.
 """
@@ -17,7 +27,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["CameraModel", "RenderResult", "camera_models", "render_frame"]
+__all__ = ["CameraModel", "RenderResult", "camera_models", "label_names", "render_frame"]
 
 PathLike = str | os.PathLike[str]
 
@@ -117,7 +127,7 @@ class RenderResult:
     depth_clipped : int
         Valid pixels beyond ``depth.png``'s 65.535 m (0 there, kept in ``depth.npy``).
     lamp_cd : float
-        The headlamp's intensity.
+        The headlamp's intensity (0: no headlamp).
     mean_value : float
         Colour: the mean linear value of the RGB image (0-1, of full scale);
         thermal: the mean apparent temperature (K); depth: NaN.
@@ -128,6 +138,12 @@ class RenderResult:
         Where albedo, temperature and emissivity came from ("vertex", "label",
         "default").
     seconds : float
+    platform : str or None
+        The platform whose lamps lit the frame (``platform=``).
+    lamps : int
+        Lamps that lit the frame (the headlamp and the platform's).
+    samples_per_pixel : int
+        Rays averaged per pixel (``samples=``).
     """
 
     files: tuple[Path, ...]
@@ -148,16 +164,31 @@ class RenderResult:
     saturated_fraction: float
     appearance: dict[str, str]
     seconds: float
+    platform: str | None = None
+    lamps: int = 0
+    samples_per_pixel: int = 1
 
 
-def _label_names(mesh_path: Path) -> tuple[str, ...]:
-    """Names of the face labels: the tunnel JSON's ``labels`` beside the mesh, else the
-    generator's ``LABELS``."""
+def label_names(mesh_path: PathLike) -> tuple[str, ...]:
+    """Names of a mesh's face labels, index by index, as ``render_frame`` reads them
+    (``sensors.appearance.mesh_appearance``'s ``label_names``).
+
+    Parameters
+    ----------
+    mesh_path : str or path
+        The mesh; its tunnel JSON (``sensors.io.tunnel_json.sidecar``) is read if there.
+
+    Returns
+    -------
+    tuple of str
+        The JSON's ``labels`` (``""`` for an index it skips), else the generator's
+        ``survey.world.mesh.LABELS``.
+    """
     from sensors.io.errors import TunnelFileError
     from sensors.io.tunnel_json import read_meta, sidecar
     from survey.world.mesh import LABELS
 
-    js = sidecar(mesh_path)
+    js = sidecar(Path(mesh_path))
     if js.is_file():
         try:
             labels = read_meta(js).get("labels")
@@ -174,16 +205,21 @@ def _label_names(mesh_path: Path) -> tuple[str, ...]:
 
 def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: PathLike,
                  *, heading_deg: float, pitch_deg: float = 0.0, roll_deg: float = 0.0,
-                 lamp_cd: float = 1000.0, seed: int = 0, noise: bool = True,
-                 ambient_k: float | None = None, time_s: float = 0.0) -> RenderResult:
+                 lamp_cd: float | None = None, seed: int = 0, noise: bool = True,
+                 ambient_k: float | None = None, time_s: float = 0.0,
+                 platform: str | os.PathLike[str] | None = None,
+                 samples: int = 1) -> RenderResult:
     """Render one frame of ``camera`` at ``at`` in ``mesh`` and write its files.
 
-    The frame's light is one spot lamp 5 cm above the camera along its axis
-    (``sensors.shading.headlamp``: a 30/45 degree beam, ASSUMED). Colour cameras get
-    Lambertian shading with a shadow ray, the exposure's shot and read noise and the
-    sRGB PNG; thermal cameras the apparent temperature of each surface's temperature
-    and emissivity (``sensors.shading.apparent_temperature``); every camera the
-    z-depth. Albedo, temperature and emissivity come from the mesh's vertex
+    The frame's light: a spot lamp 5 cm above the camera along its axis
+    (``sensors.shading.headlamp``: a 30/45 degree beam, ASSUMED) of ``lamp_cd``,
+    and, with ``platform``, the platform's lamps (module doc: the camera is its
+    camera mount). Colour cameras get Lambertian shading with a shadow ray per lamp,
+    averaged over ``samples`` rays per pixel (``sensors.shading.radiance_frame``),
+    the exposure's shot and read noise and the sRGB PNG; thermal cameras the
+    apparent temperature of each surface's temperature and emissivity, its band
+    radiance averaged over ``samples`` rays (``sensors.shading.thermal_frame``);
+    every camera the z-depth of the pixel centre. Albedo, temperature and emissivity come from the mesh's vertex
     properties, else its face labels, else grey (``sensors.appearance``).
 
     Parameters
@@ -199,8 +235,11 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
     heading_deg, pitch_deg, roll_deg : float
         The optical axis's azimuth from +x towards +y, its tilt up, and the roll
         clockwise seen from behind (degrees).
-    lamp_cd : float
-        The headlamp's luminous intensity on its axis (candela); 0 for none.
+    lamp_cd : float, optional
+        The headlamp's luminous intensity on its axis (candela); 0 for none. Default:
+        1000 cd without ``platform``, none with it (its lamps light the frame).
+        DECISION: given with ``platform``, the headlamp lights the frame too (both
+        count; nothing the caller asked for is dropped).
     seed : int
         Seed of the exposure's (or thermal camera's) noise.
     noise : bool
@@ -210,6 +249,15 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
         ``sensors.appearance.ROCK_K``, the tunnel's own rock).
     time_s : float
         Time stamp written into ``camera_info.json``.
+    platform : str or path, optional
+        A platform name (``sensors.platform_spec.list_platforms``) or TOML file whose
+        ``[[lamps]]`` light the frame, the camera at ``at`` being its camera mount
+        (module doc). Colour cameras only: no lamp changes a depth or thermal frame.
+    samples : int
+        Rays per pixel, a square number (1, 4, 9, 16 ...): a k x k grid of strata
+        (``sensors.shading.stratified_offsets``), their linear radiance (colour) or
+        band radiance (thermal) averaged (anti-aliasing); 1 is the pixel centre. Not
+        for a depth camera (its depth is the pixel centre's).
 
     Returns
     -------
@@ -222,8 +270,12 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
     sensors.io.errors.MeshFileError
         A mesh that cannot be read (a point cloud without faces ...).
     sensors.errors.SimulationError
-        A pose that is not finite, a negative lamp intensity, or a camera from which no
-        pixel's ray meets the mesh (outside it, or looking out of it).
+        A pose that is not finite, a negative lamp intensity, a camera from which no
+        pixel's ray meets the mesh (outside it, or looking out of it), ``samples`` not
+        a square number, ``samples`` > 1 for a depth camera, or ``platform`` for a
+        depth or thermal camera.
+    sensors.errors.PlatformError
+        An unknown platform or a bad platform file.
 
     Examples
     --------
@@ -242,8 +294,12 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
     from sensors.errors import CameraSpecError, SimulationError
     from sensors.io.errors import MeshFileError
     from sensors.io.meshes import read_mesh
+    from sensors.errors import PlatformError
+    from sensors.platform_spec import load_platform
     from sensors.render import camera_pose, render_depth
-    from sensors.shading import apparent_temperature, expose, headlamp, luminance
+    from sensors.robot import RobotDescription
+    from sensors.shading import (expose, headlamp, platform_lamps, radiance_frame,
+                                 stratified_offsets, thermal_frame)
 
     from raytrace import Scene
 
@@ -253,9 +309,25 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
     except CameraSpecError as exc:
         raise CameraSpecError(f"--camera: {exc} 'tunnelsim cameras' lists the names."
                               ) from None
-    if not (math.isfinite(lamp_cd) and lamp_cd >= 0):
+    if lamp_cd is not None and not (math.isfinite(lamp_cd) and lamp_cd >= 0):
         raise SimulationError(f"Expected --lamp-cd >= 0 (candela), got {lamp_cd}; pass "
                               "--lamp-cd 0 for no light.")
+    n_samples = len(stratified_offsets(samples))
+    if (cam.kind == "depth" and n_samples > 1) or (cam.kind != "color" and
+                                                   platform is not None):
+        what = (f"--samples 1, got {samples}" if platform is None else
+                f"no --platform, got {str(platform)!r}")
+        why = ("a depth camera reports the pixel centre's depth, it does not average"
+               if platform is None else "the platform's lamps light only a colour frame")
+        raise SimulationError(f"Expected {what} for the {cam.kind} camera {cam.name} "
+                              f"({why}); pass a colour --camera or leave it out.")
+    spec = None
+    if platform is not None:
+        try:
+            spec = load_platform(platform)
+        except PlatformError as exc:
+            raise PlatformError(f"--platform: {exc}") from None
+    head_cd = (0.0 if spec is not None else 1000.0) if lamp_cd is None else float(lamp_cd)
     p = np.asarray(at, dtype=np.float64).reshape(-1)
     if p.shape != (3,) or not np.isfinite(p).all():
         raise SimulationError(f"Expected --at as 3 finite numbers X,Y,Z in metres, got "
@@ -276,29 +348,34 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
     T = camera_pose(p, math.radians(heading_deg), math.radians(pitch_deg),
                     math.radians(roll_deg))
     scene = Scene(m.vertices, m.faces)
-    frame = render_depth(scene, cam, T)
+    app = mesh_appearance(m, label_names(mesh) if "label" in m.face_fields
+                          else None)
+    lamps = [headlamp(T, head_cd)] if head_cd > 0 else []
+    if spec is not None:
+        mast = RobotDescription.from_platform(spec, "camera").mast_height_m
+        lamps += platform_lamps(spec, _world_from_base(p, heading_deg, mast))
+    lum = None
+    thermal = None
+    if cam.kind == "color":
+        frame, lum = radiance_frame(scene, cam, T, lamps, app, n_samples)
+    elif cam.kind == "thermal":
+        frame, thermal = thermal_frame(scene, cam, T, app,
+                                       ROCK_K if ambient_k is None else float(ambient_k),
+                                       n_samples, seed=seed, noise=noise)
+    else:
+        frame = render_depth(scene, cam, T)
     if not frame.hit.any():
         raise SimulationError(
             f"Expected the camera at --at {','.join(f'{x:g}' for x in p)} to see the "
             f"mesh, got no pixel whose ray meets it (outside the tunnel, or looking out "
             "of an open end); pass --at inside the mesh or another --heading-deg.")
-    app = mesh_appearance(m, _label_names(Path(mesh)) if "label" in m.face_fields
-                          else None)
-    px = app.at(frame)
-    rgb = thermal = None
+    rgb = None
     mean_value, saturated = math.nan, 0.0
-    if cam.kind == "color":
-        lamps = [headlamp(T, lamp_cd)] if lamp_cd > 0 else []
-        lum = luminance(scene, frame, lamps, np.nan_to_num(px.albedo, nan=0.0))
+    if lum is not None:
         full = 2.0 ** cam.bit_depth - 1
         rgb = expose(cam, lum, seed=seed, noise=noise) / full
         mean_value, saturated = float(rgb.mean()), float((rgb >= 1.0).mean())
-    elif cam.kind == "thermal":
-        amb = ROCK_K if ambient_k is None else float(ambient_k)
-        thermal = np.full(frame.hit.shape, np.nan)
-        thermal[frame.hit] = apparent_temperature(
-            cam, px.temperature_k[frame.hit], px.emissivity[frame.hit], amb, seed=seed,
-            noise=noise)
+    elif thermal is not None:
         mean_value = float(np.nanmean(thermal))
     files = write_frame(output, cam, frame, rgb_linear=rgb, thermal_k=thermal,
                         time_s=time_s)
@@ -307,5 +384,18 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
         (math.nan,) * 3
     return RenderResult(files.paths, files.folder, cam.name, cam.kind, cam.width,
                         cam.height, T, float(frame.hit.mean()), float(frame.valid.mean()),
-                        *stats, files.depth_clipped, float(lamp_cd), mean_value, saturated,
-                        dict(app.source), time.perf_counter() - t0)
+                        *stats, files.depth_clipped, head_cd, mean_value, saturated,
+                        dict(app.source), time.perf_counter() - t0,
+                        None if spec is None else spec.name, len(lamps), n_samples)
+
+
+def _world_from_base(camera_at: NDArray[np.float64], heading_deg: float,
+                     mast_height_m: float) -> NDArray[np.float64]:
+    """(4, 4) pose of a level platform's base_link whose camera mount (its platform
+    frame, ``mast_height_m`` above base_link) is at ``camera_at``, facing
+    ``heading_deg`` (module doc)."""
+    h = math.radians(heading_deg)
+    T = np.eye(4)
+    T[:2, :2] = [[math.cos(h), -math.sin(h)], [math.sin(h), math.cos(h)]]
+    T[:3, 3] = camera_at - np.array([0.0, 0.0, mast_height_m])
+    return T

@@ -345,6 +345,13 @@ class GazeboResult:
         The command line that starts the world (in ``path``).
     info : dict
         Everything ``export_gazebo`` returned.
+    camera : str or None
+        The camera's name (``camera=``), its sensor on the robot with the platform's
+        lamps.
+    camera_topic : str or None
+        Its image topic (the CameraInfo beside it, ``.../camera_info``).
+    camera_limitations : tuple of str
+        What SDF cannot express about the camera.
     """
 
     path: Path
@@ -360,13 +367,16 @@ class GazeboResult:
     limitations: tuple[str, ...]
     run: str
     info: dict[str, Any]
+    camera: str | None = None
+    camera_topic: str | None = None
+    camera_limitations: tuple[str, ...] = ()
 
 
 def gazebo_files(mesh: PathLike, output_dir: PathLike, *, sensor: Any = "robosense_airy",
                  flavour: str = "harmonic", mount: str = "level",
                  chainage_m: float | None = None, waypoints: Any = None,
                  clearance_m: float | None = None, voxel_m: float | None = None,
-                 force: bool = False) -> GazeboResult:
+                 force: bool = False, camera: Any = None) -> GazeboResult:
     """Write a Gazebo world folder for the tunnel and a lidar robot, as ``tunnelsim
     gazebo`` does (``survey.export.gazebo.export_gazebo``).
 
@@ -391,6 +401,10 @@ def gazebo_files(mesh: PathLike, output_dir: PathLike, *, sensor: Any = "robosen
         The route's clearance from the mesh and the voxel it is sought on, as drive's.
     force : bool
         Replace an existing folder.
+    camera : str, path-like or sensors.camera.CameraSpec, optional
+        A camera (a shipped name, a .toml file, or a spec) on the robot, 10 cm below
+        the lidar looking ahead, with the same intrinsics, and the ground_robot
+        platform's lamps as lights (``survey.export.gazebo``).
 
     Returns
     -------
@@ -400,6 +414,8 @@ def gazebo_files(mesh: PathLike, output_dir: PathLike, *, sensor: Any = "robosen
     ------
     survey.errors.GazeboExportError
         Bad options or a mesh the export cannot place a robot in.
+    sensors.errors.CameraSpecError
+        An unknown camera or a bad camera file.
 
     Warns
     -----
@@ -416,6 +432,18 @@ def gazebo_files(mesh: PathLike, output_dir: PathLike, *, sensor: Any = "robosen
     from survey.export.gazebo import export_gazebo
 
     spec = load_sensor(sensor) if isinstance(sensor, (str, os.PathLike)) else sensor
+    cam = None
+    if isinstance(camera, (str, os.PathLike)):
+        from sensors.camera import load_camera
+        from sensors.errors import CameraSpecError
+
+        try:
+            cam = load_camera(camera)
+        except CameraSpecError as exc:
+            raise CameraSpecError(f"--camera: {exc} 'tunnelsim cameras' lists the "
+                                  "names.") from None
+    elif camera is not None:
+        cam = camera
     wp = read_waypoints(waypoints) if isinstance(waypoints, (str, os.PathLike)) \
         else waypoints
     for flag, value in (("--clearance", clearance_m), ("--voxel", voxel_m)):
@@ -424,7 +452,7 @@ def gazebo_files(mesh: PathLike, output_dir: PathLike, *, sensor: Any = "robosen
                                     f"{value:g}.")
     info = export_gazebo(Path(mesh), spec, Path(output_dir), force=force, mount=mount,
                          chainage_m=chainage_m, flavour=flavour, waypoints=wp,
-                         route_clearance_m=clearance_m, voxel_m=voxel_m)
+                         route_clearance_m=clearance_m, voxel_m=voxel_m, camera=cam)
     return GazeboResult(
         path=Path(info["path"]), sensor=spec.name, flavour=info.get("flavour", flavour),
         triangles=int(info["triangles"]),
@@ -432,4 +460,8 @@ def gazebo_files(mesh: PathLike, output_dir: PathLike, *, sensor: Any = "robosen
         laser_retro=float(info["laser_retro"]),
         origin=tuple(float(x) for x in info["origin"]), crs=info.get("crs"),
         robot_pose=tuple(float(x) for x in info["robot_pose"]), route=info["route"],
-        limitations=tuple(info["limitations"]), run=str(info["run"]), info=info)
+        limitations=tuple(info["limitations"]), run=str(info["run"]), info=info,
+        camera=None if cam is None else cam.name,
+        camera_topic=None if info.get("camera") is None else info["camera"]["topic"],
+        camera_limitations=() if info.get("camera") is None else
+        tuple(info["camera"]["limitations"]))

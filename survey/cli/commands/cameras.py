@@ -11,9 +11,10 @@ def register(commands: CommandSet) -> None:
         "render", cmd_render, seeded=True,
         help="render one camera frame (colour, depth or thermal) from a mesh",
         description="Render one frame of a camera in a mesh with tunnelsim's own ray "
-                    "caster: a ray per pixel centre through the camera's lens model, lit "
-                    "by a spot lamp 5 cm above the camera along its axis (a shadow ray "
-                    "per pixel). Writes into the folder: rgb.png (colour cameras, 8-bit "
+                    "caster: a ray per pixel centre through the camera's lens model (--samples "
+                    "N: N rays per pixel, averaged), lit by a spot lamp 5 cm above the "
+                    "camera along its axis and/or the lamps of a --platform whose camera "
+                    "mount is --at (a shadow ray per lamp). Writes into the folder: rgb.png (colour cameras, 8-bit "
                     "sRGB), thermal.png (thermal cameras, 16-bit centikelvin), depth.png "
                     "(16-bit millimetres of z-depth, 0 = no data), depth.npy (float32 "
                     "metres, NaN = no data) and camera_info.json (K, D, width, height, "
@@ -34,9 +35,19 @@ def register(commands: CommandSet) -> None:
     c.option("--roll-deg", type=float, default=0.0, metavar="DEG",
              help="roll about the optical axis, clockwise seen from behind, degrees "
                   "(default 0)")
-    c.option("--lamp-cd", type=float, default=1000.0, metavar="CD",
+    c.option("--lamp-cd", type=float, metavar="CD",
              help="luminous intensity of the headlamp on its axis, candela (default "
-                  "1000, an LED work light; 0: no light)")
+                  "1000, an LED work light, without --platform; none with it; 0: no "
+                  "headlamp). Given with --platform, both light the frame")
+    c.option("--platform", path="toml", metavar="NAME|FILE",
+             help="light the frame with this platform's lamps ([[lamps]] of its file): "
+                  "the camera at --at is the platform's camera mount, the mast's height "
+                  "above its base_link, the platform level facing --heading-deg "
+                  "(colour cameras)")
+    c.option("--samples", type=int, default=1, metavar="N",
+             help="rays per pixel, a square number (1, 4, 9, 16 ...) on a stratified "
+                  "grid, their radiance averaged: anti-aliasing (default 1: the pixel "
+                  "centre; colour and thermal cameras; depth stays the pixel centre's)")
     c.option("--no-noise", action="store_true",
              help="no shot, read or NETD noise (a noiseless reference frame)")
     c.option("-o", "--output", required=True, path="out", help="output folder")
@@ -55,14 +66,21 @@ def cmd_render(args) -> int:
     r = render_frame(args.mesh, args.camera, at, args.output,
                      heading_deg=args.heading_deg, pitch_deg=args.pitch_deg,
                      roll_deg=args.roll_deg, lamp_cd=args.lamp_cd, seed=args.seed,
-                     noise=not args.no_noise)
+                     noise=not args.no_noise, platform=args.platform,
+                     samples=args.samples)
     if not args.quiet:
         print(f"{r.camera} ({r.kind}, {r.width}x{r.height}): {r.hit_fraction:.1%} of "
               f"pixels hit the mesh; depth {r.depth_min_m:.3f}-{r.depth_max_m:.3f} m "
               f"(median {r.depth_median_m:.3f} m) on {r.valid_fraction:.1%}")
         if r.kind == "color":
-            print(f"headlamp {r.lamp_cd:g} cd: mean value {r.mean_value:.3f} of full "
-                  f"scale, {r.saturated_fraction:.1%} saturated")
+            light = [f"headlamp {r.lamp_cd:g} cd"] if r.lamp_cd > 0 or \
+                r.platform is None else []
+            if r.platform is not None:
+                n = r.lamps - (r.lamp_cd > 0)
+                light.append(f"{r.platform}'s {n} lamp{'s' if n != 1 else ''}")
+            print(f"{' + '.join(light)}, {r.samples_per_pixel} sample"
+                  f"{'s' if r.samples_per_pixel > 1 else ''} per pixel: mean value "
+                  f"{r.mean_value:.3f} of full scale, {r.saturated_fraction:.1%} saturated")
         elif r.kind == "thermal":
             print(f"mean apparent temperature {r.mean_value:.2f} K")
         if r.depth_clipped:

@@ -75,8 +75,10 @@ def register(commands: CommandSet) -> None:
                     "tunnel model (OBJ visual, decimated STL collision, laser_retro from "
                     "the mesh's reflectivity) in local coordinates, and a README. On a "
                     "mesh without the tunnel JSON the robot starts at the beginning of "
-                    "the route 'drive --along auto' finds. What SDF cannot express about "
-                    "the sensor is listed.",
+                    "the route 'drive --along auto' finds. --camera adds a camera sensor "
+                    "with the same intrinsics (10 cm below the lidar, looking ahead) and "
+                    "the robot's headlights. What SDF cannot express about the sensors "
+                    "is listed.",
         epilog="Example: tunnelsim gazebo --mesh bfo.ply --sensor robosense_airy "
                "--flavour fortress -o world/")
     c.option("--mesh", required=True, path="in",
@@ -101,6 +103,10 @@ def register(commands: CommandSet) -> None:
     c.option("--voxel", type=float, metavar="M",
              help="voxel edge of the grid the route is sought on, as drive's (default: "
                   "the finest within 2 million voxels)")
+    c.option("--camera", path="toml", metavar="NAME|FILE",
+             help="add this camera ('tunnelsim cameras' lists them, or a .toml) to the "
+                  "robot: its Gazebo sensor with the same intrinsics, its image and "
+                  "camera_info in bridge.yaml, the ground_robot's lamps as lights")
     c.option("-o", "--output", required=True, path="out", help="output world folder (new)")
     c.option("--force", action="store_true", help="replace an existing folder")
     c.option("--quiet", action="store_true", help="print nothing on success")
@@ -178,7 +184,7 @@ def cmd_gazebo(args) -> int:
                              flavour=args.flavour, mount=args.mount,
                              chainage_m=args.chainage, waypoints=args.waypoints,
                              clearance_m=args.clearance, voxel_m=args.voxel,
-                             force=args.force)
+                             force=args.force, camera=args.camera)
         finally:   # unit warnings first: they often explain a later failure
             for w in caught:
                 print(f"tunnelsim: warning: {w.message}", file=sys.stderr)
@@ -202,6 +208,11 @@ def _print_gazebo(r) -> None:
     print(f"{r.sensor} as gpu_lidar; SDF cannot express:")
     for item in r.limitations:
         print(f"  - {item}")
+    if r.camera is not None:
+        print(f"{r.camera} on {r.camera_topic} (camera_info beside it); SDF cannot "
+              "express:")
+        for item in r.camera_limitations:
+            print(f"  - {item}")
     print("robot.urdf: base_link on the ground, the sensor and imu_link as in a "
           "drive's bag; ros2 launch ./robot.launch.py for robot_state_publisher")
     print(f"run: cd {r.path} && {r.run}")
