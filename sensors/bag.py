@@ -39,6 +39,20 @@ Topics (frames ``map``, ``odom``, ``base_link`` and the driver's cloud frame):
   ``odom -> base_link`` by planar dead reckoning of the true distance and heading
   change with the seeded noise of ``WheelOdometryModel``; it starts at the true pose.
 
+- cameras (``cameras``, fed by ``write_image``; ``sensors.camera_drive`` renders them):
+  ``sensor_msgs/msg/Image`` and ``sensor_msgs/msg/CameraInfo`` per frame on the
+  camera driver's topics (``camera_topics``): for an Intel RealSense the ROS 2
+  wrapper's ``/camera/color/image_raw`` + ``/camera/color/camera_info`` (colour) and
+  ``/camera/depth/image_rect_raw`` + ``/camera/depth/camera_info`` (depth), frames
+  ``camera_link`` and ``camera_<stream>_optical_frame``; for another camera NAME the
+  image_pipeline's ``/NAME/image_raw`` + ``/NAME/camera_info``, frames ``NAME_link`` and
+  ``NAME_optical_frame``. Encodings (``IMAGE_ENCODINGS``): ``rgb8`` colour (sRGB),
+  ``16UC1`` depth in mm (the RealSense driver's), ``mono16`` thermal in centikelvin (the
+  radiometric output of FLIR's Boson/Lepton cores). The header stamp is the frame's
+  exposure start (row 0's for a rolling shutter); the log time its readout end, when
+  a driver publishes it. ``/tf_static`` adds ``base_link -> <link>`` (the mount) and
+  ``<link> -> <optical frame>`` (REP 103: z forward, x right, y down).
+
 A ``sensors.robot.RobotDescription`` gives the drive CLI's mount (base_link on the
 ground contact plane -> sensor), trajectory (``base_trajectory``) and ``imu_mount``,
 the same transforms as the URDF written beside the bag.
@@ -72,12 +86,13 @@ recording a robotics stack replays; write LAZ or E57).
 
 from __future__ import annotations
 
+import bisect
 import json
 import os
 import shutil
 import tempfile
-from collections.abc import Callable
-from dataclasses import asdict
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
 from functools import partial
 from pathlib import Path
 from typing import Any, Final
@@ -85,6 +100,7 @@ from typing import Any, Final
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .camera import CameraSpec
 from .io.errors import PointFileError
 from .io.fields import POINT_DTYPE
 # Message contents live in two modules of their own; their public names are re-exported
@@ -99,8 +115,8 @@ from .io.stream import Stream
 from .trajectory import Mount, Trajectory
 from .waveform import RETURN_MODES
 
-__all__ = ["FRAMES", "IMU_TOPIC",
-           "INSTALL_HINT",
+__all__ = ["FRAMES", "IMAGE_ENCODINGS", "IMU_TOPIC",
+           "INSTALL_HINT", "CameraTopics", "camera_topics",
            "METADATA_VERSIONS", "ODOMETRY_TOPIC", "POSE_RATE_HZ",
            "WHEEL_ODOMETRY_TOPIC", "RosbagStream", "parse_start_time"]
 
@@ -119,8 +135,56 @@ MOTION_BLOCK_S: Final = 2.0
 #: rosbag2 metadata.yaml version each ROS 2 distribution writes (``ros_distro``):
 #: Humble's rosbag2 0.15 writes 5, Jazzy's 0.26 writes 9.
 METADATA_VERSIONS: Final = {"humble": 5, "jazzy": 9}
+#: ``sensor_msgs/msg/Image`` encoding of each camera kind (ROS image_encodings.hpp):
+#: sRGB colour, depth in mm, thermal in centikelvin.
+IMAGE_ENCODINGS: Final = {"color": "rgb8", "depth": "16UC1", "thermal": "mono16"}
+#: Channels and NumPy type of each encoding.
+_ENCODING_LAYOUT: Final = {"rgb8": (3, np.uint8), "16UC1": (1, np.uint16),
+                           "mono16": (1, np.uint16)}
 #: sensor_msgs/msg/PointField datatype of each NumPy type.
 _ROS_TYPE: Final = {"i1": 1, "u1": 2, "i2": 3, "u2": 4, "i4": 5, "u4": 6, "f4": 7, "f8": 8}
+
+
+@dataclass(frozen=True)
+class CameraTopics:
+    """Where a camera's frames go in a bag (the module notes' conventions).
+
+    Attributes
+    ----------
+    image, info : str
+        The ``sensor_msgs/msg/Image`` and ``sensor_msgs/msg/CameraInfo`` topics.
+    frame_id : str
+        The optical frame (the messages' header frame).
+    link : str
+        The camera's body frame (x forward, y left, z up), child of base_link.
+    encoding : str
+        The image encoding (``IMAGE_ENCODINGS``).
+    """
+
+    image: str
+    info: str
+    frame_id: str
+    link: str
+    encoding: str
+
+
+def camera_topics(cam: CameraSpec) -> CameraTopics:
+    """The topics and frames of ``cam``: the RealSense ROS 2 wrapper's for an Intel
+    RealSense (vendor Intel, model RealSense), the image_pipeline's ``/NAME/...``
+    otherwise (module notes)."""
+    enc = IMAGE_ENCODINGS[cam.kind]
+    if cam.vendor.lower() == "intel" and "realsense" in cam.model_name.lower() and \
+            cam.kind in ("color", "depth"):
+        # realsense-ros (ROS 2 wrapper 4.x) with camera_name "camera": raw colour and
+        # rectified depth streams, one camera_link for both. DECISION: without the
+        # camera_namespace level that realsense-ros PR #2857 (2023) added by default
+        # (/camera/camera/...): the topics of older releases and of
+        # `camera_namespace:=''`, which most downstream launch files use.
+        image = "image_raw" if cam.kind == "color" else "image_rect_raw"
+        return CameraTopics(f"/camera/{cam.kind}/{image}", f"/camera/{cam.kind}/camera_info",
+                            f"camera_{cam.kind}_optical_frame", "camera_link", enc)
+    return CameraTopics(f"/{cam.name}/image_raw", f"/{cam.name}/camera_info",
+                        f"{cam.name}_optical_frame", f"{cam.name}_link", enc)
 
 
 def parse_start_time(text: str) -> int:
@@ -203,13 +267,18 @@ class RosbagStream(Stream):
         echo per pulse publishes the driver's topic alone, as the device in a
         single-return profile does. None: from the points: the return topics where the
         chunks carry return fields (``RETURN_POINT_DTYPE``).
+    cameras : sequence of (CameraSpec, Mount)
+        Cameras and their base_link -> camera_link mounts: their topics are opened and
+        their frames stated on ``/tf_static``; ``write_image`` feeds their frames
+        (needs ``trajectory`` and ``span_s``).
 
     Raises
     ------
     PointFileError
         For a TLS sensor, a missing ``rosbags``, an existing bag folder, or a driver
         table that does not fit the pattern, a ``ros_distro`` not in
-        ``METADATA_VERSIONS`` or a negative ``start_time_ns``.
+        ``METADATA_VERSIONS`` or a negative ``start_time_ns``; cameras without a
+        trajectory, two cameras on one topic, or one camera_link at two places.
     """
 
     def __init__(self, path: str | os.PathLike[str], spec: SensorSpec, *, single_file: bool,
@@ -220,8 +289,10 @@ class RosbagStream(Stream):
                  compress: bool = True, start_time_ns: int | None = None,
                  ros_distro: str = "jazzy", imu_mount: Mount | None = None,
                  wheel_odometry: WheelOdometryModel | None = None,
-                 returns: str | None = None) -> None:
+                 returns: str | None = None,
+                 cameras: Sequence[tuple[CameraSpec, Mount]] = ()) -> None:
         self.path = Path(path)
+        self._cameras = self._check_cameras(cameras, trajectory, span_s)
         if returns is not None and returns not in RETURN_MODES:
             raise PointFileError(f"Expected a return mode in {list(RETURN_MODES)}, got "
                                  f"{returns!r}; pass --returns dual (or another mode).")
@@ -326,6 +397,30 @@ class RosbagStream(Stream):
             shutil.rmtree(self._tmp, ignore_errors=True)
             raise
 
+    @staticmethod
+    def _check_cameras(cameras: Sequence[tuple[CameraSpec, Mount]],
+                       trajectory: Trajectory | None, span_s: tuple[float, float] | None
+                       ) -> list[tuple[CameraSpec, Mount, CameraTopics]]:
+        out = [(cam, mount, camera_topics(cam)) for cam, mount in cameras]
+        if out and (trajectory is None or span_s is None):
+            raise PointFileError("Expected a drive's trajectory and time window for camera "
+                                 "frames in a bag, got none.")
+        topics: dict[str, str] = {}
+        links: dict[str, Mount] = {}
+        for cam, mount, tp in out:
+            if tp.image in topics:
+                raise PointFileError(f"Expected each camera on its own topic, got "
+                                     f"{topics[tp.image]} and {cam.name} on {tp.image}; "
+                                     "pass each --camera once.")
+            topics[tp.image] = cam.name
+            known = links.setdefault(tp.link, mount)
+            if known.lever_arm_m != mount.lever_arm_m or not np.allclose(
+                    known.boresight.as_matrix(), mount.boresight.as_matrix(), atol=1e-12):
+                raise PointFileError(f"Expected one place for {tp.link} (cameras of one "
+                                     f"device share it), got two mounts; give them one "
+                                     "--camera-mount.")
+        return out
+
     # ------------------------------------------------------------------ topics
     def _open_topics(self) -> None:
         from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness,
@@ -343,6 +438,9 @@ class RosbagStream(Stream):
             topics.append((WHEEL_ODOMETRY_TOPIC, "nav_msgs/msg/Odometry", ()))
         if self.imu is not None:
             topics.append((IMU_TOPIC, "sensor_msgs/msg/Imu", ()))
+        for _cam, _mount, tp in self._cameras:
+            topics += [(tp.image, "sensor_msgs/msg/Image", ()),
+                       (tp.info, "sensor_msgs/msg/CameraInfo", ())]
         self._conn = {name: self._bag.add_connection(name, kind, typestore=self._ts,
                                                      offered_qos_profiles=list(qos))
                       for name, kind, qos in topics}
@@ -410,6 +508,20 @@ class RosbagStream(Stream):
             tfs.append(self._transform(t_s, "base_link", IMU_FRAME,
                                        self.imu_mount.lever_arm_m,
                                        self.imu_mount.boresight.as_quat()))
+        links: set[str] = set()
+        if self._cameras:
+            from scipy.spatial.transform import Rotation
+
+            from .camera_drive import LINK_FROM_OPTICAL     # REP 103's optical frame
+
+            link_to_optical = Rotation.from_matrix(LINK_FROM_OPTICAL).as_quat(canonical=True)
+        for _cam, cam_mount, tp in self._cameras:
+            if tp.link not in links:
+                links.add(tp.link)
+                tfs.append(self._transform(t_s, "base_link", tp.link, cam_mount.lever_arm_m,
+                                           cam_mount.boresight.as_quat()))
+            tfs.append(self._transform(t_s, tp.link, tp.frame_id, (0.0, 0.0, 0.0),
+                                       link_to_optical))
         msg = self._ts.types["tf2_msgs/msg/TFMessage"](transforms=tfs)
         self._put("/tf_static", t_s, msg)
 
@@ -553,7 +665,8 @@ class RosbagStream(Stream):
             ti = self._t0 + np.arange(self._imu_j, n_imu) / self.imu.rate_hz
             if len(ti):
                 made += self._imu_messages(ti)
-        self._pending += sorted(made, key=lambda w: (w[0], w[1]))
+        # Sorted by (time, kind) with the images already queued (``write_image``).
+        self._pending = sorted(self._pending + made, key=_time_order)
 
     def _pose_messages(self, t: NDArray[np.float64]) -> list[tuple[float, int,
                                                                   Callable[[], None]]]:
@@ -698,6 +811,70 @@ class RosbagStream(Stream):
             out.append((ti, 2, partial(self._put, IMU_TOPIC, ti, msg)))
         return out
 
+    # ------------------------------------------------------------------ cameras
+    def write_image(self, camera: int, stamp_s: float, log_s: float,
+                    image: NDArray[np.generic]) -> None:
+        """Queue one frame of camera ``camera`` (its place in ``cameras``): an Image and
+        its CameraInfo stamped ``stamp_s`` (exposure start), logged at ``log_s`` (readout
+        end) among the other messages in time order.
+
+        ``image`` is (h, w, 3) uint8 sRGB for a colour camera, (h, w) uint16 mm for
+        depth, (h, w) uint16 centikelvin for thermal (``sensors.camera_io``'s
+        ``rgb8``, ``depth_counts``, ``thermal_counts``). Feed a frame before the points
+        of the sweep after its ``log_s``.
+
+        Raises
+        ------
+        PointFileError
+            An unknown camera, an image of the wrong shape or type, a log time before a
+            message already written or after the drive's end.
+        """
+        if not 0 <= camera < len(self._cameras):
+            raise PointFileError(f"Expected a camera index below {len(self._cameras)}, got "
+                                 f"{camera}.")
+        cam, _mount, tp = self._cameras[camera]
+        channels, dtype = _ENCODING_LAYOUT[tp.encoding]
+        shape = (cam.height, cam.width, 3) if channels == 3 else (cam.height, cam.width)
+        img = np.asarray(image)
+        if img.shape != shape or img.dtype != dtype:
+            raise PointFileError(f"Expected a {tp.encoding} image of shape {shape} and type "
+                                 f"{np.dtype(dtype).name} for {cam.name}, got {img.shape} "
+                                 f"{img.dtype.name}.")
+        assert self.span_s is not None
+        if self._ns(log_s) < self._last_log or \
+                log_s > self.span_s[1] + 1e-9 * max(1.0, abs(self.span_s[1])):
+            raise PointFileError(f"Expected {cam.name}'s frame at {log_s} s within the "
+                                 "drive and before the messages written, got it later; "
+                                 "feed frames in time order before the points after them.")
+        T = self._ts.types
+        header = self._header(stamp_s, tp.frame_id)
+        data = np.ascontiguousarray(img).astype(img.dtype.newbyteorder("<"), copy=False)
+        msg = T["sensor_msgs/msg/Image"](
+            header=header, height=cam.height, width=cam.width, encoding=tp.encoding,
+            is_bigendian=0, step=cam.width * channels * np.dtype(dtype).itemsize,
+            data=data.view(np.uint8).reshape(-1))
+        info = self._camera_info(cam, header)
+        for order, topic, m in ((4, tp.image, msg), (5, tp.info, info)):
+            entry: tuple[float, int, Callable[[], None]] = (
+                float(log_s), order, partial(self._put, topic, log_s, m))
+            bisect.insort(self._pending, entry, key=_time_order)
+
+    def _camera_info(self, cam: CameraSpec, header: Any) -> Any:
+        """``sensor_msgs/msg/CameraInfo`` of ``cam``: K, D (OpenCV's order), R = I and
+        P = [K | 0] (a monocular camera, no rectification)."""
+        from .camera_io import DISTORTION_MODELS
+
+        T = self._ts.types
+        K = cam.K
+        P = np.hstack([K, np.zeros((3, 1))])
+        return T["sensor_msgs/msg/CameraInfo"](
+            header=header, height=cam.height, width=cam.width,
+            distortion_model=DISTORTION_MODELS[cam.model],
+            d=np.asarray(cam.distortion, dtype=np.float64).copy(), k=K.ravel(),
+            r=np.eye(3).ravel(), p=P.ravel(), binning_x=0, binning_y=0,
+            roi=T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0,
+                                                      width=0, do_rectify=False))
+
     # ------------------------------------------------------------------ end
     def _finish(self) -> None:
         if self._frame is not None:
@@ -744,6 +921,11 @@ class RosbagStream(Stream):
 #: 0.22, Iron): custom_data and ros_distro, and the topics' type_description_hash.
 #: ruamel.yaml comes with rosbags.
 _AFTER_V5: Final = ("custom_data", "ros_distro")
+
+
+def _time_order(entry: tuple[float, int, Callable[[], None]]) -> tuple[float, int]:
+    """The sort key of a pending message: its log time, then its kind."""
+    return entry[0], entry[1]
 
 
 def _humble_metadata(path: Path) -> None:

@@ -9,7 +9,13 @@ computed from these (``sensors.shading``); this module knows no light.
 Poses: ``world_from_camera`` is the 4x4 pose of the OpenCV optical frame (x right,
 y down, z forward) in the world; ``camera_pose`` builds it from a position and the
 heading/pitch/roll a user gives (heading: the optical axis's azimuth from +x towards +y,
-as the rest of tunnelsim's headings).
+as the rest of tunnelsim's headings). A rolling-shutter frame takes one pose per image
+row, (height, 4, 4): row r's rays leave from row r's optical centre along row r's axes
+(``sensors.camera_drive`` interpolates them along a trajectory).
+
+Anti-aliasing: ``pixel_offset=(dx, dy)`` moves every ray from the pixel centre (u, v)
+to (u + dx, v + dy) pixels; averaging the shaded frames of several offsets inside the
+pixel (-0.5..0.5) supersamples it.
 
 >>> import numpy as np
 >>> from raytrace.shapes import tunnel_tube
@@ -35,7 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 from raytrace import Scene
 from raytrace.config import CACHE, ERROR_MODEL
 
-from .camera import CameraSpec, pixel_rays
+from .camera import CameraSpec, pixel_rays, unproject
 from .errors import SimulationError
 
 __all__ = ["Frame", "camera_pose", "render_depth"]
@@ -66,11 +72,16 @@ class Frame:
     rays_cam : (h, w, 3) float64
         Unit ray directions in the optical frame.
     world_from_camera : (4, 4) float64
+        The pose of the optical frame; for a rolling-shutter frame, row 0's (the
+        first row exposed).
     bary_u, bary_v : (h, w) float64
         Barycentric coordinates of the hit in its triangle: the hit is
         (1 - u - v) p0 + u p1 + v p2 of the face's vertices in their given order
         (``raytrace.Hits``' convention); 0 on a miss. Vertex attributes (colour,
         temperature) are interpolated with them (``sensors.appearance``).
+    row_poses : (h, 4, 4) float64 or None
+        One pose per image row for a frame rendered with per-row poses (rolling
+        shutter); None for a frame rendered from one pose.
     """
 
     hit: NDArray[np.bool_]
@@ -84,6 +95,10 @@ class Frame:
     world_from_camera: NDArray[np.float64]
     bary_u: NDArray[np.float64]
     bary_v: NDArray[np.float64]
+    # DECISION: a trailing field with a default, so that a Frame built positionally
+    # (the eleven fields above) stays valid; ``world_from_camera`` stays (4, 4) for every
+    # consumer (camera_info.json, headlamp) and is row 0's pose.
+    row_poses: NDArray[np.float64] | None = None
 
 
 def camera_pose(position: ArrayLike, heading_rad: float, pitch_rad: float = 0.0,
@@ -110,33 +125,55 @@ def camera_pose(position: ArrayLike, heading_rad: float, pitch_rad: float = 0.0,
     return out
 
 
-def _check_pose(world_from_camera: ArrayLike) -> NDArray[np.float64]:
+def _check_rotation(R: NDArray[np.float64]) -> bool:
+    """``R`` (..., 3, 3) are all proper rotations (orthonormal, det +1)."""
+    RtR = np.einsum("...ki,...kj->...ij", R, R)
+    return bool(np.allclose(RtR, np.eye(3), atol=1e-9) and np.all(np.linalg.det(R) > 0))
+
+
+def _check_pose(world_from_camera: ArrayLike, height: int) -> NDArray[np.float64]:
+    """The pose as a float64 (4, 4) or (height, 4, 4) array, checked."""
     T = np.asarray(world_from_camera, dtype=np.float64)
-    if T.shape != (4, 4) or not np.isfinite(T).all():
-        raise SimulationError(f"Expected world_from_camera as a finite 4x4 matrix, got "
-                              f"shape {T.shape}.")
-    R = T[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-9) or np.linalg.det(R) < 0:
+    if T.shape not in ((4, 4), (height, 4, 4)) or not np.isfinite(T).all():
+        raise SimulationError(f"Expected world_from_camera as a finite 4x4 matrix or one "
+                              f"per image row ({height}, 4, 4), got shape {T.shape}.")
+    if not _check_rotation(T[..., :3, :3]):
         raise SimulationError("Expected world_from_camera's rotation to be a proper "
                               "rotation (orthonormal, det +1), got one that is not; build "
                               "it with camera_pose().")
     return T
 
 
+def _check_offset(pixel_offset: ArrayLike) -> tuple[float, float]:
+    off = np.asarray(pixel_offset, dtype=np.float64).reshape(-1)
+    if off.shape != (2,) or not np.isfinite(off).all():
+        raise SimulationError(f"Expected pixel_offset as 2 finite numbers (dx, dy) in "
+                              f"pixels, got {np.asarray(pixel_offset).tolist()}.")
+    return float(off[0]), float(off[1])
+
+
 #: Ray directions of the most recent lenses (``_lens_rays``): inverting the lens model
 #: for every pixel costs more than casting the rays (0.7 s for 640x480 by Newton's
 #: method, against 0.06 s to cast them), and a sequence of frames reuses one camera.
 _RAY_CACHE: OrderedDict[tuple[object, ...], NDArray[np.float64]] = OrderedDict()
-_RAY_CACHE_SIZE = 4
+# DECISION: 16, room for a supersampling pattern's offsets (each a lens of its own).
+_RAY_CACHE_SIZE = 16
 
 
-def _lens_rays(cam: CameraSpec) -> NDArray[np.float64]:
-    """``pixel_rays(cam)``, kept for the last ``_RAY_CACHE_SIZE`` lenses (read-only)."""
+def _lens_rays(cam: CameraSpec, offset: tuple[float, float] = (0.0, 0.0)
+               ) -> NDArray[np.float64]:
+    """``pixel_rays(cam)`` through the pixel centres moved by ``offset`` (pixels), kept
+    for the last ``_RAY_CACHE_SIZE`` lenses and offsets (read-only)."""
     key = (cam.model, cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,
-           tuple(float(x) for x in cam.distortion))
+           tuple(float(x) for x in cam.distortion), offset)
     rays = _RAY_CACHE.get(key)
     if rays is None:
-        rays = pixel_rays(cam)
+        if offset == (0.0, 0.0):
+            rays = pixel_rays(cam)
+        else:
+            v, u = np.mgrid[0:cam.height, 0:cam.width].astype(np.float64)
+            uv = np.stack([u.ravel() + offset[0], v.ravel() + offset[1]], 1)
+            rays = unproject(cam, uv).reshape(cam.height, cam.width, 3)
         rays.flags.writeable = False
         _RAY_CACHE[key] = rays
         while len(_RAY_CACHE) > _RAY_CACHE_SIZE:
@@ -146,8 +183,9 @@ def _lens_rays(cam: CameraSpec) -> NDArray[np.float64]:
     return rays
 
 
-def render_depth(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike) -> Frame:
-    """Cast one ray per pixel centre of ``cam`` posed at ``world_from_camera``.
+def render_depth(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike, *,
+                 pixel_offset: ArrayLike = (0.0, 0.0)) -> Frame:
+    """Cast one ray per pixel of ``cam`` posed at ``world_from_camera``.
 
     Parameters
     ----------
@@ -155,37 +193,60 @@ def render_depth(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike) ->
         The mesh.
     cam : CameraSpec
         The camera (its lens model maps pixels to rays).
-    world_from_camera : (4, 4) array_like
-        Pose of the optical frame in the world (``camera_pose``).
+    world_from_camera : (4, 4) or (height, 4, 4) array_like
+        Pose of the optical frame in the world (``camera_pose``), or one per image row
+        (a rolling shutter: row r's rays leave from row r's pose).
+    pixel_offset : (2,) array_like of float, keyword-only
+        (dx, dy) in pixels: the rays go through (u + dx, v + dy) instead of the pixel
+        centres (u, v), for anti-aliasing. (0, 0) is the pixel centre.
 
     Returns
     -------
     Frame
+        ``world_from_camera`` is the (4, 4) pose (row 0's for per-row poses);
+        ``row_poses`` the (height, 4, 4) poses when given per row, else None.
+
+    Raises
+    ------
+    SimulationError
+        A pose that is not a finite (4, 4) / (height, 4, 4) proper rigid transform, or
+        an offset that is not 2 finite numbers.
     """
-    T = _check_pose(world_from_camera)
-    rays_cam = _lens_rays(cam)
     h, w = cam.height, cam.width
+    T = _check_pose(world_from_camera, h)
+    rays_cam = _lens_rays(cam, _check_offset(pixel_offset))
     dirs_cam = rays_cam.reshape(-1, 3)
     n = h * w
+    per_row = T.ndim == 3
+    # Rotation and origin per block of ``block`` consecutive rays: one block (all rays)
+    # for one pose, a row of w rays for per-row poses.
+    Rs = np.ascontiguousarray(T[..., :3, :3].reshape(-1, 3, 3))
+    origins = np.ascontiguousarray(T[..., :3, 3].reshape(-1, 3))
+    block = w if per_row else max(n, 1)
     ok_ray, dirs = np.empty(n, np.bool_), np.empty((n, 3))
-    _world_rays(dirs_cam, np.ascontiguousarray(T[:3, :3]), ok_ray, dirs)
-    hits = scene.cast(T[:3, 3], dirs)
+    _world_rays(dirs_cam, Rs, block, ok_ray, dirs)
+    # DECISION: per-row poses cast from per-ray origins (each row's repeated w times):
+    # ``Scene.cast`` finds the runs of equal origins itself, and its answer does not
+    # depend on the path it takes.
+    hits = scene.cast(np.repeat(origins, w, axis=0) if per_row else origins[0], dirs)
     lo, hi = cam.depth_range_m if cam.depth_range_m is not None else (-np.inf, np.inf)
     hit, valid = np.empty(n, np.bool_), np.empty(n, np.bool_)
     rng, z, bu, bv = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     tri = np.empty(n, np.int64)
     normal, pts = np.empty((n, 3)), np.empty((n, 3))
-    _assemble(dirs_cam, dirs, ok_ray, T[:3, 3].copy(), hits.t, hits.triangle, hits.u,
+    _assemble(dirs_cam, dirs, ok_ray, origins, block, hits.t, hits.triangle, hits.u,
               hits.v, np.asarray(hits.normals, dtype=np.float64), float(lo), float(hi),
               hit, valid, rng, z, tri, normal, pts, bu, bv)
     return Frame(hit.reshape(h, w), valid.reshape(h, w), rng.reshape(h, w),
                  z.reshape(h, w), tri.reshape(h, w), normal.reshape(h, w, 3),
-                 pts.reshape(h, w, 3), rays_cam, T, bu.reshape(h, w), bv.reshape(h, w))
+                 pts.reshape(h, w, 3), rays_cam, T[0] if per_row else T,
+                 bu.reshape(h, w), bv.reshape(h, w), T if per_row else None)
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)  # type: ignore[call-overload]
-def _world_rays(dirs_cam, R, ok_ray, dirs):  # pragma: no cover (Numba)
-    """World directions R d of the camera-frame rays; a ray the lens model could not
+def _world_rays(dirs_cam, Rs, block, ok_ray, dirs):  # pragma: no cover (Numba)
+    """World directions R d of the camera-frame rays, ray i turned by ``Rs[i // block]``
+    (one rotation per image row for a rolling shutter); a ray the lens model could not
     invert (NaN) is flagged and replaced by the optical axis (cast, then masked).
     DECISION: a kernel, not ``dirs_cam @ R.T``: NumPy's BLAS call on (n, 3) x (3, 3)
     took 0.2 s at 640x480 on a loaded 2-core machine (its threads spin), more than the
@@ -196,17 +257,19 @@ def _world_rays(dirs_cam, R, ok_ray, dirs):  # pragma: no cover (Numba)
         ok_ray[i] = ok
         if not ok:
             x, y, z = 0.0, 0.0, 1.0
+        R = Rs[i // block]
         for k in range(3):
             dirs[i, k] = R[k, 0] * x + R[k, 1] * y + R[k, 2] * z
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)  # type: ignore[call-overload]
-def _assemble(dirs_cam, dirs, ok_ray, origin, t, triangle, u, v, normals, lo, hi,
+def _assemble(dirs_cam, dirs, ok_ray, origins, block, t, triangle, u, v, normals, lo, hi,
               hit, valid, rng, z, tri, normal, pts, bu, bv):  # pragma: no cover (Numba)
     """The frame's per-pixel arrays from the cast's hits, in one pass (the NumPy
     version's dozen temporaries took longer than the cast: 0.12 s at 640x480).
     Misses: range, z, points NaN; triangle -1; normal and barycentrics 0. The normal is
-    turned towards the camera; z is the range times the ray's optical-axis cosine."""
+    turned towards the camera; z is the range times the ray's optical-axis cosine. Ray
+    i leaves from ``origins[i // block]``."""
     for i in prange(t.shape[0]):
         h_ = ok_ray[i] and triangle[i] >= 0 and np.isfinite(t[i])
         hit[i] = h_
@@ -221,9 +284,10 @@ def _assemble(dirs_cam, dirs, ok_ray, origin, t, triangle, u, v, normals, lo, hi
             d = normals[i, 0] * dirs[i, 0] + normals[i, 1] * dirs[i, 1] + \
                 normals[i, 2] * dirs[i, 2]
             s = -1.0 if d > 0 else 1.0
+            o = i // block
             for k in range(3):
                 normal[i, k] = s * normals[i, k]
-                pts[i, k] = origin[k] + dirs[i, k] * r
+                pts[i, k] = origins[o, k] + dirs[i, k] * r
             bu[i] = u[i]
             bv[i] = v[i]
         else:

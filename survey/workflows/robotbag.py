@@ -3,24 +3,30 @@ NAME.mcap`` (or a rosbag2 folder) writes, for a Python user.
 
 ``Run.write`` writes a bag in the sensor's own frames (the points, /tf of the platform
 frame, the IMU at the sensor); a robot adds base_link, /tf_static and wheel odometry.
-``write_robot_bag`` is that writer, the one ``drive_to_file`` calls.
+``write_robot_bag`` is that writer, the one ``drive_to_file`` calls. With
+``cameras`` (``sensors.camera_drive.DriveCamera``) it renders their frames as the
+points stream past and puts them in the bag on the cameras' driver topics
+(``sensors.bag.camera_topics``), each frame logged at its readout end among the clouds,
+poses and IMU samples.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:                     # the writers import NumPy: loaded where they run
+    from sensors.bag import RosbagStream
+    from sensors.camera_drive import DriveCamera
     from sensors.robot import RobotDescription
     from sensors.simulate import Run
 
 
 def write_robot_bag(path: str | os.PathLike[str], run: Run, robot: RobotDescription, *,
                     progress: Callable[[int, int], None] | None = None, crs: Any = None,
-                    start_time_ns: int | None = None, ros_distro: str | None = None
-                    ) -> dict[str, Any]:
+                    start_time_ns: int | None = None, ros_distro: str | None = None,
+                    cameras: Sequence[DriveCamera] = ()) -> dict[str, Any]:
     """Write ``run`` as a ROS 2 bag in the frames of ``robot``.
 
     The bag holds /tf and the ground-truth odometry of base_link
@@ -46,12 +52,15 @@ def write_robot_bag(path: str | os.PathLike[str], run: Run, robot: RobotDescript
         ROS time of the scan's start, ns since 1970 (default: the trajectory's times).
     ros_distro : {"humble", "jazzy"}, optional
         rosbag2 metadata layout of a folder bag (default jazzy).
+    cameras : sequence of sensors.camera_drive.DriveCamera
+        Cameras on the robot (their trajectory base_link's, their span the run's):
+        every frame rendered and written as Image + CameraInfo.
 
     Returns
     -------
     dict
         The run's ``stats`` (pulses, points, hit_ratio, seconds, rays_per_s) plus
-        ``path`` (str).
+        ``path`` (str) and ``camera_frames`` (frames written per camera name).
 
     Raises
     ------
@@ -87,16 +96,77 @@ def write_robot_bag(path: str | os.PathLike[str], run: Run, robot: RobotDescript
     if ros_distro is not None:
         bag["ros_distro"] = ros_distro
     span = (run.t0, run.t0 + run.duration_s)
+    if cameras:
+        info["cameras"] = [dict(name=c.cam.name, rate_hz=c.rate_hz, frames=len(c),
+                                samples_per_pixel=c.samples_per_pixel)
+                           for c in cameras]
     with RosbagStream(path, spec, single_file=format_of(path) == "mcap", seed=run.seed,
                       mount=mount, trajectory=robot.base_trajectory(run.trajectory),
                       span_s=span, info=info, imu_mount=robot.imu_mount(),
                       wheel_odometry=DEFAULT_WHEEL_ODOMETRY,
-                      returns=run.settings.returns, **bag) as w:
+                      returns=run.settings.returns,
+                      cameras=[(c.cam, c.link_mount) for c in cameras], **bag) as w:
+        frames = _Frames(w, cameras)
         for chunk in run:
-            w.write_points(chunk)
+            for part in frames.between(chunk):
+                w.write_points(part)
             if progress is not None:
                 progress(int(run.pass_stats["pulses"]), run.n_pulses)
-    return dict(run.stats, path=str(path))
+        frames.until(float("inf"))
+    return dict(run.stats, path=str(path),
+                camera_frames={c.cam.name: len(c) for c in cameras})
+
+
+class _Frames:
+    """The cameras' frames in the order of their readout ends, rendered one at a time
+    and fed to the bag just before the first point at or after that time: a cloud
+    published after a frame's readout is then logged after it, and memory holds one
+    frame."""
+
+    def __init__(self, bag: RosbagStream, cameras: Sequence[DriveCamera]) -> None:
+        self.bag, self.cameras = bag, cameras
+        self.queue = sorted(((float(t) + _readout(c), k, i) for k, c in enumerate(cameras)
+                             for i, t in enumerate(c.times)), key=lambda e: (e[0], e[1]))
+        self.next = 0
+
+    def until(self, t_s: float) -> None:
+        """Render and feed every frame whose readout ends before ``t_s``."""
+        from sensors.camera_drive import image_counts
+
+        while self.next < len(self.queue) and self.queue[self.next][0] < t_s:
+            _log, k, i = self.queue[self.next]
+            cam = self.cameras[k]
+            f = cam.render(i)
+            self.bag.write_image(k, f.stamp_s, f.readout_end_s, image_counts(cam.cam, f))
+            self.next += 1
+
+    def between(self, chunk: Any) -> Iterator[Any]:
+        """``chunk`` in pieces, the frames fed between them (at their readout ends)."""
+        import numpy as np
+
+        if self.next >= len(self.queue) or not len(chunk):
+            yield chunk
+            return
+        t = np.asarray(chunk["time"])
+        if np.any(np.diff(t) < 0):      # not in time order: feed what it may publish after
+            self.until(float(np.nextafter(t.max(), np.inf)))
+            yield chunk
+            return
+        lo = 0
+        while self.next < len(self.queue) and self.queue[self.next][0] <= t[-1]:
+            cut = int(np.searchsorted(t, self.queue[self.next][0], side="left"))
+            if cut > lo:
+                yield chunk[lo:cut]
+                lo = cut
+            self.until(float(np.nextafter(self.queue[self.next][0], np.inf)))
+        if lo < len(chunk):
+            yield chunk[lo:]
+
+
+def _readout(camera: DriveCamera) -> float:
+    from sensors.camera_drive import readout_s
+
+    return readout_s(camera.cam)
 
 
 __all__ = ["write_robot_bag"]

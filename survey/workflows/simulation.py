@@ -8,7 +8,9 @@ the commands print.
   file per station and ``manifest.json`` in a folder (on an executor).
 - ``drive_to_file``: a drive along a trajectory file, the tunnel's centreline or a
   route found in the mesh -> points or a ROS 2 bag in the robot's frames, the true
-  trajectory, the robot's URDF and launch file (and with ``slam_drift`` the SLAM files).
+  trajectory, the robot's URDF and launch file (and with ``slam_drift`` the SLAM files);
+  with ``cameras`` their frames along the drive (in the bag, or PNG folders beside the
+  point file: ``sensors.camera_drive``).
 
 Guards (each a ``SimulationError`` naming the command-line option): a station outside
 the mesh's bounding box, a drive whose every pose is beyond the sensor's range of it
@@ -246,6 +248,43 @@ class RobotFiles:
 
 
 @dataclass(frozen=True)
+class CameraRun:
+    """One camera's frames along a drive.
+
+    Attributes
+    ----------
+    name, kind : str
+        The camera and its kind ("color", "depth", "thermal").
+    width, height : int
+    rate_hz : float
+        Frames per second taken.
+    frames : int
+    rays : int
+        Primary rays cast (pixels x frames x samples per pixel).
+    shutter : str
+        "global" or "rolling".
+    lamps : str
+        What lit the frames (colour cameras; "no light needed" for depth and thermal).
+    folder : Path or None
+        ``<stem>_cameras/<name>`` for a point-file output; None in a bag.
+    topics : tuple of str
+        The image and camera_info topics in a bag; empty for a folder.
+    """
+
+    name: str
+    kind: str
+    width: int
+    height: int
+    rate_hz: float
+    frames: int
+    rays: int
+    shutter: str
+    lamps: str
+    folder: Path | None
+    topics: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class DriveResult:
     """What ``drive_to_file`` wrote.
 
@@ -275,6 +314,8 @@ class DriveResult:
     window_s : float or None
     where : str or None
         Where the windows ran.
+    cameras : tuple of CameraRun
+        The cameras' frames (``cameras=``).
     """
 
     output: RunOutput
@@ -291,6 +332,7 @@ class DriveResult:
     windows: int
     window_s: float | None
     where: str | None
+    cameras: tuple[CameraRun, ...] = ()
 
     @property
     def label(self) -> str:
@@ -458,7 +500,8 @@ def _write_run(run: Run, output: str | os.PathLike[str], *, fields: str | None,
                crs: Any, progress: ProgressFn | None,
                bag: dict[str, Any] | None = None,
                robot: RobotDescription | None = None,
-               waveform_data: str | None = None) -> RunOutput:
+               waveform_data: str | None = None,
+               cameras: Sequence[Any] = ()) -> RunOutput:
     """Write ``run`` to ``output``: a bag in the frames of ``robot`` when given and the
     output is a bag (``survey.workflows.robotbag``), else ``Run.write`` (which refuses
     a waveform run into a bag)."""
@@ -471,7 +514,7 @@ def _write_run(run: Run, output: str | os.PathLike[str], *, fields: str | None,
         from survey.workflows.robotbag import write_robot_bag
 
         stats = write_robot_bag(output, run, robot, progress=progress, crs=crs,
-                                **(bag or {}))
+                                cameras=cameras, **(bag or {}))
     else:
         # A drifted run (slam_drift) states no CRS, and its write takes none.
         stats = run.write(output, progress=progress, fields=fields,
@@ -1039,6 +1082,115 @@ def _slam_files(output: str | os.PathLike[str], run: Run, traj: Trajectory,
     return obs.run, files
 
 
+# ---------------------------------------------------------------------------- cameras
+def _check_camera_options(output: str | os.PathLike[str], cameras: Sequence[Any], *,
+                          rate_hz: float | None, mount: Sequence[float] | None,
+                          samples: int, lamp_cd: float | None, slam_drift: bool,
+                          window_s: float | None) -> list[Any]:
+    """The cameras of a drive (``CameraSpec``), loaded and checked with their options
+    before anything is simulated (each error names the command-line option)."""
+    from sensors.camera import CameraSpec, load_camera
+    from sensors.camera_drive import camera_mount, drive_lamps, frame_times
+    from sensors.errors import CameraSpecError
+    from sensors.shading import stratified_offsets
+    from sensors.writers import format_of
+
+    if not cameras:
+        given = [f for f, on in (("--camera-rate-hz", rate_hz is not None),
+                                 ("--camera-mount", mount is not None),
+                                 ("--camera-samples", samples != 1),
+                                 ("--lamp-cd", lamp_cd is not None)) if on]
+        if given:
+            raise SimulationError(f"Expected --camera NAME with {given[0]}, got no "
+                                  "--camera.")
+        return []
+    specs = []
+    for c in cameras:
+        if isinstance(c, CameraSpec):
+            specs.append(c)
+            continue
+        try:
+            specs.append(load_camera(c))
+        except CameraSpecError as exc:
+            raise CameraSpecError(f"--camera: {exc} 'tunnelsim cameras' lists the names."
+                                  ) from None
+    names = [c.name for c in specs]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise SimulationError(f"Expected each --camera once, got {twice[0]} "
+                              f"{names.count(twice[0])} times.")
+    for cam in specs:
+        frame_times(cam, (0.0, 0.0), rate_hz)           # the rate against each camera
+
+    if samples != 1 and all(c.kind == "depth" for c in specs):
+        raise SimulationError(f"Expected --camera-samples 1 for the depth camera "
+                              f"{specs[0].name} (a depth camera does not average), got "
+                              f"{samples}; drop --camera-samples.")
+    try:
+        stratified_offsets(samples)
+    except SimulationError as exc:
+        raise SimulationError(str(exc).replace("--samples", "--camera-samples")) from None
+    if mount is not None:
+        camera_mount(mount)
+    drive_lamps(None, lamp_cd)
+    if format_of(output) in ("mcap", "rosbag2"):
+        bad = [f for f, on in (("--slam-drift", slam_drift),
+                               ("--window-s", window_s is not None)) if on]
+        if bad:
+            raise SimulationError(f"Expected --camera in a ROS 2 bag without {bad[0]}, got "
+                                  f"both; write the points to a file (the frames go to "
+                                  "PNG folders beside it) or drop one.")
+    return specs
+
+
+def _drive_cameras(specs: Sequence[Any], mesh: str | os.PathLike[str], scene: Any,
+                   base_traj: Trajectory, span_s: tuple[float, float], *,
+                   lidar_mount: Any, mount: Sequence[float] | None,
+                   platform: PlatformSpec | None, lamp_cd: float | None,
+                   rate_hz: float | None, samples: int, seed: int, noise: bool
+                   ) -> tuple[list[Any], str]:
+    """The drive's cameras (``sensors.camera_drive.DriveCamera``) on base_link's
+    trajectory, and what lights them."""
+    from sensors.appearance import mesh_appearance
+    from sensors.camera_drive import (DriveCamera, camera_mount, default_camera_mount,
+                                      drive_lamps, readout_s)
+    from sensors.io.meshes import read_mesh
+    from survey.workflows.render import label_names
+
+    m = read_mesh(mesh)
+    app = mesh_appearance(m, label_names(mesh) if "label" in m.face_fields else None)
+    link = camera_mount(mount) if mount is not None else default_camera_mount(lidar_mount)
+    lamps, said = drive_lamps(platform, lamp_cd)
+    out = []
+    for k, cam in enumerate(specs):
+        dc = DriveCamera(scene, cam, base_traj, link, app, span_s=span_s, rate_hz=rate_hz,
+                         lamps=lamps, seed=seed, noise=noise, index=k,
+                         samples_per_pixel=1 if cam.kind == "depth" else samples)
+        if not len(dc):
+            raise SimulationError(f"Expected the drive ({span_s[1] - span_s[0]:.3g} s) to "
+                                  f"hold one frame of {cam.name}, whose readout takes "
+                                  f"{readout_s(cam):.3g} s, got none; pass a longer "
+                                  "--duration.")
+        out.append(dc)
+    return out, said
+
+
+def _camera_runs(cams: Sequence[Any], lamps: str, folders: Sequence[Path | None]
+                 ) -> tuple[CameraRun, ...]:
+    from sensors.bag import camera_topics
+
+    out = []
+    for dc, folder in zip(cams, folders):
+        c = dc.cam
+        tp = camera_topics(c)
+        out.append(CameraRun(c.name, c.kind, c.width, c.height, float(dc.rate_hz), len(dc),
+                             dc.rays * dc.samples_per_pixel,
+                             "global" if c.global_shutter else "rolling",
+                             lamps if c.kind == "color" else "no light needed", folder,
+                             () if folder is not None else (tp.image, tp.info)))
+    return tuple(out)
+
+
 def _planned_trajectory(mesh: str | os.PathLike[str], output: str | os.PathLike[str], *,
                         along: str | None, platform: Any, speed_mps: float | None,
                         duration_s: float | None, standstill_s: float,
@@ -1096,10 +1248,21 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
                   reflectivity: float = 0.5, fields: str | None = None,
                   waveform_data: str | None = None, window_s: float | None = None,
                   executor: Executor | None = None,
-                  progress: ProgressFn | None = None) -> DriveResult:
+                  progress: ProgressFn | None = None,
+                  cameras: Sequence[str | os.PathLike[str] | Any] = (),
+                  camera_rate_hz: float | None = None,
+                  camera_mount: Sequence[float] | None = None,
+                  camera_samples: int = 1, lamp_cd: float | None = None,
+                  camera_noise: bool = True) -> DriveResult:
     """Simulate a sensor on a moving platform into a point file or a ROS 2 bag, each
     pulse cast from the pose at its own time (rolling shutter): what ``tunnelsim
     drive`` does, with every file it writes.
+
+    With ``cameras``, their frames along the drive (``sensors.camera_drive``: a
+    rolling shutter's rows each from the pose at its own time) go into the bag
+    (``sensor_msgs/Image`` + ``CameraInfo`` on the camera driver's topics,
+    ``sensors.bag.camera_topics``), or beside a point file into
+    ``<stem>_cameras/<camera>/`` (``sensors.camera_io.FrameFolder``).
 
     Beside ``output`` (named after its stem, ``output_stem``): the true trajectory
     ``_true_trajectory.txt`` (TUM; and ``_base_link_trajectory.txt`` where base_link
@@ -1185,6 +1348,22 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
     executor : survey.cluster.Executor, optional
         Where the windows run (default in this process); only with ``window_s``.
     progress : callable (done_pulses, total_pulses), optional
+    cameras : sequence of str, path-like or sensors.camera.CameraSpec
+        Cameras on the platform (names, TOML files or specs), each once.
+    camera_rate_hz : float, optional
+        Frames per second (default each camera's frame rate; at most that).
+    camera_mount : (3,) or (6,) float, optional
+        base_link -> camera_link: X, Y, Z (m)[, roll, pitch, yaw (deg)] (default
+        ``sensors.camera_drive.default_camera_mount``: 0.1 m below the lidar, level,
+        looking forward). One mount for all the cameras (one device).
+    camera_samples : int
+        Colour and thermal cameras: rays per pixel (a square number), their radiance
+        averaged (anti-aliasing); depth cameras take the pixel centre whatever it is.
+    lamp_cd : float, optional
+        A headlamp beside the camera (candela; default none on a platform with lamps,
+        else 1000; given with them both light): ``sensors.camera_drive.drive_lamps``.
+    camera_noise : bool
+        The cameras' shot, read and NETD noise.
 
     Returns
     -------
@@ -1209,6 +1388,7 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
     """
     from sensors import Mount, Trajectory, simulate_drive
     from sensors.io.meshes import load_mesh
+    from sensors.writers import format_of
 
     _check_drive_options(trajectory=trajectory, along=along, waypoints=waypoints,
                          clearance_m=clearance_m, voxel_m=voxel_m, platform=platform,
@@ -1222,6 +1402,10 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
     spec = _sensor(sensor, rate_hz)
     if not Path(mesh).is_file():
         raise SimulationError(f"Expected a mesh file, got '{mesh}' which does not exist.")
+    cam_specs = _check_camera_options(output, cameras, rate_hz=camera_rate_hz,
+                                      mount=camera_mount, samples=camera_samples,
+                                      lamp_cd=lamp_cd, slam_drift=slam_drift,
+                                      window_s=window_s)
     stated = output_crs(mesh, crs)      # before the simulation: a bad crs fails at once
     bag = _bag_options(output, start_time, ros_distro)
     meta = loaded = plat = route = None
@@ -1252,6 +1436,14 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
     run: Any = simulate_drive(scene, spec, traj, mnt, settings=_settings(settings),
                               seed=seed, reflectivity=refl_or, t_end=t_end)
     driven = trimmed(traj, t_end)      # every output covers the same time span
+    cams: list[Any] = []
+    lamps_said = ""
+    if cam_specs:
+        cams, lamps_said = _drive_cameras(
+            cam_specs, mesh, scene, robot.base_trajectory(traj),
+            (run.t0, run.t0 + run.duration_s), lidar_mount=robot.sensor_mount_from_base(),
+            mount=camera_mount, platform=plat, lamp_cd=lamp_cd, rate_hz=camera_rate_hz,
+            samples=camera_samples, seed=seed, noise=camera_noise)
     slam = true_path = base_path = None
     if slam_drift:
         assert meta is not None        # slam_drift needs along="centreline"
@@ -1286,16 +1478,23 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
         # DECISION: a drifted run's bag keeps its own frames (the SLAM frame's poses).
         out = _write_run(run, output, fields=fields, crs=stated, progress=progress,
                          bag=bag, robot=None if slam_drift else robot,
-                         waveform_data=waveform_data)
+                         waveform_data=waveform_data, cameras=cams)
         _check_returned(label, out.pulses, out.points, min_return, where)
+    folders: list[Path | None] = [None] * len(cams)
+    if cams and format_of(output) not in ("mcap", "rosbag2"):
+        from sensors.camera_drive import write_frame_folder
+
+        folders = [write_frame_folder(dc, beside(output, "_cameras") / dc.cam.name,
+                                      info={"lamps": lamps_said, "sensor": spec.name})
+                   for dc in cams]
     files = _robot_files(output, robot)
     return DriveResult(out, spec.name, float(run.duration_s), stated, route, sweeps,
                        true_path, base_path, len(driven), slam, files, n_windows,
-                       window_s, ran_on)
+                       window_s, ran_on, _camera_runs(cams, lamps_said, folders))
 
 
 __all__ = ["MIN_DRIVE_RETURN", "ROUTE_CLEARANCE_M", "STATION_FORMATS", "AutoRoute",
-           "CampaignResult", "DriveResult", "ProgressFn", "RobotFiles", "RunOutput",
+           "CameraRun", "CampaignResult", "DriveResult", "ProgressFn", "RobotFiles", "RunOutput",
            "ScanResult", "SlamFiles", "SweepCut", "beside", "drive_end", "drive_robot",
            "drive_to_file", "output_crs", "output_stem", "scan_campaign", "scan_to_file",
            "station_heading_deg", "stations_on_axis", "sweep_rate_hz", "trimmed",

@@ -1,5 +1,7 @@
 """Command that simulates a moving sensor: drive (a lidar or profiler on a platform,
-each pulse cast from the pose at its own time; in time windows on the execution layer).
+each pulse cast from the pose at its own time; in time windows on the execution layer;
+with ``--camera``, camera frames along the drive, each row of a rolling shutter from
+its own pose).
 
 Guards (each a one-line error, exit 2, no output left behind): a drive whose every pose
 is beyond the sensor's range of the mesh's bounding box (unless ``--allow-outside``), a
@@ -15,6 +17,7 @@ import contextlib
 from survey.cli.common import (
     CommandSet,
     cluster_options,
+    floats,
     open_cluster,
     pair,
     physics_options,
@@ -39,7 +42,8 @@ def register(commands: CommandSet) -> None:
         "drive", cmd_drive, seeded=True,
         help="simulate a moving lidar or profiler along a trajectory",
         description="Simulate a sensor on a moving platform: each pulse is cast from the "
-                    "pose at its own time (rolling shutter).",
+                    "pose at its own time (rolling shutter); --camera adds camera frames "
+                    "along the drive.",
         epilog="Example: tunnelsim drive --mesh bfo.ply --sensor robosense_airy --along "
                "centreline --speed 1 --mount down --lever 0,0,0.5 -o drive.laz")
     c.option("--mesh", required=True, path="in", help="mesh file")
@@ -124,6 +128,30 @@ def register(commands: CommandSet) -> None:
     c.option("--ros-distro", choices=["humble", "jazzy"],
              help="with a ROS 2 bag folder: the rosbag2 metadata layout, humble "
                   "(version 5) or jazzy (version 9; the default)")
+    c.option("--camera", action="append", path="toml", metavar="NAME|FILE",
+             help="a camera on the platform (a name from 'tunnelsim cameras' or a .toml "
+                  "file; repeatable): its frames along the drive, each row of a rolling "
+                  "shutter from the pose at its own time, in the ROS 2 bag "
+                  "(sensor_msgs/Image + CameraInfo on the camera driver's topics, "
+                  "/camera/color/image_raw for the RealSense colour stream) or, beside a "
+                  "point file, in <name>_cameras/<camera>/ (PNG frames, frames.csv, "
+                  "camera_info.json); --no-noise also drops the cameras' noise")
+    c.option("--camera-rate-hz", type=float, metavar="HZ",
+             help="with --camera: frames per second, at most the camera's (default its "
+                  "frame rate)")
+    c.option("--camera-mount", metavar="X,Y,Z[,ROLL,PITCH,YAW]",
+             help="with --camera: camera_link in base_link (x forward, y left, z up), "
+                  "metres and degrees (default: 0.1 m below the lidar, level, looking "
+                  "forward); the optical frame is camera_link turned to z forward, x "
+                  "right, y down")
+    c.option("--camera-samples", type=int, default=1, metavar="N",
+             help="with a colour or thermal --camera: rays per pixel, a square number "
+                  "(1, 4, 9 ...), their radiance averaged (anti-aliasing; default 1; a "
+                  "depth camera keeps the pixel centre's ray)")
+    c.option("--lamp-cd", type=float, metavar="CD",
+             help="with --camera: a headlamp beside the camera, candela (default: none "
+                  "on a platform with [[lamps]], which light the frames, else 1000; "
+                  "given with them both light; 0: none)")
     crs_option(c)
     physics_options(c)
     waveform_option(c)
@@ -161,7 +189,11 @@ def cmd_drive(args) -> int:
             slam_drift=args.slam_drift, start_time=args.start_time,
             ros_distro=args.ros_distro, crs=args.crs, settings=run_settings(args),
             seed=args.seed, reflectivity=args.reflectivity, fields=args.fields,
-            waveform_data=waveform_data(args), window_s=args.window_s, executor=ex)
+            waveform_data=waveform_data(args), window_s=args.window_s, executor=ex,
+            cameras=args.camera or (), camera_rate_hz=args.camera_rate_hz,
+            camera_mount=floats(args.camera_mount, "--camera-mount X,Y,Z[,ROLL,PITCH,YAW]")
+            if args.camera_mount else None, camera_samples=args.camera_samples,
+            lamp_cd=args.lamp_cd, camera_noise=not args.no_noise)
     if not args.quiet:
         for line in drive_lines(res, args.output):
             print(line)
@@ -199,6 +231,12 @@ def drive_lines(res, output) -> list[str]:
     lines.append(f"{res.label}: {res.windows} windows of ~{res.window_s:g} s on "
                  f"{res.where}: {o.pulses:,} pulses, {o.points:,} points -> {output}"
                  if res.windows else summary_line(res.label, o, output))
+    for cr in res.cameras:
+        where = f"{cr.folder.parent.name}/{cr.folder.name}/" if cr.folder is not None \
+            else " and ".join(cr.topics)
+        lines.append(f"camera {cr.name}: {cr.frames} frames of {cr.width}x{cr.height} at "
+                     f"{cr.rate_hz:g} Hz ({cr.shutter} shutter, {cr.lamps}), "
+                     f"{cr.rays / 1e6:.3g} M rays -> {where}")
     b = res.robot
     lines.append(f"robot: {b.name}, base_link {b.mast_height_m:g} m below the platform "
                  f"frame -> {b.urdf.name}, {b.launch.name}")
