@@ -24,8 +24,8 @@ import numpy as np
 
 from sensors.io.errors import PointFileError
 
-__all__ = ["E57_FIELDS", "E57_MAX_POINTS", "E57Scan", "read_e57", "read_e57_crs",
-           "read_e57_scan", "write_e57_scan"]
+__all__ = ["E57_COLOUR", "E57_FIELDS", "E57_MAX_POINTS", "E57Scan", "read_e57",
+           "read_e57_colour", "read_e57_crs", "read_e57_scan", "write_e57_scan"]
 
 #: Largest scan read or written: pye57 holds a scan in memory (about 36 bytes a point).
 E57_MAX_POINTS = 50_000_000
@@ -86,7 +86,53 @@ def read_e57(path: str | os.PathLike[str]) -> Iterator[np.ndarray]:
     Raises ``PointFileError`` for a missing, empty, corrupt (bad checksum, bad header)
     or unreadable file, and for a scan larger than ``E57_MAX_POINTS``.
     """
-    path = Path(path)
+    for xyz, _ in _scans(Path(path), colour=False):
+        yield xyz
+
+
+def read_e57_colour(path: str | os.PathLike[str]
+                    ) -> Iterator[tuple[np.ndarray, np.ndarray | None]]:
+    """(world coordinates (n, 3) float64, colour (n, 3) float64 or None) of each scan
+    of an E57 file, as ``read_e57``; the colour (``colorRed``, ``colorGreen``,
+    ``colorBlue``) as stored, mapped to [0, 1] by the scan's ``colorLimits`` (E57
+    standard, ASTM E2807 8.4.19: the minimum and maximum the colour can take), or,
+    without them, by the limits of the points' colour prototype (an E57
+    ``IntegerNode``'s minimum and maximum); None for a scan without colour. Values are
+    as the scanner stored them (sRGB-encoded, as cameras store them)."""
+    yield from _scans(Path(path), colour=True)
+
+
+#: The colour fields of an E57 point record (ASTM E2807), red, green, blue.
+E57_COLOUR = ("colorRed", "colorGreen", "colorBlue")
+
+
+def _colour_limits(head: Any, path: Path, i: int) -> tuple[float, float]:
+    """(minimum, maximum) of a scan's colour: its ``colorLimits`` (red's), else its
+    prototype's integer limits; refused when neither gives a range."""
+    try:
+        if head.node.isDefined("colorLimits"):
+            lim = head.node["colorLimits"]
+            lo = float(lim["colorRedMinimum"].value())
+            hi = float(lim["colorRedMaximum"].value())
+        else:
+            from pye57 import libe57
+
+            proto = libe57.StructureNode(head.node["points"].prototype())
+            node = libe57.IntegerNode(proto["colorRed"])
+            lo, hi = float(node.minimum()), float(node.maximum())
+    except Exception as exc:   # libE57Format raises E57Exception; pye57 others
+        raise PointFileError(f"Expected colour limits (colorLimits) in scan {i} of "
+                             f"'{path}', got none readable ({_first_line(exc)}); pass "
+                             "--no-colour to leave its colour out.") from exc
+    if not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+        raise PointFileError(f"Expected colour limits with maximum > minimum in scan {i} "
+                             f"of '{path}', got {lo:g} to {hi:g}; pass --no-colour to "
+                             "leave its colour out.")
+    return lo, hi
+
+
+def _scans(path: Path, colour: bool
+           ) -> Iterator[tuple[np.ndarray, np.ndarray | None]]:
     e57 = _open_e57(path)
     try:
         count = e57.scan_count
@@ -116,14 +162,22 @@ def read_e57(path: str | os.PathLike[str]) -> Iterator[np.ndarray]:
                     set(fields)):
                 raise PointFileError(f"Expected Cartesian or spherical coordinates in scan "
                                      f"{i} of '{path}', got fields {sorted(fields)}.")
+            coloured = colour and set(E57_COLOUR) <= set(fields)
+            limits = _colour_limits(head, path, i) if coloured else None
             try:
-                d = e57.read_scan(i, ignore_missing_fields=True)
+                d = e57.read_scan(i, ignore_missing_fields=True, colors=coloured)
             except Exception as exc:
                 raise PointFileError(f"Expected the {n:,} points of scan {i} of '{path}', "
                                      f"got an error reading them: {_first_line(exc)}; the "
                                      "file is corrupt.") from exc
-            yield np.stack([d["cartesianX"], d["cartesianY"], d["cartesianZ"]],
+            xyz = np.stack([d["cartesianX"], d["cartesianY"], d["cartesianZ"]],
                            1).astype(np.float64)
+            rgb = None
+            if limits is not None:
+                lo, hi = limits
+                rgb = np.clip((np.stack([d[k] for k in E57_COLOUR], 1).astype(np.float64)
+                               - lo) / (hi - lo), 0.0, 1.0)
+            yield xyz, rgb
     finally:
         with contextlib.suppress(Exception):
             e57.close()

@@ -1,5 +1,6 @@
 """Point clouds: chunked file I/O, filters, segmentation, the tunnel axis and unrolling,
-reconstruction of the lining and of attachments, of spaces that are not tubes (solid), simulated drives read back for SLAM."""
+reconstruction of the lining and of attachments, of spaces that are not tubes (solid), simulated drives read back for SLAM,
+colour and temperature carried from coloured clouds onto mesh vertices."""
 
 from __future__ import annotations
 
@@ -18,5 +19,7 @@ if TYPE_CHECKING:
     from .solid import ScannerVoxelGrid, SolidMesh, nearest_scanner, reconstruct_solid
     from .scanners import iter_scanned, read_positions, station_position
     from .drives import DriveFile, ScanFrame, frames_from_points, iter_frames, open_drive, replace_drive
+    from .colour import (AppearanceCloud, AppearanceGrid, VertexAppearance, appearance_radius,
+                         transfer_appearance)
 
 __getattr__, __dir__, __all__ = lazy_exports_of(__name__, __file__, extra=())

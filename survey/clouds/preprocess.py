@@ -32,6 +32,12 @@ with their types, scales and descriptions (``extra_dims``, ``write_preprocessed`
 A voxel's value of a floating-point dimension is the mean of its points' values, an
 integer dimension's the value of its first point in file order (see
 ``VoxelGrid.fields``).
+
+Colour (issue 35): a cloud's colour (LAS RGB, 8-bit values in 16-bit fields detected;
+PLY, NPZ and E57 colour; ``sensors.io.cloudfields.cloud_appearance``) travels too
+(``iter_points_colour``): a voxel's colour is the mean of its points' colour in linear
+light (sRGB decoded and encoded again, IEC 61966-2-1), written as LAS RGB 16-bit
+(point format 7, as LAS 1.4 R15 asks) by ``write_preprocessed(..., rgb=)``.
 """
 
 from __future__ import annotations
@@ -48,7 +54,8 @@ from scipy.spatial import cKDTree
 from raytrace.checks import as_points
 from survey.errors import PreprocessError
 
-__all__ = ["VoxelGrid", "extra_dims", "iter_points_extra", "radius_outliers",
+__all__ = ["COLOUR_KEYS", "VoxelGrid", "colour_fields", "extra_dims", "iter_points_colour",
+           "iter_points_extra", "radius_outliers", "rgb_from_fields",
            "statistical_outliers", "voxel_down_sample", "write_preprocessed"]
 
 Fields = dict[str, NDArray[Any]]
@@ -324,16 +331,81 @@ def iter_points_extra(path: str | os.PathLike[str], *, chunk: int = 1 << 20
         raise no_points(p)
 
 
+#: The voxel grid's keys of a point's linear colour (n, 3) and of its weight (1: the
+#: point has a colour); no LAS dimension name holds a NUL byte.
+COLOUR_KEYS = ("\0rgb", "\0rgb_n")
+
+
+def colour_fields(rgb: NDArray[np.float64] | None, n: int) -> Fields:
+    """The grid's colour fields (``COLOUR_KEYS``) of ``n`` points' sRGB colour (n, 3)
+    in [0, 1] (NaN or None: no colour): linear colour and weight."""
+    from sensors.shading import srgb_decode
+
+    if rgb is None:
+        return {COLOUR_KEYS[0]: np.zeros((n, 3)), COLOUR_KEYS[1]: np.zeros(n)}
+    ok = np.asarray(np.isfinite(rgb).all(axis=1))
+    return {COLOUR_KEYS[0]: np.where(ok[:, None], srgb_decode(np.nan_to_num(rgb)), 0.0),
+            COLOUR_KEYS[1]: ok.astype(np.float64)}
+
+
+def rgb_from_fields(fields: Fields) -> NDArray[np.uint16]:
+    """LAS RGB 16-bit (n, 3) of per-voxel ``colour_fields`` means (popped from
+    ``fields``): the linear mean over the points with a colour, sRGB-encoded; black
+    for a voxel without any."""
+    from sensors.shading import srgb_encode
+
+    lin = np.asarray(fields.pop(COLOUR_KEYS[0]), dtype=np.float64)
+    w = np.asarray(fields.pop(COLOUR_KEYS[1]), dtype=np.float64)
+    mean = np.divide(lin, w[:, None], out=np.zeros_like(lin), where=w[:, None] > 0)
+    return np.rint(srgb_encode(mean) * 65535.0).astype(np.uint16)
+
+
+def iter_points_colour(path: str | os.PathLike[str], appearance: Any, *,
+                       chunk: int = 1 << 20
+                       ) -> Iterator[tuple[NDArray[np.float64], Fields,
+                                           NDArray[np.float64] | None]]:
+    """(xyz (n, 3), {extra dimension: (n,) stored values}, colour (n, 3) sRGB in
+    [0, 1] or None) of a cloud, chunk by chunk, in one pass: ``iter_points_extra``
+    with the colour ``appearance`` (``sensors.io.cloudfields.CloudAppearance``)
+    found."""
+    from sensors.io.cloudfields import iter_appearance
+
+    enc = appearance.colour
+    p = Path(path)
+    if enc is None:
+        for xyz, f in iter_points_extra(p, chunk=chunk):
+            yield xyz, f, None
+        return
+    if p.suffix.lower() not in (".las", ".laz"):
+        for xyz, rgb, _ in iter_appearance(p, appearance, temperature=False, chunk=chunk):
+            yield xyz, {}, rgb
+        return
+    from sensors.io.las import LasSource
+    from sensors.io.cloudread import check_finite, check_las_scale, cloud_errors, las_xyz
+
+    names = list(extra_dims(p))
+    n = 0
+    with cloud_errors(), LasSource(p) as src:
+        check_las_scale(src.header, p)
+        for rec in src.chunks(chunk):
+            xyz = las_xyz(rec)
+            check_finite(xyz, p, n)
+            n += len(xyz)
+            yield (xyz, {k: np.array(rec.array[k]) for k in names},
+                   enc.unit(np.stack([np.asarray(rec[k]) for k in enc.names], 1)))
+
+
 def write_preprocessed(path: str | os.PathLike[str], xyz: ArrayLike,
                        counts: ArrayLike, extra: Mapping[str, ArrayLike] | None = None,
                        dims: Mapping[str, Any] | None = None,
-                       classification: ArrayLike | None = None, *, crs: Any = None
-                       ) -> Path:
+                       classification: ArrayLike | None = None, *, crs: Any = None,
+                       rgb: ArrayLike | None = None) -> Path:
     """Write a preprocessed cloud as LAS/LAZ 1.4 (``sensors.io.las.write_las``): points
     ``xyz`` (n, 3), ``voxel_count`` (n,) (input points per voxel, 1 without a grid),
     the input's extra dimensions ``extra`` {name: (n,) stored values} described by
     ``dims`` (``extra_dims``: type, description, scale, offset kept), classification
-    codes (n,) and the CRS ``crs``. Atomic. Returns the path."""
+    codes (n,), colour ``rgb`` (n, 3) uint16 (LAS RGB 16-bit: point format 7 instead
+    of 6) and the CRS ``crs``. Atomic. Returns the path."""
     from sensors.io.las import write_las
     from sensors.io.cloudread import cloud_errors
 
@@ -353,6 +425,11 @@ def write_preprocessed(path: str | os.PathLike[str], xyz: ArrayLike,
         cols[k] = np.asarray(v).astype(dt)
     fields = {} if classification is None else {"classification":
                                                 np.asarray(classification)}
+    fmt = 6
+    if rgb is not None:
+        c = np.asarray(rgb).astype(np.uint16).reshape(-1, 3)
+        fields.update(red=c[:, 0], green=c[:, 1], blue=c[:, 2])
+        fmt = 7
     with cloud_errors():
         return write_las(path, np.asarray(xyz, dtype=np.float64), fields=fields,
-                         extra=cols, extra_dims=dims, crs=crs)
+                         extra=cols, extra_dims=dims, crs=crs, point_format=fmt)

@@ -16,7 +16,8 @@ def register(commands: CommandSet) -> None:
         description="Stream a cloud (LAS/LAZ/PLY/XYZ/NPZ/E57) through a voxel grid "
                     "(centroid per voxel, Open3D semantics), then remove statistical and "
                     "radius outliers (Open3D semantics) and write LAS/LAZ with the number "
-                    "of points per voxel.",
+                    "of points per voxel; a coloured cloud's colour is kept (a voxel's: "
+                    "the linear-light mean of its points'), as LAS RGB 16-bit.",
         epilog="Example: tunnelsim preprocess mls.laz -o clean.laz --voxel 0.02 --sor 8,2.0 "
                "--segment")
     c.option("cloud", path="in", help="input cloud")
@@ -108,6 +109,17 @@ def register(commands: CommandSet) -> None:
     c.option("--scanners", path="in", metavar="FILE",
              help="solid: scanner positions (x y z per row, a route CSV or a TUM file) for "
                   "clouds that record none; each point takes the nearest")
+    c.option("--no-colour", action="store_true",
+             help="leave out the per-vertex colour (red green blue, uint8 sRGB) that is "
+                  "otherwise taken from clouds that carry colour (LAS RGB, 8-bit values "
+                  "in 16-bit fields detected; PLY red/green/blue; E57 colour): the "
+                  "linear-light mean of the points within half a mesh edge of each "
+                  "vertex, the nearest point where none is; colour and temperature "
+                  "add about 150 bytes per occupied voxel to the peak memory")
+    c.option("--no-temperature", action="store_true",
+             help="leave out the per-vertex temperature (K) that is otherwise taken "
+                  "from clouds with a 'temperature' field in kelvin (a LAS extra "
+                  "dimension, a PLY property)")
     c.option("--json", path="out", help="also write the reconstruction quality as JSON")
     c.option("--figure", metavar="PNG", path="out",
              help="tunnel: also write the unrolled support map (points per cell) as PNG")
@@ -147,7 +159,8 @@ def cmd_mesh(args) -> int:
                    max_error_m=args.max_error, min_points=args.min_points,
                    tunnel_json=args.tunnel_json, voxel_m=args.voxel, trim_m=args.trim,
                    trajectory=args.trajectory, scanners=args.scanners,
-                   json_path=args.json, figure=args.figure)
+                   json_path=args.json, figure=args.figure,
+                   colour=not args.no_colour, temperature=not args.no_temperature)
     if args.quiet:
         return 0
     if r.profile_spacing_m is not None:
@@ -157,7 +170,24 @@ def cmd_mesh(args) -> int:
         r.method](r, args.output)
     if r.decimation:
         _print_compact(r.decimation)
+    _print_appearance(r.appearance)
     return 0
+
+
+def _print_appearance(block) -> None:
+    """Where the mesh's vertex colour and temperature came from (or why it has none)."""
+    for what, names in (("colour", "red green blue"), ("temperature", "temperature")):
+        b = block.get(what)
+        if not b:
+            continue
+        if not b["written"]:
+            if what == "colour" or b["why"].startswith("left out"):
+                print(f"{what}: none ({b['why']})")
+            continue
+        print(f"{what}: vertex {names} from {'; '.join(b['sources'])}; mean of the points "
+              f"within {block['radius_m'] * 1000:.0f} mm (at most {block['neighbours']} "
+              f"nearest voxels), {b['fallback_vertices']:,} vertices with none took the "
+              "nearest point's")
 
 
 def _mm(q, key: str) -> str:
