@@ -6,7 +6,11 @@ one lamp (a shadow ray per lit pixel).
   model's, kept between frames of one camera) turned into the world, cast, and the
   frame's z-depth, range, normals and hit points.
 * ``ours_cast_only``: ``Scene.cast`` of the same rays alone (turned into the world
-  outside the timing): the engine's share of a depth frame.
+  outside the timing): the engine's share of a depth frame. A frame's rays share one
+  origin but are fewer than half a ray per triangle, so ``auto`` casts them through a
+  near map (``raytrace/_kernels/nearmap.py``).
+* ``ours_cast_bvh``: the same cast with ``method="bvh"`` (every ray walks the BVH): what
+  the near map gains, in the same run.
 * ``open3d_depth``: per frame ``RaycastingScene.create_rays_pinhole`` (the same K, its
   principal point shifted by half a pixel: Open3D puts pixel corners at integers) and
   ``cast_rays`` (Embree, float32); the scene is built outside the timing.
@@ -21,7 +25,8 @@ field of view, the D435 colour stream's, at 640x480) stands on the centreline 1.
 above the floor and looks along the axis, moving 0.1 m per frame from chainage 60 m.
 Both engines use every core (Numba's threads; Open3D's Embree threads). The depths of
 the two engines are compared on the last frame (pixels both hit) as a check that the
-same work was done.
+same work was done. Besides frames per second (wall clock), each row's CPU time per
+frame (all threads of the process) is printed: on a shared machine it moves less.
 
 Usage::
 
@@ -82,6 +87,7 @@ def main(argv: list[str] | None = None) -> dict:
     # Warm up: compile the kernels and fill the lens's ray cache.
     fr = render_depth(scene, cam, poses[0])
     luminance(scene, fr, [headlamp(poses[0])], app.at(fr).albedo)
+    scene.cast(poses[0][:3, 3], fr.rays_cam.reshape(-1, 3), method="bvh")
 
     t0 = time.perf_counter()
     o3_scene = o3d.t.geometry.RaycastingScene()
@@ -98,29 +104,46 @@ def main(argv: list[str] | None = None) -> dict:
 
     # DECISION: the engines take turns frame by frame, so that the load of a shared
     # machine falls on both alike; each engine's time is the sum of its frames.
-    times = {"ours_depth": 0.0, "ours_cast": 0.0, "open3d_depth": 0.0, "ours_rgb": 0.0}
-    rays_cam = fr.rays_cam.reshape(-1, 3)
+    rows = ("ours_depth", "ours_cast", "ours_cast_bvh", "open3d_depth", "ours_rgb")
+    times = dict.fromkeys(rows, 0.0)
+    cpu = dict.fromkeys(rows, 0.0)
+
+    class _Timed:
+        """Adds the block's wall-clock and CPU time (all threads) to row ``key``."""
+
+        def __init__(self, key):
+            self.key = key
+
+        def __enter__(self):
+            self.t0, self.c0 = time.perf_counter(), time.process_time()
+
+        def __exit__(self, *exc):
+            times[self.key] += time.perf_counter() - self.t0
+            cpu[self.key] += time.process_time() - self.c0
+
+    rays_cam = np.ascontiguousarray(fr.rays_cam.reshape(-1, 3))
     for i, T in enumerate(poses):
-        t0 = time.perf_counter()
-        fr = render_depth(scene, cam, T)
-        times["ours_depth"] += time.perf_counter() - t0
+        with _Timed("ours_depth"):
+            fr = render_depth(scene, cam, T)
         # The cast alone (the rays turned into the world outside the timing): the
-        # engine's share of a depth frame.
-        d = rays_cam @ T[:3, :3].T
-        t0 = time.perf_counter()
-        scene.cast(T[:3, 3], d)
-        times["ours_cast"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
-            Kt, o3d.core.Tensor(np.linalg.inv(T)), w, h)
-        t_hit = o3_scene.cast_rays(rays)["t_hit"].numpy()
-        times["open3d_depth"] += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        fr2 = render_depth(scene, cam, T)
-        alb = np.nan_to_num(app.at(fr2).albedo, nan=0.0)
-        lum = luminance(scene, fr2, [headlamp(T)], alb)
-        expose(cam, lum, seed=i)
-        times["ours_rgb"] += time.perf_counter() - t0
+        # engine's share of a depth frame. DECISION: einsum, not ``rays_cam @ R.T``:
+        # NumPy's BLAS matmul leaves its threads spinning for a while after the call,
+        # and on two cores they took the CPU from the cast timed next (2.5x slower;
+        # "cast only" came out slower than the whole depth frame).
+        d = np.einsum("ij,kj->ik", rays_cam, T[:3, :3])
+        with _Timed("ours_cast"):
+            scene.cast(T[:3, 3], d)
+        with _Timed("ours_cast_bvh"):
+            scene.cast(T[:3, 3], d, method="bvh")
+        with _Timed("open3d_depth"):
+            rays = o3d.t.geometry.RaycastingScene.create_rays_pinhole(
+                Kt, o3d.core.Tensor(np.linalg.inv(T)), w, h)
+            t_hit = o3_scene.cast_rays(rays)["t_hit"].numpy()
+        with _Timed("ours_rgb"):
+            fr2 = render_depth(scene, cam, T)
+            alb = np.nan_to_num(app.at(fr2).albedo, nan=0.0)
+            lum = luminance(scene, fr2, [headlamp(T)], alb)
+            expose(cam, lum, seed=i)
     ours_last = fr.depth_z_m
     ours_depth, ours_cast = times["ours_depth"], times["ours_cast"]
     o3d_depth, ours_rgb = times["open3d_depth"], times["ours_rgb"]
@@ -137,9 +160,12 @@ def main(argv: list[str] | None = None) -> dict:
         "build_ours_s": build_ours, "build_open3d_s": build_o3d,
         "ours_depth_fps": a.frames / ours_depth,
         "ours_cast_only_fps": a.frames / ours_cast,
+        "ours_cast_bvh_fps": a.frames / times["ours_cast_bvh"],
         "open3d_depth_fps": a.frames / o3d_depth,
         "ratio_ours_over_open3d": o3d_depth / ours_depth,
         "ours_rgb_one_lamp_fps": a.frames / ours_rgb,
+        **{f"{k}_cpu_ms_per_frame": 1e3 * cpu[k] / a.frames for k in rows},
+        "cpu_ratio_ours_over_open3d": cpu["open3d_depth"] / cpu["ours_depth"],
         "same_pixels_hit": bool((np.isfinite(ref) == np.isfinite(ours_last)).all()),
         "max_depth_difference_m": float(np.abs(ref - ours_last)[both].max()),
     }

@@ -224,7 +224,11 @@ def prepare_rays(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
     # One fused parallel pass each (_kernels/rays.py); the NumPy passes below only run
     # to name the offending rows when something is wrong.
     unit = np.empty_like(d)
-    if count_nonfinite(o) or unit_directions(d, unit):
+    # DECISION: a single origin (a station, a camera) is checked without the parallel
+    # kernel: on a loaded 2-core machine each parallel region waits milliseconds for
+    # its worker thread, longer than checking a few rows.
+    bad_o = count_nonfinite(o) if o.shape[0] > 64 else int((~np.isfinite(o)).sum())
+    if bad_o or unit_directions(d, unit):
         _raise_bad_rays(o, d)
     d = unit
     if d.shape[0] != n:  # one direction shared by several origins

@@ -176,6 +176,28 @@ CUBEMAP_MIN_RUN = 256
 #: (4 bytes each): an origin right against large triangles.
 CUBEMAP_MAX_ENTRIES = 64_000_000  # must stay below 2^31 (int32 offsets)
 
+#: Near maps (``_kernels/nearmap.py``): a run of rays from one origin too short for a
+#: map of the whole mesh (fewer than CUBEMAP_MIN_RAYS_PER_TRI rays a triangle: a camera
+#: frame) but at least NEARMAP_MIN_RUN long gets a cube map of only the triangles
+#: nearest to the origin inside the cone of its directions; rays whose hit may lie
+#: beyond them walk the BVH. Measured on the bfo preset (0.81M triangles), pinhole
+#: frames along the tunnel, one thread, CPU time a ray (BVH / near map): 1,024 rays
+#: 350 / 1008 ns, 4,096 339 / 471, 12,288 339 / 354, 49,152 304 / 294, 307,200 (640x480)
+#: 245 / 151: the map's fixed costs are repaid from ~40k rays.
+NEARMAP_MIN_RUN = 32_768
+#: Triangles collected per ray of the run (at least NEARMAP_MIN_TRIS).
+NEARMAP_TRIS_PER_RAY = 0.1
+NEARMAP_MIN_TRIS = 4096
+#: A near map has about NEARMAP_CELLS_PER_TRI cells per collected triangle inside the
+#: cone of directions, and at most NEARMAP_MAX_CELLS_PER_TRI per triangle over the
+#: whole grid. Measured (bfo, one thread, CPU time per ray including the map): the
+#: camera frame 160 / 161 ns at 4 / 16 (NEARMAP_TRIS_PER_RAY 0.1; 0.5 gave 217-240,
+#: 0.05 gave 165-186: too many rays beyond the radius); a 640k-ray station 125 / 118 /
+#: 115 ns at 1 / 2 / 4, a 4M-ray station 100 / 101 / 113 ns (the whole map: 237 and
+#: 104-114 ns). The lists are filled serially, so fewer cells also wait less on 2 cores.
+NEARMAP_CELLS_PER_TRI = 4.0
+NEARMAP_MAX_CELLS_PER_TRI = 16.0
+
 #: Batches of at least this many rays with their own origins are cast in Morton order
 #: of the origins (``_kernels/order.py``): measured on the 1M-triangle benchmark tunnel
 #: with 2M random rays, ~1.2 -> ~1.5 Mrays/s (timings on this VM vary ~30 %); the sort
@@ -228,7 +250,10 @@ __all__ = [
     "CACHE", "BUILD_FASTMATH", "ERROR_MODEL", "RAY_BLOCK", "PRANGE_CHUNK",
     "BARY", "AREA_REL", "BOX_PAD_REL",
     "CUBEMAP_PAD", "CUBEMAP_HOT", "CUBEMAP_CELLS_PER_TRI", "CUBEMAP_MIN_G", "CUBEMAP_MAX_G",
-    "CUBEMAP_MIN_RAYS_PER_TRI", "CUBEMAP_MIN_RUN", "CUBEMAP_MAX_ENTRIES", "ORDER_MIN_RAYS",
+    "CUBEMAP_MIN_RAYS_PER_TRI", "CUBEMAP_MIN_RUN", "CUBEMAP_MAX_ENTRIES",
+    "NEARMAP_MIN_RUN", "NEARMAP_TRIS_PER_RAY", "NEARMAP_MIN_TRIS",
+    "NEARMAP_CELLS_PER_TRI", "NEARMAP_MAX_CELLS_PER_TRI",
+    "ORDER_MIN_RAYS",
     "ORDER_BITS",
     "ORDER_RUN",
     "SAH_BINS", "SAH_ALL_AXES", "SAH_C_TRAV", "SAH_C_ISECT", "MAX_LEAF_SIZE", "BUILD_TASKS",

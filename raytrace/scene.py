@@ -37,8 +37,8 @@ from ._kernels.build import build_bvh, slot_triangles, triangle_setup
 from ._kernels.closest import closest_points
 from ._kernels.collapse import to_wide_layout
 from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
+from ._kernels.nearmap import gather_near, ray_cone
 from ._kernels.order import counting_sort, is_coherent, morton_keys, origin_runs
-from ._kernels.rays import input_triangles
 from ._kernels.simd import LANES
 from ._kernels.traverse import CHILD, RECORD, any_hit, closest_hit
 from .errors import ConfigError, MeshError, RayError, SceneFileError
@@ -48,13 +48,30 @@ from .hits import Hits
 __all__ = ["FILE_FORMAT", "Scene"]
 
 _NO_ORDER = np.empty(0, dtype=np.int64)
+#: The frame of a map that is not turned (a station's cube map).
+_NO_TURN = np.eye(3)
+#: Largest half-angle of a ray cone mapped on one turned face (a near map): 44 deg, one
+#: degree inside the face's 45, so that rounding never puts a ray on another face (if
+#: it did, that ray would walk the BVH: still exact).
+_ONE_FACE_RAD = np.deg2rad(44.0)
+
+
+def _turn_to_x(ax: float, ay: float, az: float) -> NDArray[np.float64]:
+    """(3, 3) float64 rotation whose first row is the unit vector a: it turns a onto +x."""
+    a = np.array([ax, ay, az], dtype=np.float64)
+    helper = np.zeros(3)
+    helper[int(np.argmin(np.abs(a)))] = 1.0
+    e1 = np.cross(a, helper)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    return np.stack([a, e1, e2])
 
 #: Version of the ``Scene.save`` file layout; ``Scene.load`` refuses other versions.
 #: 5: the input vertices and faces are stored too (``Scene.vertices``, ``Scene.faces``).
 #: 6: 8-wide node records (256 bytes) instead of 4-wide ones.
 FILE_FORMAT = 6
 
-Method = Literal["auto", "bvh", "cubemap"]
+Method = Literal["auto", "bvh", "cubemap", "near"]
 
 
 def _read_only(a: NDArray[Any]) -> NDArray[Any]:
@@ -210,15 +227,20 @@ class Scene:
             Accepted hit interval along the normalised direction, metres, both ends
             included (as in Embree): 0 <= t_min <= t_max, t_min finite, t_max finite or
             ``inf``.
-        method : {"auto", "bvh", "cubemap"}, keyword-only
+        method : {"auto", "bvh", "cubemap", "near"}, keyword-only
             "cubemap" builds (and keeps, for the next call from the same origin) a cube
             map of candidate triangles around a single shared origin — a TLS station,
             given as a (3,) row or as (n, 3) rows that are all equal — and tests each ray
             against its cell's list only. "auto" does so for every run of equal
             consecutive origin rows (a single origin included) with at least
             ``config.CUBEMAP_MIN_RAYS_PER_TRI`` rays per triangle, and so does
-            "cubemap" when the origins are not all equal. The answer is identical
-            either way; only the speed differs.
+            "cubemap" when the origins are not all equal. "near" maps only the
+            triangles nearest to the origin within the cone of the rays' directions
+            (about ``config.NEARMAP_TRIS_PER_RAY`` per ray; not kept between calls);
+            rays whose hit may lie beyond them walk the BVH. "auto" does so for runs
+            shorter than a whole map repays but at least ``config.NEARMAP_MIN_RUN``
+            long (a camera frame). The answer is identical either way; only the speed
+            differs.
 
         Returns
         -------
@@ -232,12 +254,14 @@ class Scene:
             Shapes that do not broadcast to n rays, NaN/inf origins or directions, a zero
             direction, or limits that break 0 <= t_min <= t_max.
         """
-        if not isinstance(method, str) or method not in ("auto", "bvh", "cubemap"):
-            raise RayError(f"Expected `method` to be 'auto', 'bvh' or 'cubemap', got "
-                           f"{method!r}; leave it at 'auto' unless timing the paths.")
+        if not isinstance(method, str) or method not in ("auto", "bvh", "cubemap", "near"):
+            raise RayError(f"Expected `method` to be 'auto', 'bvh', 'cubemap' or 'near', "
+                           f"got {method!r}; leave it at 'auto' unless timing the paths.")
         org, dirs, tmin, tmax = prepare_rays(origins, directions, t_min, t_max)
         n = dirs.shape[0]
-        out = (np.empty(n), np.empty(n, dtype=np.int64), np.empty(n), np.empty(n))
+        # t, slot, input triangle, u, v
+        out = (np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64),
+               np.empty(n), np.empty(n))
         local = org - self.origin_offset
         # Rays sharing one origin go to that origin's cube map. DECISION: shared origins
         # are also found in an (n, 3) array (runs of bit-identical consecutive rows, one
@@ -245,19 +269,27 @@ class Scene:
         # the same rays with a (3,) origin (issue 16).
         min_run = max(config.CUBEMAP_MIN_RUN,
                       int(np.ceil(config.CUBEMAP_MIN_RAYS_PER_TRI * self.n_triangles)))
+        # Shortest run worth a map: a whole map ("cubemap") or a near map.
+        shortest = min_run if method == "cubemap" else min(min_run, config.NEARMAP_MIN_RUN)
         runs = np.empty((0, 2), dtype=np.int64)
         if n and method != "bvh":
             if org.shape[0] == 1:
                 runs = np.array([[0, n]], dtype=np.int64)
             else:
-                # "cubemap": at least a run that is the whole batch (one origin); "auto"
-                # (and "cubemap") also every run long enough to repay its map.
-                runs = origin_runs(local.view(np.int64), min(min_run, n))
+                # "cubemap"/"near": at least a run that is the whole batch (one origin);
+                # "auto" (and the others) also every run long enough to repay its map.
+                runs = origin_runs(local.view(np.int64), min(shortest, n))
             if method == "auto" or (runs.shape[0] and runs[0, 1] - runs[0, 0] < n):
-                runs = runs[runs[:, 1] - runs[:, 0] >= min_run]
+                runs = runs[runs[:, 1] - runs[:, 0] >= shortest]
         rest = None
         for a, b in runs:
-            view = self._view(local[a:a + 1])
+            # A run too short for a whole map takes a near map, unless the whole map of
+            # its origin is already kept (the last, short chunk of a station).
+            if method == "near" or (method == "auto" and b - a < min_run
+                                    and not self._has_view(local[a:a + 1])):
+                view = self._near_view(local[a:a + 1], dirs[a:b])
+            else:
+                view = self._view(local[a:a + 1])
             if view is None:  # too many cube-map entries: the BVH does these rays
                 continue
             part = slice(a, b)
@@ -272,14 +304,13 @@ class Scene:
         elif rest.any():
             idx = np.flatnonzero(rest)
             sub = (np.empty(idx.size), np.empty(idx.size, dtype=np.int64),
-                   np.empty(idx.size), np.empty(idx.size))
+                   np.empty(idx.size, dtype=np.int64), np.empty(idx.size),
+                   np.empty(idx.size))
             self._cast_bvh(local[idx] if local.shape[0] > 1 else local, dirs[idx],
                            _part(tmin, idx), _part(tmax, idx), sub)
             for o, so in zip(out, sub):
                 o[idx] = so
-        out_t, out_slot, out_u, out_v = out
-        tri = np.empty(n, dtype=np.int64)
-        input_triangles(out_slot, self._ids, tri)
+        out_t, out_slot, tri, out_u, out_v = out
         return Hits(out_t, tri, out_u, out_v, origins=org, directions=dirs,
                     slots=out_slot, records=self._tris)
 
@@ -287,16 +318,18 @@ class Scene:
                    tmin: NDArray[np.float64], tmax: NDArray[np.float64],
                    out: Any) -> None:
         """Closest hits of rays from the one origin ``local1`` (1, 3) through its cube
-        map ``view``, written into ``out`` (t, slot, u, v)."""
-        start, slots, counts, g = view
+        map or near map ``view``, written into ``out`` (t, slot, triangle, u, v)."""
+        start, slots, counts, g, n_faces, rot, scale, radius = view
         with numba.parallel_chunksize(config.PRANGE_CHUNK):
-            closest_hit_view(start, slots, counts, g, config.CUBEMAP_HOT, self._nodes,
+            closest_hit_view(start, slots, counts, g, n_faces, rot, rot is not _NO_TURN,
+                             scale, config.CUBEMAP_HOT, radius, self._nodes,
                              self._nodes.view(np.int32), self._tris, self._ids, local1,
                              dirs, tmin, tmax, self._stack_size, config.RAY_BLOCK, *out)
 
     def _cast_bvh(self, local: NDArray[np.float64], dirs: NDArray[np.float64],
                   tmin: NDArray[np.float64], tmax: NDArray[np.float64], out: Any) -> None:
-        """Closest hits through the BVH, written into ``out`` (t, slot, u, v)."""
+        """Closest hits through the BVH, written into ``out`` (t, slot, triangle, u,
+        v)."""
         with numba.parallel_chunksize(config.PRANGE_CHUNK):
             closest_hit(self._nodes, self._nodes.view(np.int32), self._tris, self._ids,
                         local, dirs, tmin, tmax, self._stack_size, self._ray_order(local),
@@ -395,9 +428,15 @@ class Scene:
         morton_keys(local_origins, box[0], box[1], config.ORDER_BITS, keys)
         return counting_sort(keys, 1 << (3 * config.ORDER_BITS))
 
+    def _has_view(self, local_origin: NDArray[np.float64]) -> bool:
+        """Whether the cube map kept from the last call is that of ``local_origin``."""
+        cached = self._view_cache
+        return cached is not None and cached[0] == local_origin.tobytes() \
+            and cached[1] is not None
+
     def _view(self, local_origin: NDArray[np.float64]) -> Any:
         """Cube map around one origin (local frame), cached for the last origin used.
-        Returns (start, slots, counts, g), or None when it would be too large."""
+        Returns the view (``_map``), or None when it would be too large."""
         key = local_origin.tobytes()
         cached = self._view_cache
         if cached is not None and cached[0] == key:  # same origin: reuse
@@ -405,17 +444,61 @@ class Scene:
         m = self.n_triangles
         g = int(np.sqrt(config.CUBEMAP_CELLS_PER_TRI * m / 6.0))
         g = min(config.CUBEMAP_MAX_G, max(config.CUBEMAP_MIN_G, g))
-        fp = np.empty((m, 6, 4), dtype=np.int32)
-        o = local_origin[0]
-        footprints(self._tris, float(o[0]), float(o[1]), float(o[2]), g, fp)
-        counts = count_entries(fp, g)
-        kept = int(counts[counts <= config.CUBEMAP_HOT].sum())
-        view = None
-        if kept <= config.CUBEMAP_MAX_ENTRIES:
-            start, slots = fill_entries(fp, g, counts, config.CUBEMAP_HOT)
-            view = (start, slots, counts, g)
+        view = self._map(local_origin, np.arange(m, dtype=np.int32), g)
         self._view_cache = (key, view)
         return view
+
+    def _map(self, local_origin: NDArray[np.float64], sel: NDArray[np.int32], g: int,
+             radius: float = np.inf, rot: NDArray[np.float64] = _NO_TURN,
+             scale: float = 1.0, n_faces: int = 6) -> Any:
+        """Cube map of the triangles ``sel`` around one origin (local frame), in the
+        frame turned by ``rot`` (``_NO_TURN``: none), each face's grid spanning
+        [-scale, scale]^2, the first ``n_faces`` faces kept. Returns (start, slots,
+        counts, g, n_faces, rot, scale, radius), or None when it would be too large."""
+        fp = np.empty((sel.shape[0], 6, 4), dtype=np.int32)
+        o = local_origin[0]
+        footprints(self._tris, sel, float(o[0]), float(o[1]), float(o[2]), rot,
+                   rot is not _NO_TURN, float(scale), g, fp)
+        counts = count_entries(fp, g, n_faces)
+        kept = int(counts[counts <= config.CUBEMAP_HOT].sum())
+        if kept > config.CUBEMAP_MAX_ENTRIES:
+            return None
+        start, slots = fill_entries(fp, sel, g, n_faces, counts, config.CUBEMAP_HOT)
+        return (start, slots, counts, g, n_faces, rot, float(scale), float(radius))
+
+    def _near_view(self, local_origin: NDArray[np.float64],
+                   dirs: NDArray[np.float64]) -> Any:
+        """Near map around one origin (local frame) for the rays ``dirs``: the cube map
+        of the triangles nearest to it inside the cone of ``dirs`` (``nearmap.py``).
+        Returns (start, slots, counts, g, radius), or None when it would be too large."""
+        m = self.n_triangles
+        ax, ay, az, cos_cone = ray_cone(dirs)
+        k_max = max(config.NEARMAP_MIN_TRIS,
+                    int(config.NEARMAP_TRIS_PER_RAY * dirs.shape[0]))
+        sel = np.empty(m, dtype=np.int32)
+        o = local_origin[0]
+        count, radius = gather_near(self._nodes, self._nodes.view(np.int32), float(o[0]),
+                                    float(o[1]), float(o[2]), ax, ay, az, cos_cone,
+                                    k_max, sel)
+        half_angle = float(np.arccos(np.clip(cos_cone, -1.0, 1.0)))
+        cells_in = config.NEARMAP_CELLS_PER_TRI * max(count, 1)
+        cells_max = config.NEARMAP_MAX_CELLS_PER_TRI * max(count, 1)
+        if half_angle <= _ONE_FACE_RAD:
+            # DECISION: a narrow cone (a camera) is turned onto +x and mapped on that
+            # face alone, its grid spanning just the cone (|tan| <= tan(half-angle)):
+            # a cube map's six faces would need ~40 times the cells for the same cell
+            # size inside a 69 x 52 deg field of view.
+            rot = _turn_to_x(ax, ay, az)
+            scale = max(np.tan(half_angle) * (1.0 + 1e-6), 1e-3)
+            # The cone's disc covers pi / 4 of the square grid.
+            cells = min(cells_in * 4.0 / np.pi, cells_max)
+            g = min(config.CUBEMAP_MAX_G, max(config.CUBEMAP_MIN_G, int(np.sqrt(cells))))
+            return self._map(local_origin, sel[:count], g, radius, rot, scale, 1)
+        # A wide cone: all six faces, about NEARMAP_CELLS_PER_TRI cells a collected
+        # triangle inside the cone (solid angle 2 pi (1 - cos), of the sphere's 4 pi).
+        cells = min(cells_in / max(0.5 * (1.0 - cos_cone), 1e-6), cells_max)
+        g = min(config.CUBEMAP_MAX_G, max(config.CUBEMAP_MIN_G, int(np.sqrt(cells / 6.0))))
+        return self._map(local_origin, sel[:count], g, radius)
 
     # ------------------------------------------------------------------ persistence
     def __getstate__(self) -> dict[str, Any]:

@@ -30,6 +30,13 @@ Layout (one view, for one origin)::
 Cell index c = face * G * G + row * G + col; face = 2 * axis + (0 if d[axis] > 0 else 1);
 row from the first, col from the second of the other two axes in cyclic order.
 
+A near map (``nearmap.py``) is the same structure over the triangles nearest to the
+origin only: its directions are first turned by ``rot`` (the rays' cone axis onto +x)
+when the cone is narrow, in which case only face 0 is kept (``n_faces`` = 1) and its
+grid spans [-scale, scale]^2 instead of [-1, 1]^2; ``radius`` (finite) says how far its
+lists are complete. A full map has ``rot`` = identity (not applied), scale 1, six faces
+and radius inf, and is computed exactly as before near maps existed.
+
 The cube map is a view-dependent acceleration in the spirit of light-buffer / "hemicube"
 occlusion culling (Haines & Greenberg 1986, "The light buffer: a shadow-testing
 accelerator"; Cohen & Greenberg 1985, hemicube), here made exact by conservative
@@ -140,14 +147,15 @@ def _touches_origin(p):
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
-def _write_cells(out, k, face, umin, umax, wmin, wmax, g):
+def _write_cells(out, k, face, umin, umax, wmin, wmax, g, scale):
     """Cell range of the tan-angle box [umin, umax] x [wmin, wmax] on ``face``, padded
-    by CUBEMAP_PAD and clamped to the face."""
+    by CUBEMAP_PAD and clamped to the face; the grid spans [-scale, scale]^2 of the
+    face (1: all of it)."""
     half = 0.5 * g
-    r0 = int(np.floor((umin - CUBEMAP_PAD + 1.0) * half))
-    r1 = int(np.floor((umax + CUBEMAP_PAD + 1.0) * half))
-    c0 = int(np.floor((wmin - CUBEMAP_PAD + 1.0) * half))
-    c1 = int(np.floor((wmax + CUBEMAP_PAD + 1.0) * half))
+    r0 = int(np.floor(((umin - CUBEMAP_PAD) / scale + 1.0) * half))
+    r1 = int(np.floor(((umax + CUBEMAP_PAD) / scale + 1.0) * half))
+    c0 = int(np.floor(((wmin - CUBEMAP_PAD) / scale + 1.0) * half))
+    c1 = int(np.floor(((wmax + CUBEMAP_PAD) / scale + 1.0) * half))
     out[k, face, 0] = max(0, min(g - 1, r0))
     out[k, face, 1] = max(0, min(g - 1, r1))
     out[k, face, 2] = max(0, min(g - 1, c0))
@@ -155,14 +163,18 @@ def _write_cells(out, k, face, umin, umax, wmin, wmax, g):
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def footprints(tris, ox, oy, oz, g, out):
-    """Cell ranges of every triangle on every cube face.
+def footprints(tris, sel, ox, oy, oz, rot, rotate, scale, g, out):
+    """Cell ranges of the triangles ``sel`` on every cube face.
 
-    tris : (m, 9) float64 per slot v0, e1, e2 (local frame); (ox, oy, oz) the origin;
-    g : cells per face side. Writes out (m, 6, 4) int32: row0, row1, col0, col1
-    (inclusive), or row0 = -1 when the triangle does not reach that face.
+    tris : (m, 9) float64 per slot v0, e1, e2 (local frame); sel : (k,) int32 slots
+    (all of them for a full view, the nearest ones for a near map); (ox, oy, oz) the
+    origin; rot : (3, 3) float64, applied to the vertices (relative to the origin) when
+    ``rotate`` (a near map turns its cone's axis onto +x, ``nearmap.py``); scale: the
+    grid spans [-scale, scale]^2 of each face; g : cells per face side. Writes out
+    (k, 6, 4) int32, row i for slot sel[i]: row0, row1, col0, col1 (inclusive), or
+    row0 = -1 when the triangle does not reach that face.
     """
-    m = tris.shape[0]
+    m = sel.shape[0]
     n_chunks = (m + _CHUNK - 1) // _CHUNK
     for ch in prange(n_chunks):
         bx = np.empty(8)
@@ -172,13 +184,24 @@ def footprints(tris, ox, oy, oz, g, out):
         cy = np.empty(8)
         cz = np.empty(8)
         p = np.empty((3, 3))
+        q = np.empty(3)
         for k in range(ch * _CHUNK, min(m, (ch + 1) * _CHUNK)):
+            slot = sel[k]
             for c in range(3):
                 o = ox if c == 0 else (oy if c == 1 else oz)
-                v0 = tris[k, c] - o
+                v0 = tris[slot, c] - o
                 p[0, c] = v0
-                p[1, c] = v0 + tris[k, 3 + c]
-                p[2, c] = v0 + tris[k, 6 + c]
+                p[1, c] = v0 + tris[slot, 3 + c]
+                p[2, c] = v0 + tris[slot, 6 + c]
+            if rotate:
+                for i in range(3):
+                    x = p[i, 0]
+                    y = p[i, 1]
+                    z = p[i, 2]
+                    for c in range(3):
+                        q[c] = rot[c, 0] * x + rot[c, 1] * y + rot[c, 2] * z
+                    for c in range(3):
+                        p[i, c] = q[c]
             # A triangle on or next to the origin (a hit at t ~ 0 for any direction,
             # within the intersection test's BARY slack) goes into every cell.
             if _touches_origin(p):
@@ -212,7 +235,7 @@ def footprints(tris, ox, oy, oz, g, out):
                     wmax = max(wmax, w)
                 for face in range(6):
                     out[k, face, 0] = -1
-                _write_cells(out, k, f0, umin, umax, wmin, wmax, g)
+                _write_cells(out, k, f0, umin, umax, wmin, wmax, g, scale)
                 continue
             for face in range(6):
                 axis = face // 2
@@ -256,16 +279,17 @@ def footprints(tris, ox, oy, oz, g, out):
                     out[k, face, 2] = 0
                     out[k, face, 3] = g - 1
                     continue
-                _write_cells(out, k, face, umin, umax, wmin, wmax, g)
+                _write_cells(out, k, face, umin, umax, wmin, wmax, g, scale)
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
-def count_entries(fp, g):
-    """Per-cell triangle counts (6 g g,) int32. A cell counts at most one entry per
-    triangle, so int32 holds any mesh below 2^31 triangles."""
-    counts = np.zeros(6 * g * g, dtype=np.int32)
+def count_entries(fp, g, n_faces):
+    """Per-cell triangle counts (n_faces g g,) int32 of the first ``n_faces`` faces (6,
+    or 1 for a near map turned onto +x). A cell counts at most one entry per triangle,
+    so int32 holds any mesh below 2^31 triangles."""
+    counts = np.zeros(n_faces * g * g, dtype=np.int32)
     for k in range(fp.shape[0]):
-        for face in range(6):
+        for face in range(n_faces):
             r0 = fp[k, face, 0]
             if r0 < 0:
                 continue
@@ -277,9 +301,9 @@ def count_entries(fp, g):
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
-def fill_entries(fp, g, counts, hot):
-    """CSR arrays from footprints; hot cells (count > hot) keep no list (their rays use
-    the BVH), so memory is spent on the cells that are used.
+def fill_entries(fp, sel, g, n_faces, counts, hot):
+    """CSR arrays from footprints (row i: slot sel[i]); hot cells (count > hot) keep no
+    list (their rays use the BVH), so memory is spent on the cells that are used.
 
     DECISION: serial. A parallel version (cells split into row bands, each band task
     over the triangles reaching it; identical output) was measured 2x slower on one
@@ -288,7 +312,7 @@ def fill_entries(fp, g, counts, hot):
     hit, a station ray on the bfo preset still tested 2.8 of its cell's 3.1 triangles
     (3 % faster casting, more than paid for by the sort).
     """
-    n_cells = 6 * g * g
+    n_cells = n_faces * g * g
     # int32 offsets: the caller keeps at most config.CUBEMAP_MAX_ENTRIES (< 2^31) entries.
     start = np.zeros(n_cells + 1, dtype=np.int32)
     for c in range(n_cells):
@@ -297,7 +321,7 @@ def fill_entries(fp, g, counts, hot):
     slots = np.empty(start[n_cells], dtype=np.int32)
     fill = start[:-1].copy()
     for k in range(fp.shape[0]):
-        for face in range(6):
+        for face in range(n_faces):
             r0 = fp[k, face, 0]
             if r0 < 0:
                 continue
@@ -306,18 +330,20 @@ def fill_entries(fp, g, counts, hot):
                 for c in range(fp[k, face, 2], fp[k, face, 3] + 1):
                     cell = base + r * g + c
                     if counts[cell] <= hot:
-                        slots[fill[cell]] = k
+                        slots[fill[cell]] = sel[k]
                         fill[cell] += 1
     return start, slots
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
-def _view_block(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs, tmin,
-                tmax, stack_size, r0, r1, out_t, out_slot, out_u, out_v):
+def _view_block(start, slots, counts, g, n_faces, rot, rotate, scale, hot, radius, nodes,
+                links, tris, ids, org, dirs, tmin, tmax, stack_size, r0, r1, out_t,
+                out_slot, out_tri, out_u, out_v):
     """Rays r0..r1 of ``closest_hit_view``, sequentially: a serial function called from
     the prange loop, as ``traverse._closest_block`` is (measured here: as fast as the
     loop inlined into the prange body, within this VM's noise)."""
     st_node, st_dist, sd, cn, cd = new_scratch(stack_size)
+    prev = -1  # warm start of the BVH walks (``traverse.trace_closest``)
     one_t = tmin.shape[0] == 1
     ox = org[0, 0]
     oy = org[0, 1]
@@ -328,31 +354,44 @@ def _view_block(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs
         dx = dirs[r, 0]
         dy = dirs[r, 1]
         dz = dirs[r, 2]
-        ax = abs(dx)
-        ay = abs(dy)
-        az = abs(dz)
+        # The map's frame (turned for a near map): used to find the cell only.
+        if rotate:
+            mx = rot[0, 0] * dx + rot[0, 1] * dy + rot[0, 2] * dz
+            my = rot[1, 0] * dx + rot[1, 1] * dy + rot[1, 2] * dz
+            mz = rot[2, 0] * dx + rot[2, 1] * dy + rot[2, 2] * dz
+        else:
+            mx = dx
+            my = dy
+            mz = dz
+        ax = abs(mx)
+        ay = abs(my)
+        az = abs(mz)
         # Dominant axis (ties: lowest axis) and the face's lateral coordinates.
         if ax >= ay and ax >= az:
-            face = 0 if dx > 0 else 1
-            u = dy / ax
-            w = dz / ax
+            face = 0 if mx > 0 else 1
+            u = my / ax
+            w = mz / ax
         elif ay >= az:
-            face = 2 if dy > 0 else 3
-            u = dz / ay
-            w = dx / ay
+            face = 2 if my > 0 else 3
+            u = mz / ay
+            w = mx / ay
         else:
-            face = 4 if dz > 0 else 5
-            u = dx / az
-            w = dy / az
-        row = min(g - 1, max(0, int(np.floor((u + 1.0) * half))))
-        col = min(g - 1, max(0, int(np.floor((w + 1.0) * half))))
+            face = 4 if mz > 0 else 5
+            u = mx / az
+            w = my / az
+        row = min(g - 1, max(0, int(np.floor((u / scale + 1.0) * half))))
+        col = min(g - 1, max(0, int(np.floor((w / scale + 1.0) * half))))
         cell = face * g * g + row * g + col
         t0 = tmin[rt]
         t1 = tmax[rt]
-        if counts[cell] > hot:
+        # A face the map does not hold (rounding at a near map's cone edge) or a hot
+        # cell: the BVH answers.
+        if face >= n_faces or counts[cell] > hot:
             bt, bid, bslot, bu, bv = trace_closest(nodes, links, tris, ids, ox, oy, oz,
-                                                   dx, dy, dz, t0, t1, -1,
+                                                   dx, dy, dz, t0, t1, prev,
                                                    st_node, st_dist, sd, cn, cd)
+            if bslot >= 0:
+                prev = bslot
         else:
             bt = t1
             bid = -1
@@ -368,27 +407,41 @@ def _view_block(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs
                     bslot = k
                     bu = uu
                     bv = vv
+            # A near map (finite radius) lists only the triangles nearer than radius:
+            # its answer stands when it is nearer than that, or when the whole interval
+            # is; otherwise the BVH decides, warm-started with the local hit (nearmap.py).
+            if bt > radius:
+                bt, bid, bslot, bu, bv = trace_closest(
+                    nodes, links, tris, ids, ox, oy, oz, dx, dy, dz, t0, t1,
+                    bslot if bslot >= 0 else prev, st_node, st_dist, sd, cn, cd)
+                if bslot >= 0:
+                    prev = bslot
         if bslot >= 0:
             out_t[r] = bt
             out_slot[r] = bslot
+            out_tri[r] = bid
             out_u[r] = bu
             out_v[r] = bv
         else:
             out_t[r] = np.inf
             out_slot[r] = -1
+            out_tri[r] = -1
             out_u[r] = 0.0
             out_v[r] = 0.0
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def closest_hit_view(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs,
-                     tmin, tmax, stack_size, block, out_t, out_slot, out_u, out_v):
+def closest_hit_view(start, slots, counts, g, n_faces, rot, rotate, scale, hot, radius,
+                     nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, block,
+                     out_t, out_slot, out_tri, out_u, out_v):
     """Closest hit for n rays from the single origin org (1, 3) (local frame) using the
-    cube map, falling back to the BVH for rays in hot cells. Same outputs as
-    ``traverse.closest_hit``."""
+    cube map, falling back to the BVH for rays in hot cells, and, for a near map
+    (``radius`` finite: the map lists only the triangles nearer than that), for rays
+    whose answer may lie farther. Same outputs as ``traverse.closest_hit``."""
     n = dirs.shape[0]
     n_blocks = (n + block - 1) // block
     for b in prange(n_blocks):
-        _view_block(start, slots, counts, g, hot, nodes, links, tris, ids, org, dirs, tmin,
-                    tmax, stack_size, b * block, min(n, (b + 1) * block), out_t, out_slot,
+        _view_block(start, slots, counts, g, n_faces, rot, rotate, scale, hot, radius,
+                    nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size,
+                    b * block, min(n, (b + 1) * block), out_t, out_slot, out_tri,
                     out_u, out_v)

@@ -1,5 +1,6 @@
 """Per-ray passes at the public boundary, fused and parallel: checking and normalising
-directions, checking origins, and mapping hit slots to input triangle indices.
+directions, checking origins. (Hit slots are mapped to input triangle indices inside
+the casting kernels.)
 
 Each replaces a chain of NumPy passes (``isfinite``/``all``, ``einsum``, a division, a
 ``where``) that together cost about as much as casting the rays through a cube map
@@ -43,10 +44,3 @@ def count_nonfinite(a):
             bad += 1
     return bad
 
-
-@njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
-def input_triangles(slots, ids, out):
-    """out[i] = ids[slots[i]], or -1 where slots[i] < 0 (a miss); (n,) int64."""
-    for i in prange(slots.shape[0]):
-        s = slots[i]
-        out[i] = ids[s] if s >= 0 else -1

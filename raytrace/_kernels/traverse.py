@@ -167,7 +167,7 @@ def trace_closest(nodes, links, tris, ids, ox, oy, oz, dx, dy, dz, t0, t1, prev,
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
 def _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, order,
-                   r0, r1, out_t, out_slot, out_u, out_v):
+                   r0, r1, out_t, out_slot, out_tri, out_u, out_v):
     """Rays order[r0:r1] of ``closest_hit`` (or rays r0..r1 when ``order`` is empty),
     sequentially, with the warm start.
 
@@ -191,32 +191,37 @@ def _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, o
         if bslot >= 0:
             out_t[r] = bt
             out_slot[r] = bslot
+            out_tri[r] = bid
             out_u[r] = bu
             out_v[r] = bv
             prev = bslot
         else:
             out_t[r] = np.inf
             out_slot[r] = -1
+            out_tri[r] = -1
             out_u[r] = 0.0
             out_v[r] = 0.0
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
 def closest_hit(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, order,
-                out_t, out_slot, out_u, out_v):
+                out_t, out_slot, out_tri, out_u, out_v):
     """Closest hit for n rays.
 
     org : (n_o, 3) float64, n_o in {1, n}; dirs : (n, 3) float64 unit vectors;
     tmin, tmax : (n_t,) float64, n_t in {1, n}; order : (n,) int64 processing order
     (see ``order.py``) or empty for 0..n-1. Writes out_t (inf on miss), out_slot
-    (-1 on miss), out_u, out_v (0 on miss), each at the ray's own index.
+    (-1 on miss), out_tri (the input triangle ``ids[slot]``, -1 on miss), out_u, out_v
+    (0 on miss), each at the ray's own index. DECISION: the input index is written here,
+    not mapped from the slots by a separate parallel pass: on this loaded 2-core VM
+    every parallel region costs milliseconds of waiting for the worker thread.
     """
     n = dirs.shape[0]
     n_blocks = (n + RAY_BLOCK - 1) // RAY_BLOCK
     for b in prange(n_blocks):
         _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, order,
                        b * RAY_BLOCK, min(n, (b + 1) * RAY_BLOCK),
-                       out_t, out_slot, out_u, out_v)
+                       out_t, out_slot, out_tri, out_u, out_v)
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
