@@ -58,11 +58,16 @@ class Material:
         Surface temperature (kelvin).
     emissivity : float
         Emissivity in the long-wave infrared (8-14 um), 0-1.
+    retroreflective : bool
+        Retro-reflective sheeting on top of the diffuse albedo: the surface returns
+        the light of a lamp towards it with ``sensors.shading.RETRO_RA_WHITE``'s
+        coefficient of retroreflection (``sensors.shading.luminance``).
     """
 
     albedo_rgb: tuple[float, float, float]
     temperature_k: float
     emissivity: float
+    retroreflective: bool = False
 
     def __post_init__(self) -> None:
         a = self.albedo_rgb
@@ -72,6 +77,9 @@ class Material:
             raise SimulationError(f"Expected a temperature > 0 K, got {self.temperature_k}.")
         if not 0.0 <= self.emissivity <= 1.0:
             raise SimulationError(f"Expected an emissivity in [0, 1], got {self.emissivity}.")
+        if not isinstance(self.retroreflective, bool):
+            raise SimulationError(f"Expected retroreflective as true or false, got "
+                                  f"{self.retroreflective!r}.")
 
 
 #: Rock temperature of a shallow tunnel: the mean annual surface temperature (about
@@ -90,9 +98,14 @@ ROCK_K: Final = 286.15
 #: wet surface about half as bright as dry (Lekner & Dorf 1988, "Why some things are
 #: darker when wet", Appl. Opt. 27(7)); black polymer cable sheaths ~0.05 (carbon
 #: black; ASSUMED); galvanised steel bolt plates ~0.5 (ASSUMED, a metal taken as
-#: diffuse); prisms 0.9 stands in for a retro-reflector (ASSUMED: the shading is
-#: Lambertian, the retro-reflective gain towards a lamp beside the camera is not
-#: modelled). Floor (ballast, dirt) a little darker and browner than the lining
+#: diffuse). Prisms are retro-reflective (``Material.retroreflective``, as a sign's
+#: sheeting would be: the light a lamp beside the camera sends back,
+#: ``sensors.shading.RETRO_RA_WHITE``, white high-intensity sheeting, ASTM D4956
+#: Type III) on a diffuse albedo of 0.27, white
+#: sheeting's daytime luminance factor (ASTM D4956's minimum Y for white, 27 %;
+#: ASSUMED, not found in a source here). A monitoring prism is glass cube corners in a
+#: housing: taken as that sheeting (ASSUMED; a glass prism returns more light in a
+#: narrower cone). Floor (ballast, dirt) a little darker and browner than the lining
 #: (ASSUMED).
 #:
 #: Temperature: rock and lining at ``ROCK_K``; wet surfaces 1 K cooler (evaporation;
@@ -112,7 +125,7 @@ MATERIALS: Final[Mapping[str, Material]] = {
     "niche": Material((0.31, 0.30, 0.28), ROCK_K + 2.0, 0.94),
     "cable": Material((0.05, 0.05, 0.05), 298.15, 0.92),
     "bolt": Material((0.50, 0.50, 0.52), ROCK_K, 0.28),
-    "prism": Material((0.90, 0.90, 0.90), ROCK_K, 0.92),
+    "prism": Material((0.27, 0.27, 0.27), ROCK_K, 0.92, retroreflective=True),
     "end_cap": Material((0.31, 0.30, 0.28), ROCK_K, 0.93),
 }
 
@@ -162,11 +175,15 @@ class PixelAppearance:
         Linear RGB albedo.
     temperature_k : (h, w) float64
     emissivity : (h, w) float64
+    retroreflective : (h, w) bool or None
+        The pixel's surface is retro-reflective (False on a miss); None: no surface
+        of the mesh is.
     """
 
     albedo: NDArray[np.float64]
     temperature_k: NDArray[np.float64]
     emissivity: NDArray[np.float64]
+    retroreflective: NDArray[np.bool_] | None = None
 
 
 @dataclass(frozen=True)
@@ -186,6 +203,9 @@ class Appearance:
     source : dict of str to str
         For "albedo", "temperature" and "emissivity": "vertex" (the file's vertex
         properties), "label" (the face labels and ``MATERIALS``) or "default".
+    retroreflective : Attribute or None
+        (m,) per face, 1.0 where the face's material is retro-reflective; None when
+        no face's is.
     """
 
     albedo: Attribute
@@ -193,12 +213,16 @@ class Appearance:
     emissivity: Attribute
     faces: NDArray[np.int64]
     source: dict[str, str] = field(default_factory=dict)
+    retroreflective: Attribute | None = None
 
     def at(self, frame: Frame) -> PixelAppearance:
         """The appearance at each pixel of ``frame`` rendered from this mesh."""
+        retro = None
+        if self.retroreflective is not None:
+            retro = self.retroreflective.at(frame, self.faces) > 0.5   # NaN (miss): False
         return PixelAppearance(self.albedo.at(frame, self.faces),
                                self.temperature_k.at(frame, self.faces),
-                               self.emissivity.at(frame, self.faces))
+                               self.emissivity.at(frame, self.faces), retro)
 
 
 def _vertex_colour(fields: Mapping[str, np.ndarray]) -> NDArray[np.float64] | None:
@@ -282,8 +306,17 @@ def mesh_appearance(mesh: MeshData, label_names: Sequence[str] | None = None,
             attrs[what] = Attribute(x, "vertex")
         else:
             attrs[what] = from_table(what)
+    retro = None
+    flags = np.array([float(m.retroreflective) for m in per_face])[idx] \
+        if per_face is not None else np.full(nf, float(default.retroreflective))
+    if flags.any():
+        # DECISION: a face label's material decides, also under vertex colours (a
+        # scan's colour is the sheeting's diffuse look; its retro-reflection stays).
+        # None when no face is retro-reflective: the shading is then the Lambertian
+        # one, bit for bit.
+        retro = Attribute(flags, "face")
     return Appearance(albedo, attrs["temperature"], attrs["emissivity"],
-                      np.asarray(mesh.faces, dtype=np.int64), source)
+                      np.asarray(mesh.faces, dtype=np.int64), source, retro)
 
 
 _ATTR = {"albedo": "albedo_rgb", "temperature": "temperature_k",

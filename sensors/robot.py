@@ -11,10 +11,16 @@ x forward, y left, z up):
   lever arm and boresight from ``mast_link``;
 - ``imu_link``: the platform file's ``[mounts]`` (on the base), else the platform frame;
 - a wheeled base's four wheels (``continuous`` joints about y, at +-wheelbase/2,
-  +-track/2 and the wheel radius above the contact plane).
+  +-track/2 and the wheel radius above the contact plane);
+- the cameras a drive carries (``cameras``, issue 35): each camera's body frame (its
+  driver's, e.g. ``camera_link``; ``CameraLink.link``) fixed in base_link by the
+  camera's mount, and its optical frame (``*_optical_frame``: z forward, x right, y
+  down) fixed in that by REP 103's rotation, rpy (-pi/2, 0, -pi/2). The colour and
+  depth streams of one device share its body frame, each with its own optical frame.
 
 From it: ``urdf()`` (a xacro-free URDF, fixed joints for the mounts), the transforms the
-bag's ``/tf_static`` states (``base_to_sensor``, ``base_to_imu``: the same numbers), the
+bag's ``/tf_static`` states (``base_to_sensor``, ``base_to_imu``, ``base_to_camera``:
+the same numbers), the
 base_link trajectory of a drive (``base_trajectory``) and a ROS 2 Python launch file
 that starts ``robot_state_publisher`` with the URDF (``launch_file``).
 
@@ -33,7 +39,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Final
+from typing import TYPE_CHECKING, Final
 from xml.sax.saxutils import quoteattr
 
 import numpy as np
@@ -44,8 +50,11 @@ from .errors import PlatformError
 from .platform_spec import PlatformSpec
 from .trajectory import Mount, Trajectory
 
-__all__ = ["BASE_FRAME", "IMU_FRAME", "MAST_FRAME", "RobotDescription", "launch_file",
-           "rpy_of"]
+if TYPE_CHECKING:
+    from .camera import CameraSpec
+
+__all__ = ["BASE_FRAME", "IMU_FRAME", "MAST_FRAME", "OPTICAL_RPY", "CameraLink",
+           "RobotDescription", "camera_link", "launch_file", "rpy_of"]
 
 BASE_FRAME: Final = "base_link"
 MAST_FRAME: Final = "mast_link"
@@ -54,6 +63,50 @@ _WHEELS: Final = (("front_left", 1, 1), ("front_right", 1, -1), ("rear_left", -1
                   ("rear_right", -1, -1))
 #: Body drawn in the URDF when the platform gives no footprint (m); a picture only.
 _BODY_M: Final = (0.3, 0.2)
+#: A camera's body frame -> its optical frame (REP 103: z forward, x right, y down),
+#: as URDF rpy (rad): the rotation whose columns are the optical axes in the body
+#: frame, x_opt = -y, y_opt = -z, z_opt = x (``sensors.camera_drive.LINK_FROM_OPTICAL``;
+#: the realsense-ros and image_pipeline URDFs write the same joint).
+OPTICAL_RPY: Final = (-math.pi / 2, 0.0, -math.pi / 2)
+
+
+@dataclass(frozen=True)
+class CameraLink:
+    """One camera on the robot: its frames in the URDF and on ``/tf_static``.
+
+    Attributes
+    ----------
+    link : str
+        The camera's body frame (x forward, y left, z up; ``camera_link`` for a
+        RealSense, ``NAME_link`` otherwise: ``sensors.bag.camera_topics``).
+    optical_frame : str
+        Its optical frame (the images' ``frame_id``).
+    mount : Mount
+        base_link -> ``link``: lever arm (m) and rotation (``--camera-mount``).
+    """
+
+    link: str
+    optical_frame: str
+    mount: Mount = field(default_factory=Mount)
+
+    def __post_init__(self) -> None:
+        for key in ("link", "optical_frame"):
+            v = getattr(self, key)
+            if not isinstance(v, str) or not v or any(c.isspace() for c in v):
+                raise PlatformError(f"Expected `CameraLink.{key}` to be a frame name "
+                                    f"without spaces, got {v!r}.")
+        if self.link == self.optical_frame:
+            raise PlatformError(f"Expected a camera's optical frame to differ from its "
+                                f"body frame, got {self.link!r} for both.")
+
+
+def camera_link(cam: CameraSpec, mount: Mount) -> CameraLink:
+    """The frames of ``cam`` (its driver's names, ``sensors.bag.camera_topics``) with
+    its body frame on ``mount`` (base_link -> body frame)."""
+    from .bag import camera_topics
+
+    tp = camera_topics(cam)
+    return CameraLink(tp.link, tp.frame_id, mount)
 
 
 @dataclass(frozen=True)
@@ -79,6 +132,9 @@ class RobotDescription:
         A wheeled base's wheels (0: none).
     footprint_m : (float, float)
         Length and width of the body drawn (m).
+    cameras : tuple of CameraLink
+        The cameras carried (a drive's ``--camera``, ``gazebo --camera``); two
+        streams of one device name the same body frame on the same mount.
     """
 
     name: str
@@ -91,6 +147,7 @@ class RobotDescription:
     track_m: float = 0.0
     wheel_radius_m: float = 0.0
     footprint_m: tuple[float, float] = _BODY_M
+    cameras: tuple[CameraLink, ...] = ()
 
     def __post_init__(self) -> None:
         for key in ("mast_height_m", "wheelbase_m", "track_m", "wheel_radius_m"):
@@ -106,6 +163,30 @@ class RobotDescription:
         if self.sensor_frame in (BASE_FRAME, MAST_FRAME, IMU_FRAME):
             raise PlatformError(f"Expected a sensor frame other than {BASE_FRAME}, "
                                 f"{MAST_FRAME} and {IMU_FRAME}, got {self.sensor_frame!r}.")
+        object.__setattr__(self, "cameras", tuple(self.cameras))
+        taken = {BASE_FRAME, MAST_FRAME, IMU_FRAME, self.sensor_frame,
+                 *(f"{w}_wheel" for w, _, _ in _WHEELS)}
+        links: dict[str, Mount] = {}
+        optical: set[str] = set()
+        for c in self.cameras:
+            if not isinstance(c, CameraLink):
+                raise PlatformError(f"Expected `RobotDescription.cameras` to hold "
+                                    f"CameraLink, got {type(c).__name__}.")
+            for name in (c.link, c.optical_frame):
+                if name in taken:
+                    raise PlatformError(f"Expected camera frames other than the robot's "
+                                        f"own ({', '.join(sorted(taken))}), got {name!r}.")
+            if c.optical_frame in optical or c.optical_frame in links:
+                raise PlatformError(f"Expected each camera's optical frame once, got "
+                                    f"{c.optical_frame!r} twice; pass each --camera once.")
+            if c.link in optical:
+                raise PlatformError(f"Expected {c.link!r} as a body frame or an optical "
+                                    "frame, got it as both.")
+            seen = links.setdefault(c.link, c.mount)
+            if seen is not c.mount and not _same_mount(seen, c.mount):
+                raise PlatformError(f"Expected one place for the camera frame {c.link!r} "
+                                    "(the streams of one device share it), got two mounts.")
+            optical.add(c.optical_frame)
 
     # ------------------------------------------------------------------ building
     @classmethod
@@ -158,6 +239,30 @@ class RobotDescription:
         xyz, rot = self.base_to_imu()
         return Mount(tuple(xyz.tolist()), rot)
 
+    def base_to_camera(self, frame: str) -> tuple[NDArray[np.float64], Rotation]:
+        """A camera frame (a ``CameraLink``'s body or optical frame) in base_link:
+        origin (3,) float64 (m) and the rotation base_link axes -> its axes.
+
+        Raises
+        ------
+        PlatformError
+            ``frame`` is no camera frame of this robot.
+        """
+        for c in self.cameras:
+            if frame == c.link:
+                return np.asarray(c.mount.lever_arm_m, dtype=np.float64), c.mount.boresight
+            if frame == c.optical_frame:
+                return (np.asarray(c.mount.lever_arm_m, dtype=np.float64),
+                        c.mount.boresight * Rotation.from_euler("xyz", OPTICAL_RPY))
+        known = ", ".join(self.camera_frames()) or "none"
+        raise PlatformError(f"Expected a camera frame of the robot ({known}), got "
+                            f"{frame!r}.")
+
+    def camera_frames(self) -> tuple[str, ...]:
+        """The camera frames, body frames first, each once, in the cameras' order."""
+        links = dict.fromkeys(c.link for c in self.cameras)
+        return (*links, *(c.optical_frame for c in self.cameras))
+
     def base_trajectory(self, platform: Trajectory) -> Trajectory:
         """base_link's poses from the platform frame's (``mast_link``; a drive's
         trajectory): each moved ``mast_height_m`` down its own z, the attitudes kept."""
@@ -168,7 +273,8 @@ class RobotDescription:
     # ------------------------------------------------------------------ URDF
     def urdf(self) -> str:
         """The robot as a xacro-free URDF (text): links base_link, mast_link, the
-        sensor frame, imu_link and the wheels; fixed joints for the mounts."""
+        sensor frame, imu_link, the wheels and the cameras' frames; fixed joints for
+        the mounts (a camera: base_link -> body frame, body frame -> optical frame)."""
         length, width = self.footprint_m
         body_h = max(min(self.mast_height_m, 0.25), 0.02)
         lines = ['<?xml version="1.0"?>',
@@ -193,6 +299,19 @@ class RobotDescription:
                                     np.array([fx * 0.5 * self.wheelbase_m,
                                               fy * 0.5 * self.track_m, r]),
                                     Rotation.identity(), kind="continuous"))
+        done: set[str] = set()
+        for c in self.cameras:
+            if c.link not in done:
+                done.add(c.link)
+                lines.append(_link(c.link))
+                lines.append(_joint(f"{c.link}_joint", BASE_FRAME, c.link,
+                                    np.asarray(c.mount.lever_arm_m), c.mount.boresight))
+            lines.append(_link(c.optical_frame))
+            # DECISION: the optical joint's rpy is written as REP 103 states it
+            # (OPTICAL_RPY), not re-derived from a rotation matrix, so that the text is
+            # the one every ROS camera URDF carries.
+            lines.append(_joint(f"{c.optical_frame}_joint", c.link, c.optical_frame,
+                                np.zeros(3), rpy=OPTICAL_RPY))
         lines.append("</robot>")
         return "\n".join(lines) + "\n"
 
@@ -252,9 +371,14 @@ def rpy_of(rot: Rotation) -> NDArray[np.float64]:
         return rot.as_euler("xyz")
 
 
-def _origin(xyz: NDArray[np.float64], rot: Rotation) -> str:
-    rpy = rpy_of(rot)
-    return f'<origin xyz="{_fmt(xyz)}" rpy="{_fmt(rpy)}"/>'
+def _origin(xyz: NDArray[np.float64], rot: Rotation | None,
+            rpy: tuple[float, float, float] | None = None) -> str:
+    if rpy is None:
+        assert rot is not None
+        angles: NDArray[np.float64] | tuple[float, ...] = rpy_of(rot)
+    else:
+        angles = rpy
+    return f'<origin xyz="{_fmt(xyz)}" rpy="{_fmt(angles)}"/>'
 
 
 def _link(name: str, visual: str = "") -> str:
@@ -274,12 +398,20 @@ def _cylinder(radius: float, length: float) -> str:
             f'<cylinder radius="{radius:.15g}" length="{length:.15g}"/></geometry>')
 
 
-def _joint(name: str, parent: str, child: str, xyz: NDArray[np.float64], rot: Rotation,
-           kind: str = "fixed") -> str:
+def _same_mount(a: Mount, b: Mount) -> bool:
+    return bool(np.array_equal(np.asarray(a.lever_arm_m), np.asarray(b.lever_arm_m))
+                and np.allclose(a.boresight.as_matrix(), b.boresight.as_matrix(),
+                                rtol=0.0, atol=1e-12))
+
+
+def _joint(name: str, parent: str, child: str, xyz: NDArray[np.float64],
+           rot: Rotation | None = None, kind: str = "fixed", *,
+           rpy: tuple[float, float, float] | None = None) -> str:
     axis = '\n    <axis xyz="0 1 0"/>' if kind == "continuous" else ""
     return (f"  <joint name={quoteattr(name)} type={quoteattr(kind)}>\n"
             f"    <parent link={quoteattr(parent)}/>\n    <child link={quoteattr(child)}/>"
-            f"\n    {_origin(np.asarray(xyz, dtype=np.float64), rot)}{axis}\n  </joint>")
+            f"\n    {_origin(np.asarray(xyz, dtype=np.float64), rot, rpy)}{axis}"
+            "\n  </joint>")
 
 
 def _write(path: Path, text: str) -> Path:

@@ -1,7 +1,7 @@
-"""What a camera sees in a tunnel without daylight: Lambertian surfaces lit by the
-platform's own lamps (with a shadow ray per lamp), the exposure that turns radiance
-into electrons and digital values with shot and read noise, and a thermal camera's
-apparent temperature.
+"""What a camera sees in a tunnel without daylight: Lambertian surfaces, and
+retro-reflectors, lit by the platform's own lamps (with a shadow ray per lamp), the
+exposure that turns radiance into electrons and digital values with shot and read
+noise, and a thermal camera's apparent temperature.
 
 Radiometry (photometric units: a lamp's intensity in candela, illuminance in lux,
 luminance in cd/m^2; each colour channel scaled by the surface's albedo):
@@ -13,6 +13,17 @@ luminance in cd/m^2; each colour channel scaled by the surface's albedo):
   emitter: ``beam_width`` and ``cutoff_angle``, the same ramp), 1 everywhere for a
   point lamp; 0 if a shadow ray from the point meets the mesh before the lamp.
 - A Lambertian surface of albedo ``rho`` has luminance ``L = rho E / pi``.
+- A retro-reflective surface (a ``sensors.appearance.Material`` flagged
+  ``retroreflective``: prisms, signs) adds the light it returns towards the lamp:
+  ``L_retro = R_A(alpha, beta) E_perp / cos(v)`` in every channel (white sheeting),
+  with ``E_perp = I f(alpha_lamp) / d^2`` the illuminance on a plane perpendicular to
+  the incident light, ``alpha`` the observation angle (lamp - surface - camera),
+  ``beta`` the entrance angle (incident light to the surface normal) and ``v`` the
+  viewing angle (camera to the normal). CIE 54.2 (2001) and the CIE ILV (17-24-103,
+  17-24-104): ``R_A = R / A`` with ``R = I_r / E_perp`` and ``R_L = L / E_perp``; a
+  plane's luminance is its intensity over its projected area, ``L = I_r / (A cos v)``,
+  so ``R_L = R_A / cos v`` (``L = R_A E_perp`` facing the camera). ``R_A`` comes from
+  ``RETRO_RA_WHITE`` (``retro_coefficient``).
 - Lamps: ``headlamp`` (a spot beside the camera) and ``platform_lamps`` (a platform
   file's ``[[lamps]]`` placed with its base_link's pose).
 - Anti-aliasing (``radiance_frame``): the luminance of a k x k grid of stratified rays
@@ -36,7 +47,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Final, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -55,14 +66,62 @@ class _Surfaces(Protocol):
 
     def at(self, frame: Frame) -> Any: ...
 
-__all__ = ["Lamp", "K_V", "apparent_temperature", "expose", "headlamp", "luminance",
-           "platform_lamps", "radiance_frame", "srgb_decode", "srgb_encode",
-           "stratified_offsets", "thermal_frame"]
+__all__ = ["Lamp", "K_V", "RETRO_ENTRANCE_DEG", "RETRO_ENTRANCE_ZERO_DEG",
+           "RETRO_OBSERVATION_DEG", "RETRO_RA_WHITE", "apparent_temperature", "expose",
+           "headlamp", "luminance", "platform_lamps", "radiance_frame",
+           "retro_coefficient", "srgb_decode", "srgb_encode", "stratified_offsets",
+           "thermal_frame"]
 
 #: Photons per lux second per square metre at 555 nm (683 lm/W; Holst & Lomheim ch. 2).
 K_V = 4.1e15
 #: Offset along the normal for shadow rays (metres): above the float64 surface noise.
 SHADOW_EPS_M = 1e-6
+
+#: Retro-reflection of white retro-reflective sheeting: the coefficient of
+#: retroreflection R_A (cd lx^-1 m^-2; CIE 54.2) at the observation angles
+#: ``RETRO_OBSERVATION_DEG`` (rows) and the entrance angles ``RETRO_ENTRANCE_DEG``
+#: (columns). Sourced: ASTM D4956 (2001 edition, as tabulated on
+#: angelfire.com/trek/cityton/american.htm) Type III (high-intensity) white:
+#: 0.1 deg: 300 (-4 deg entrance), 180 (+30 deg); 0.2 deg: 250, 150; 0.5 deg: 95 at -4
+#: deg. ASSUMED: 65 at 0.5 deg / +30 deg (the same table's value as usually quoted;
+#: the source's excerpt stops before it); 5 and 2.5 at 2 deg (EN 12899-1 class RA2
+#: white's 2 deg row, not found in a source here); 0 at 4 deg (the return is a narrow
+#: cone; beyond the tables' 2 deg it is taken to vanish linearly). Types I and II white
+#: (0.2 deg, -4 deg: 70 and 140) are 3.6 and 1.8 times dimmer.
+RETRO_OBSERVATION_DEG: Final = (0.1, 0.2, 0.5, 2.0, 4.0)
+RETRO_ENTRANCE_DEG: Final = (4.0, 30.0)
+RETRO_RA_WHITE: Final = ((300.0, 180.0), (250.0, 150.0), (95.0, 65.0), (5.0, 2.5),
+                         (0.0, 0.0))
+#: R_A falls linearly in the entrance angle from the +30 deg column to 0 here (ASSUMED:
+#: microprismatic sheeting's entrance angularity ends near 60 deg).
+RETRO_ENTRANCE_ZERO_DEG: Final = 60.0
+
+
+def retro_coefficient(observation_rad: ArrayLike, entrance_rad: ArrayLike
+                      ) -> NDArray[np.float64]:
+    """The coefficient of retroreflection R_A (cd lx^-1 m^-2) of ``RETRO_RA_WHITE`` at
+    observation angles ``observation_rad`` (lamp - surface - camera) and entrance
+    angles ``entrance_rad`` (incident light to the surface normal), broadcast.
+
+    Linear in the observation angle between the table's rows (held below 0.1 deg, 0
+    from 4 deg), then linear in the entrance angle between the columns (held below 4
+    deg), falling linearly to 0 at ``RETRO_ENTRANCE_ZERO_DEG`` beyond 30 deg. The sign
+    of the entrance angle is ignored (the table's -4 deg stands for near-normal light).
+
+    >>> import numpy as np
+    >>> retro_coefficient(np.radians([0.2, 0.35]), np.radians([4.0, 4.0])).tolist()
+    [250.0, 172.5]
+    """
+    a = np.degrees(np.abs(np.asarray(observation_rad, dtype=np.float64)))
+    b = np.degrees(np.abs(np.asarray(entrance_rad, dtype=np.float64)))
+    obs = np.asarray(RETRO_OBSERVATION_DEG)
+    ra = np.asarray(RETRO_RA_WHITE)
+    near = np.interp(a, obs, ra[:, 0], right=0.0)
+    far = np.interp(a, obs, ra[:, 1], right=0.0)
+    b0, b1 = RETRO_ENTRANCE_DEG
+    t = np.clip((b - b0) / (b1 - b0), 0.0, 1.0)
+    fade = np.clip((RETRO_ENTRANCE_ZERO_DEG - b) / (RETRO_ENTRANCE_ZERO_DEG - b1), 0.0, 1.0)
+    return np.asarray((near + t * (far - near)) * fade, dtype=np.float64)
 
 
 @dataclass(frozen=True)
@@ -192,12 +251,26 @@ def platform_lamps(platform: PlatformSpec, world_from_base: ArrayLike) -> list[L
     return out
 
 
-def luminance(scene: Scene, frame: Frame, lamps: Sequence[Lamp],
-              albedo: NDArray[np.float64]) -> NDArray[np.float64]:
-    """(h, w, c) float64 luminance (cd/m^2) of each pixel's surface point: Lambertian,
-    lit by ``lamps`` with a shadow ray each; 0 on a miss.
+def _camera_centres(frame: Frame) -> NDArray[np.float64]:
+    """(h, w, 3) optical centre each pixel's ray starts from (its row's pose for a
+    rolling shutter)."""
+    h, w = frame.hit.shape
+    if frame.row_poses is not None:
+        return np.broadcast_to(frame.row_poses[:, None, :3, 3], (h, w, 3))
+    return np.broadcast_to(frame.world_from_camera[:3, 3], (h, w, 3))
 
-    ``albedo`` is (h, w, c) (per pixel, e.g. interpolated vertex colours) or (c,)."""
+
+def luminance(scene: Scene, frame: Frame, lamps: Sequence[Lamp],
+              albedo: NDArray[np.float64],
+              retroreflective: NDArray[np.bool_] | None = None) -> NDArray[np.float64]:
+    """(h, w, c) float64 luminance (cd/m^2) of each pixel's surface point: Lambertian,
+    lit by ``lamps`` with a shadow ray each, plus the retro-reflected luminance
+    ``R_A E_perp / cos v`` (module notes) where ``retroreflective``; 0 on a miss.
+
+    ``albedo`` is (h, w, c) (per pixel, e.g. interpolated vertex colours) or (c,);
+    ``retroreflective`` (h, w) bool, or None for none. The retro-reflected light is
+    white (added to every channel); it needs the same shadow ray (the light has to
+    reach the surface) and returns along the camera's own ray."""
     h, w = frame.hit.shape
     alb = np.broadcast_to(np.asarray(albedo, dtype=np.float64),
                           (h, w, np.asarray(albedo).shape[-1]))
@@ -207,6 +280,15 @@ def luminance(scene: Scene, frame: Frame, lamps: Sequence[Lamp],
         return np.zeros(alb.shape)
     p = frame.points.reshape(-1, 3)[idx]
     n = frame.normal.reshape(-1, 3)[idx]
+    retro = None
+    if retroreflective is not None:
+        r = np.flatnonzero(np.asarray(retroreflective, dtype=bool).reshape(-1)[idx])
+        if r.size:
+            retro = r
+            to_cam = _camera_centres(frame).reshape(-1, 3)[idx[r]] - p[r]
+            to_cam /= np.linalg.norm(to_cam, axis=1)[:, None]
+            cos_v = np.einsum("ij,ij->i", n[r], to_cam)
+            L_retro = np.zeros(r.size)
     for lamp in lamps:
         to_lamp = lamp.position - p
         d = np.linalg.norm(to_lamp, axis=1)
@@ -224,7 +306,22 @@ def luminance(scene: Scene, frame: Frame, lamps: Sequence[Lamp],
                                      t_max=np.maximum(d[check] - 2 * SHADOW_EPS_M, 0.0))
             e[check[blocked]] = 0.0
         E.ravel()[idx] += e
-    return alb * (E / math.pi)[:, :, None]
+        if retro is not None:
+            # CIE 54.2: L = R_A(alpha, beta) E_perp / cos v, where the lamp's light
+            # reaches the surface (e > 0: in the beam, in front, not shadowed).
+            ok = e[retro] > 0
+            k = retro[ok]
+            e_perp = lamp.intensity_cd * lamp.profile(cos_a[k]) / (d[k] * d[k])
+            alpha = np.arccos(np.clip(np.einsum("ij,ij->i", ell[k], to_cam[ok]),
+                                      -1.0, 1.0))
+            beta = np.arccos(np.clip(cos_i[k], -1.0, 1.0))
+            L_retro[ok] += retro_coefficient(alpha, beta) * e_perp / cos_v[ok]
+    out = alb * (E / math.pi)[:, :, None]
+    if retro is not None:
+        extra = np.zeros(h * w)
+        extra[idx[retro]] = L_retro
+        out = out + extra.reshape(h, w)[:, :, None]
+    return out
 
 
 def stratified_offsets(samples_per_pixel: int) -> NDArray[np.float64]:
@@ -265,8 +362,8 @@ def radiance_frame(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike,
         As ``sensors.render.render_depth`` (per-row poses for a rolling shutter).
     lamps : sequence of Lamp
     appearance : sensors.appearance.Appearance or (c,) array_like of float
-        The mesh's appearance (albedo looked up at every sample's hit) or one albedo
-        for the whole mesh.
+        The mesh's appearance (albedo and the retro-reflective flag looked up at every
+        sample's hit) or one albedo for the whole mesh (no retro-reflection).
     samples_per_pixel : int
         A square number (``stratified_offsets``); 1: one ray through the pixel centre.
 
@@ -278,7 +375,7 @@ def radiance_frame(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike,
     luminance : (h, w, c) float64
         cd/m^2, the mean over the samples of ``luminance`` (linear radiance, averaged
         before the exposure); a sample that misses the mesh adds 0. With one sample it
-        is ``luminance(scene, frame, lamps, albedo)`` exactly.
+        is ``luminance(scene, frame, lamps, albedo, retroreflective)`` exactly.
 
     Raises
     ------
@@ -288,14 +385,16 @@ def radiance_frame(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike,
     """
     offsets = stratified_offsets(samples_per_pixel)
 
-    def albedo_at(fr: Frame) -> NDArray[np.float64]:
+    def shade(fr: Frame) -> NDArray[np.float64]:
         if hasattr(appearance, "at"):
-            return np.nan_to_num(appearance.at(fr).albedo, nan=0.0)
-        return np.asarray(appearance, dtype=np.float64)
+            px = appearance.at(fr)
+            return luminance(scene, fr, lamps, np.nan_to_num(px.albedo, nan=0.0),
+                             getattr(px, "retroreflective", None))
+        return luminance(scene, fr, lamps, np.asarray(appearance, dtype=np.float64))
 
     centre = render_depth(scene, cam, world_from_camera)
     if len(offsets) == 1:
-        return centre, luminance(scene, centre, lamps, albedo_at(centre))
+        return centre, shade(centre)
     total: NDArray[np.float64] | None = None
     for dx, dy in offsets:
         # DECISION: each sample is a whole frame through render_depth's offset lens
@@ -303,7 +402,7 @@ def radiance_frame(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike,
         # frame's whatever the count. An odd k's middle stratum is the centre frame.
         fr = centre if dx == 0.0 and dy == 0.0 else \
             render_depth(scene, cam, world_from_camera, pixel_offset=(dx, dy))
-        lum = luminance(scene, fr, lamps, albedo_at(fr))
+        lum = shade(fr)
         total = lum if total is None else total + lum
     assert total is not None
     return centre, total / len(offsets)

@@ -12,7 +12,8 @@ Ignition Gazebo Fortress: a world folder that loads as is and talks to ROS 2.
       models/tunnel/meshes/tunnel_collision.stl  collision mesh (decimated when large)
       README.txt                     how to run it, and what SDF cannot express
       robot.urdf, robot.launch.py    the robot (``sensors.robot``, the drive's
-                                     ground_robot): base_link -> sensor / imu_link, and
+                                     ground_robot): base_link -> sensor / imu_link
+                                     (/ the camera's link -> optical frame), and
                                      robot_state_publisher (ROS 2 Python launch file)
 
 The robot is the ground_robot platform's description (issue 30): the model's origin is
@@ -51,7 +52,8 @@ along that route.
 With a camera (``camera``, ``tunnelsim gazebo --camera``): its sensor on the chassis
 where a drive's camera sits by default (``sensors.camera_drive.default_camera_mount``:
 10 cm below the lidar's origin, level, looking ahead), its optical frame as a model
-``<frame>``, its image and CameraInfo in bridge.yaml, and the ground_robot platform's
+``<frame>`` (and both frames in robot.urdf, the drive's names: ``sensors.robot.
+camera_link``), its image and CameraInfo in bridge.yaml, and the ground_robot platform's
 ``[[lamps]]`` as spot lights on the chassis (``gazebo_sdf.camera_sdf``,
 ``lamp_light_sdf``). DECISION: the lamps come with the camera only: the lidar needs no
 light, and a world exported before the camera existed stays as it was.
@@ -194,12 +196,20 @@ def _check_output(out: Path, force: bool, mount: str) -> None:
         raise GazeboExportError(f"Expected mount 'level' or 'down', got {mount!r}.")
 
 
-def robot_description(sensor: SensorSpec, mount: str) -> Any:
+def robot_description(sensor: SensorSpec, mount: str, camera: CameraSpec | None = None
+                      ) -> Any:
     """The world's robot (issue 30): the ground_robot platform's description
     (``sensors.robot``; base_link on the ground contact plane, the sensor on its mast,
     the IMU in its body), the sensor level, upside down (``mount`` "down"), or (a
-    profiler) turned to scan the cross-section."""
+    profiler) turned to scan the cross-section; with ``camera``, its body and optical
+    frames where a drive puts a camera by default (module doc), so that robot.urdf
+    holds the frames the camera's images name."""
+    from dataclasses import replace
+
     from scipy.spatial.transform import Rotation
+
+    from sensors.camera_drive import default_camera_mount
+    from sensors.robot import camera_link
 
     from sensors.pointcloud2 import GENERIC_DRIVER
     from sensors.platform_spec import load_platform
@@ -212,8 +222,13 @@ def robot_description(sensor: SensorSpec, mount: str) -> Any:
         m = Mount.pointing_down((0.0, 0.0, 0.0))
     else:
         m = Mount()
-    return RobotDescription.from_platform(load_platform("ground_robot"),
+    desc = RobotDescription.from_platform(load_platform("ground_robot"),
                                           (sensor.driver or GENERIC_DRIVER).frame_id, m)
+    if camera is None:
+        return desc
+    lidar_xyz, _ = desc.base_to_sensor()
+    link = default_camera_mount(Mount(tuple(np.asarray(lidar_xyz).tolist())))
+    return replace(desc, cameras=(camera_link(camera, link),))
 
 
 def _pose_in_chassis(xyz: Floats, rot: Any) -> str:
@@ -230,14 +245,12 @@ def _camera_parts(cam: CameraSpec, desc: Any) -> tuple[str, str, dict[str, Any]]
     from scipy.spatial.transform import Rotation
 
     from sensors.bag import camera_topics
-    from sensors.camera_drive import LINK_FROM_OPTICAL, default_camera_mount
+    from sensors.camera_drive import LINK_FROM_OPTICAL
     from sensors.platform_spec import load_platform
     from sensors.shading import platform_lamps
-    from sensors.trajectory import Mount
 
     topics = camera_topics(cam)
-    lidar_xyz, _ = desc.base_to_sensor()
-    link = default_camera_mount(Mount(tuple(np.asarray(lidar_xyz).tolist())))
+    link = next(c.mount for c in desc.cameras if c.optical_frame == topics.frame_id)
     xyz = np.asarray(link.lever_arm_m, dtype=np.float64)
     sensor_xml, limits = camera_sdf(cam, topic=topics.image,
                                     pose=_pose_in_chassis(xyz, link.boresight))
@@ -254,7 +267,7 @@ def _camera_parts(cam: CameraSpec, desc: Any) -> tuple[str, str, dict[str, Any]]
               for i, (pl, lp) in enumerate(zip(spec.lamps, lamps))]
     facts = {"name": cam.name, "kind": cam.kind, "topic": topics.image,
              "info_topic": topics.info, "optical_frame": topics.frame_id,
-             "camera_link_xyz_m": xyz.tolist(), "lamps": len(lights),
+             "link": topics.link, "camera_link_xyz_m": xyz.tolist(), "lamps": len(lights),
              "limitations": limits}
     return "\n".join([sensor_xml, *lights]), frame_xml, facts
 
@@ -406,7 +419,8 @@ def _readme(fl: Flavour, mesh_name: str, sensor_name: str, out_name: str, org: s
                f"Camera: {camera['name']} ({camera['kind']}) on {ROBOT}::chassis, "
                f"{camera['topic']} and {camera['info_topic']} (bridged); optical frame "
                f"{ROBOT}::{camera['optical_frame']}; {camera['lamps']} headlights on the "
-               "chassis\n") +
+               f"chassis; robot.urdf: base_link -> {camera['link']} -> "
+               f"{camera['optical_frame']}\n") +
             f"Not expressible in SDF:\n{lim_text}\n")
 
 
@@ -454,7 +468,8 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
         warnings, robot_pose (x, y, z in m, local coordinates; yaw in radians),
         route (None, or length_m and min_clearance_m of the route found), laser_retro,
         bridge (the entries of bridge.yaml), run (the launch line), camera (None, or
-        name, kind, topic, info_topic, optical_frame, camera_link_xyz_m, lamps,
+        name, kind, topic, info_topic, optical_frame, link (the camera's body frame in
+        robot.urdf), camera_link_xyz_m, lamps,
         limitations).
 
     Raises
@@ -484,7 +499,7 @@ def export_gazebo(mesh_path: str | Path, sensor: SensorSpec, out_dir: str | Path
     warns = unit_warnings(v)
     for w in warns:
         warnings.warn(w, UserWarning, stacklevel=2)
-    desc = robot_description(sensor, mount)
+    desc = robot_description(sensor, mount, camera)
     sensor_xml, limits = lidar_sdf(sensor, name=sensor.name,
                                    pose=_pose_in_chassis(*desc.base_to_sensor()))
     cam_xml, frame_xml, cam_facts = ("", "", None) if camera is None else \

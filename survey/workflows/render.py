@@ -211,15 +211,18 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
                  samples: int = 1) -> RenderResult:
     """Render one frame of ``camera`` at ``at`` in ``mesh`` and write its files.
 
-    The frame's light: a spot lamp 5 cm above the camera along its axis
-    (``sensors.shading.headlamp``: a 30/45 degree beam, ASSUMED) of ``lamp_cd``,
+    Shaded as a drive's camera frames are (``sensors.camera_drive.frame_image``, the
+    one shading path). The frame's light: a spot lamp 5 cm above the camera along its
+    axis (``sensors.shading.headlamp``: a 30/45 degree beam, ASSUMED) of ``lamp_cd``,
     and, with ``platform``, the platform's lamps (module doc: the camera is its
-    camera mount). Colour cameras get Lambertian shading with a shadow ray per lamp,
-    averaged over ``samples`` rays per pixel (``sensors.shading.radiance_frame``),
-    the exposure's shot and read noise and the sRGB PNG; thermal cameras the
-    apparent temperature of each surface's temperature and emissivity, its band
-    radiance averaged over ``samples`` rays (``sensors.shading.thermal_frame``);
-    every camera the z-depth of the pixel centre. Albedo, temperature and emissivity come from the mesh's vertex
+    camera mount). Colour cameras get Lambertian shading (plus the retro-reflection
+    of retro-reflective materials, ``sensors.shading.luminance``) with a shadow ray
+    per lamp, averaged over ``samples`` rays per pixel
+    (``sensors.shading.radiance_frame``), the exposure's shot and read noise and the
+    sRGB PNG; thermal cameras the apparent temperature of each surface's temperature
+    and emissivity, its band radiance averaged over ``samples`` rays
+    (``sensors.shading.thermal_frame``); every camera the z-depth of the pixel
+    centre. Albedo, temperature and emissivity come from the mesh's vertex
     properties, else its face labels, else grey (``sensors.appearance``).
 
     Parameters
@@ -288,18 +291,18 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
     >>> [p.name for p in r.files], r.hit_fraction > 0.9
     (['depth.png', 'depth.npy', 'thermal.png', 'camera_info.json'], True)
     """
-    from sensors.appearance import ROCK_K, mesh_appearance
+    from sensors.appearance import mesh_appearance
     from sensors.camera import load_camera
+    from sensors.camera_drive import frame_image
     from sensors.camera_io import write_frame
     from sensors.errors import CameraSpecError, SimulationError
     from sensors.io.errors import MeshFileError
     from sensors.io.meshes import read_mesh
     from sensors.errors import PlatformError
     from sensors.platform_spec import load_platform
-    from sensors.render import camera_pose, render_depth
+    from sensors.render import camera_pose
     from sensors.robot import RobotDescription
-    from sensors.shading import (expose, headlamp, platform_lamps, radiance_frame,
-                                 stratified_offsets, thermal_frame)
+    from sensors.shading import headlamp, platform_lamps, stratified_offsets
 
     from raytrace import Scene
 
@@ -354,26 +357,17 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
     if spec is not None:
         mast = RobotDescription.from_platform(spec, "camera").mast_height_m
         lamps += platform_lamps(spec, _world_from_base(p, heading_deg, mast))
-    lum = None
-    thermal = None
-    if cam.kind == "color":
-        frame, lum = radiance_frame(scene, cam, T, lamps, app, n_samples)
-    elif cam.kind == "thermal":
-        frame, thermal = thermal_frame(scene, cam, T, app,
-                                       ROCK_K if ambient_k is None else float(ambient_k),
-                                       n_samples, seed=seed, noise=noise)
-    else:
-        frame = render_depth(scene, cam, T)
+    # One shading path: the frame a drive's camera takes (sensors.camera_drive).
+    frame, rgb, thermal = frame_image(scene, cam, T, app, lamps,
+                                      samples_per_pixel=n_samples, seed=seed, noise=noise,
+                                      ambient_k=ambient_k)
     if not frame.hit.any():
         raise SimulationError(
             f"Expected the camera at --at {','.join(f'{x:g}' for x in p)} to see the "
             f"mesh, got no pixel whose ray meets it (outside the tunnel, or looking out "
             "of an open end); pass --at inside the mesh or another --heading-deg.")
-    rgb = None
     mean_value, saturated = math.nan, 0.0
-    if lum is not None:
-        full = 2.0 ** cam.bit_depth - 1
-        rgb = expose(cam, lum, seed=seed, noise=noise) / full
+    if rgb is not None:
         mean_value, saturated = float(rgb.mean()), float((rgb >= 1.0).mean())
     elif thermal is not None:
         mean_value = float(np.nanmean(thermal))

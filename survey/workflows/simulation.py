@@ -1039,6 +1039,16 @@ def drive_robot(spec: SensorSpec, platform: PlatformSpec | None, mount: Any,
     return RobotDescription.from_platform(platform, frame, mount, height_m=height_m)
 
 
+def _with_cameras(robot: RobotDescription, cams: Sequence[Any]) -> RobotDescription:
+    """``robot`` carrying the drive's cameras (``sensors.camera_drive.DriveCamera``):
+    their body and optical frames, as the bag's ``/tf_static`` states them."""
+    from dataclasses import replace
+
+    from sensors.robot import camera_link
+
+    return replace(robot, cameras=tuple(camera_link(dc.cam, dc.link_mount) for dc in cams))
+
+
 def _robot_files(output: str | os.PathLike[str], robot: RobotDescription) -> RobotFiles:
     """``<stem>_robot.urdf`` and ``<stem>_robot.launch.py`` (robot_state_publisher)
     beside the output."""
@@ -1444,6 +1454,7 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
             (run.t0, run.t0 + run.duration_s), lidar_mount=robot.sensor_mount_from_base(),
             mount=camera_mount, platform=plat, lamp_cd=lamp_cd, rate_hz=camera_rate_hz,
             samples=camera_samples, seed=seed, noise=camera_noise)
+        robot = _with_cameras(robot, cams)
     slam = true_path = base_path = None
     if slam_drift:
         assert meta is not None        # slam_drift needs along="centreline"

@@ -403,8 +403,9 @@ def gazebo_files(mesh: PathLike, output_dir: PathLike, *, sensor: Any = "robosen
         Replace an existing folder.
     camera : str, path-like or sensors.camera.CameraSpec, optional
         A camera (a shipped name, a .toml file, or a spec) on the robot, 10 cm below
-        the lidar looking ahead, with the same intrinsics, and the ground_robot
-        platform's lamps as lights (``survey.export.gazebo``).
+        the lidar looking ahead, with the same intrinsics, its body and optical
+        frames in robot.urdf (a drive's names), and the ground_robot platform's lamps
+        as lights (``survey.export.gazebo``).
 
     Returns
     -------
