@@ -302,16 +302,7 @@ def iter_points_extra(path: str | os.PathLike[str], *, chunk: int = 1 << 20
     a LAS/LAZ file's extra dimensions (``extra_dims``) as stored (before their scale
     and offset), {} for other formats (``sensors.io.cloudread.iter_points``). The
     same checks and errors as ``iter_points``."""
-    from sensors.io.las import LasSource
-    from sensors.io.cloudread import (
-        check_finite,
-        check_las_scale,
-        cloud_errors,
-        existing_cloud,
-        iter_points,
-        las_xyz,
-        no_points,
-    )
+    from sensors.io.cloudread import existing_cloud, iter_points
 
     p = existing_cloud(path)
     names = list(extra_dims(p))
@@ -319,6 +310,24 @@ def iter_points_extra(path: str | os.PathLike[str], *, chunk: int = 1 << 20
         for xyz in iter_points(p, chunk=chunk):
             yield xyz, {}
         return
+    for xyz, fields, _ in _las_chunks(p, names, None, chunk):
+        yield xyz, fields
+
+
+def _las_chunks(p: Path, names: list[str], colour: Any, chunk: int
+                ) -> Iterator[tuple[NDArray[np.float64], Fields, NDArray[np.float64] | None]]:
+    """(xyz, {extra dimension: stored values}, colour (n, 3) in [0, 1] or None) of a
+    LAS/LAZ file chunk by chunk, with ``iter_points``' checks and errors; ``colour``:
+    the file's colour encoding (``CloudAppearance.colour``) or None."""
+    from sensors.io.las import LasSource
+    from sensors.io.cloudread import (
+        check_finite,
+        check_las_scale,
+        cloud_errors,
+        las_xyz,
+        no_points,
+    )
+
     n = 0
     with cloud_errors(), LasSource(p) as src:
         check_las_scale(src.header, p)
@@ -326,7 +335,9 @@ def iter_points_extra(path: str | os.PathLike[str], *, chunk: int = 1 << 20
             xyz = las_xyz(rec)
             check_finite(xyz, p, n)
             n += len(xyz)
-            yield xyz, {k: np.array(rec.array[k]) for k in names}
+            rgb = None if colour is None else \
+                colour.unit(np.stack([np.asarray(rec[k]) for k in colour.names], 1))
+            yield xyz, {k: np.array(rec.array[k]) for k in names}, rgb
     if n == 0:
         raise no_points(p)
 
@@ -380,19 +391,7 @@ def iter_points_colour(path: str | os.PathLike[str], appearance: Any, *,
         for xyz, rgb, _ in iter_appearance(p, appearance, temperature=False, chunk=chunk):
             yield xyz, {}, rgb
         return
-    from sensors.io.las import LasSource
-    from sensors.io.cloudread import check_finite, check_las_scale, cloud_errors, las_xyz
-
-    names = list(extra_dims(p))
-    n = 0
-    with cloud_errors(), LasSource(p) as src:
-        check_las_scale(src.header, p)
-        for rec in src.chunks(chunk):
-            xyz = las_xyz(rec)
-            check_finite(xyz, p, n)
-            n += len(xyz)
-            yield (xyz, {k: np.array(rec.array[k]) for k in names},
-                   enc.unit(np.stack([np.asarray(rec[k]) for k in enc.names], 1)))
+    yield from _las_chunks(p, list(extra_dims(p)), enc, chunk)
 
 
 def write_preprocessed(path: str | os.PathLike[str], xyz: ArrayLike,
