@@ -211,11 +211,19 @@ class TLSScan:
                      row: NDArray[np.int32] = row, col: NDArray[np.int32] = col) -> None:
                 # Lines [a, b) of the chunk: element-wise, so any split gives the same
                 # bits (run on the thread pool; issue 16).
+                # The same operations in the same order as ever (same bits), each
+                # written into its destination (issue 33: no temporaries, one pass less
+                # per output).
                 j = lines[a:b].astype(np.float64)
-                t[a:b] = (j[:, None] * self.n_slots + slot[None, :]) / self.rate_hz
-                phi = (j[:, None] + slot[None, :] / self.n_slots) * self.step_rad
-                d[a:b, :, 0] = sa[None, :] * np.cos(phi)
-                d[a:b, :, 1] = sa[None, :] * np.sin(phi)
+                tt = t[a:b]
+                np.multiply(j[:, None], self.n_slots, out=tt)
+                tt += slot[None, :]
+                tt /= self.rate_hz
+                phi = np.add(j[:, None], slot[None, :] / self.n_slots)
+                phi *= self.step_rad
+                trig = np.empty_like(phi)
+                np.multiply(sa[None, :], np.cos(phi, out=trig), out=d[a:b, :, 0])
+                np.multiply(sa[None, :], np.sin(phi, out=trig), out=d[a:b, :, 1])
                 d[a:b, :, 2] = ca[None, :]
                 row[a:b] = self._row[None, :]
                 col[a:b] = j.astype(np.int32)[:, None]
@@ -277,12 +285,16 @@ class SpinningScan:
                 # rows gives the same bits (run on the thread pool; issue 16).
                 k = np.arange(k0 + a, k0 + b, dtype=np.int64)
                 start = k * self.T
-                t[a:b] = start[:, None] + p.firing_offsets_s[None, :]
-                az = sgn * 2 * np.pi * self.rotation_hz * t[a:b] + p.azimuth_offsets_rad[None, :]
+                np.add(start[:, None], p.firing_offsets_s[None, :], out=t[a:b])
+                # As ever (same bits), without temporaries (issue 33): the scalar
+                # sgn 2 pi f first, then times t, plus the channel's azimuth offset.
+                az = np.multiply(t[a:b], sgn * 2 * np.pi * self.rotation_hz)
+                az += p.azimuth_offsets_rad[None, :]
                 frame = np.floor(start * self.rotation_hz + 1e-9).astype(np.int64)
                 first = np.ceil(frame * self.columns_per_rev - 1e-9).astype(np.int64)
-                d[a:b, :, 0] = ce[None, :] * np.cos(az)
-                d[a:b, :, 1] = ce[None, :] * np.sin(az)
+                trig = np.empty_like(az)
+                np.multiply(ce[None, :], np.cos(az, out=trig), out=d[a:b, :, 0])
+                np.multiply(ce[None, :], np.sin(az, out=trig), out=d[a:b, :, 1])
                 d[a:b, :, 2] = se[None, :]
                 ch[a:b] = channel[None, :]
                 col[a:b] = (k - first).astype(np.int32)[:, None]

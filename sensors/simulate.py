@@ -10,6 +10,12 @@ A run simulates once: the chunks of its first complete pass are kept (up to
 ``cache_bytes``, ``CACHE_BYTES`` by default) and later passes replay them, so that
 ``list(run)`` followed by ``run.write(...)`` casts every ray once. A run whose points
 exceed the bound is simulated again on each pass (same points; a warning says so).
+``Run.write`` of a single-return run whose pulses could exceed the bound (pulses x 97
+bytes > ``cache_bytes``: a SUPERHIGH station, a minute's drive) keeps no cache and hands
+the writer each chunk's returned pulses instead of point records: a LAS/LAZ writer
+makes its records from them in one kernel (``sensors._kernels.pulses.las_points``,
+issue 33), the same bytes as from the point records, without the 97-byte record and
+its two strided passes in between.
 
 Output fields (SI, radians):
 
@@ -68,11 +74,13 @@ from ._checks import as_number, as_points, as_whole
 from ._kernels.pulses import (
     detect_and_noise,
     fill_points,
+    las_points,
     surface_returns,
     world_directions,
 )
 from .errors import SimulationError
 from .io.fields import POINT_DTYPE, RETURN_POINT_DTYPE, WAVEFORM_POINT_DTYPE
+from .io.las import quantize
 from .patterns import CHUNK_PULSES, Pulses, Scan, TLSScan, chunk_size, scan_for
 from .spec import SensorSpec, list_sensors, load_sensor
 from .trajectory import Mount, Trajectory
@@ -254,25 +262,42 @@ class Run:
                 yield pts.copy()
             return
         self.clear_cache()
+        self._warn_again()
+        yield from self._simulate(returned_only=False)
+
+    def _warn_again(self) -> None:
         if self._overflowed:
             warnings.warn(f"Simulating {self.sensor.name} again: its points exceeded the "
                           f"replay cache ({self.cache_bytes:,} bytes) on the last pass; "
                           "consume the run once (e.g. write it and read the file), or "
-                          "raise cache_bytes.", UserWarning, stacklevel=2)
+                          "raise cache_bytes.", UserWarning, stacklevel=3)
+
+    def _simulate(self, returned_only: bool) -> Iterator[Any]:
+        """One simulated pass: point chunks (kept in the replay cache within its bound),
+        or with ``returned_only`` the chunks' ``_Returned`` pulses (kept nowhere); both
+        update ``pass_stats``, and ``stats`` at the end of a complete pass."""
+        t_start = _time.perf_counter()
+        n_pulses = n_points = n_hits = 0
         # DECISION: a bounded in-memory cache rather than a one-shot iterator: a run
         # is iterated more than once by callers that exist (list(run) then write, a
         # preview then the file), and each pass gave the same points; a bound keeps a
         # long drive (a 2 min OS1 drive is ~6 GB of records) from filling the memory.
         store: list[tuple[int, int, NDArray[np.void]]] | None = \
-            [] if self.cache_bytes > 0 else None
+            [] if self.cache_bytes > 0 and not returned_only else None
         size = 0
         for pulses in self.scan.chunks(self._chunk_step()):
-            pts, hits = self._chunk(n_pulses, pulses)
+            got = self._chunk(n_pulses, pulses, returned_only)
+            if returned_only:
+                k, hits = len(got), got.n_hit
+                size += k * POINT_DTYPE.itemsize
+            else:
+                pts, hits = got
+                k = len(pts)
+                size += pts.nbytes
             n_pulses += len(pulses)
-            n_points += len(pts)
+            n_points += k
             n_hits += hits
             if store is not None:
-                size += pts.nbytes
                 if size > self.cache_bytes:
                     store = None
                 else:
@@ -281,9 +306,9 @@ class Run:
                                "hit_ratio": n_hits / max(n_pulses, 1),
                                "seconds": _time.perf_counter() - t_start,
                                "replayed": False}
-            yield pts
+            yield got if returned_only else pts
         # Only a complete pass is kept (a consumer that stopped early never gets here).
-        self._overflowed = store is None and self.cache_bytes > 0
+        self._overflowed = self.cache_bytes > 0 and size > self.cache_bytes
         if store is not None:
             self._cache, self._cache_key = store, self._key()
         s = self.pass_stats.get("seconds", 0.0)
@@ -355,16 +380,44 @@ class Run:
                          crs=crs, returns=self.settings.returns,
                          waveform=self.settings.waveform, waveform_data=waveform_data,
                          **bag) as w:
-            for chunk in (self if points is None else points):
-                w.write_points(chunk)
-                if progress is not None:
-                    progress(self.pass_stats["pulses"], self.n_pulses)
+            if points is None and self._writes_returned():
+                # Straight from the kernels: the writer makes its records from each
+                # chunk's returned pulses (a LAS/LAZ writer without the POINT_DTYPE
+                # record in between), and no replay cache is kept.
+                self.pass_stats = {}
+                self.clear_cache()
+                self._warn_again()
+                for ret in self._simulate(returned_only=True):
+                    w.write_returned(ret)
+                    if progress is not None:
+                        progress(self.pass_stats["pulses"], self.n_pulses)
+            else:
+                for chunk in (self if points is None else points):
+                    w.write_points(chunk)
+                    if progress is not None:
+                        progress(self.pass_stats["pulses"], self.n_pulses)
         return dict(self.stats, path=str(path))
 
+    def _writes_returned(self) -> bool:
+        """Whether ``write`` streams the chunks' returned pulses to the writer instead of
+        point records: a single-return run that is not cached and whose pulses could
+        exceed the replay cache (as records; a bound of 0 included)."""
+        # DECISION: only where the cache could not be relied on anyway: a run whose
+        # records may fit keeps the documented "simulates once" (write, then iterate
+        # from the cache); a larger one (a SUPERHIGH station, a minute's drive) would
+        # overflow the cache, so writing it straight from the kernels loses nothing.
+        st = self.settings
+        return (st.returns is None and not st.waveform and not self.cached and
+                (self.cache_bytes == 0 or
+                 self.n_pulses * POINT_DTYPE.itemsize > self.cache_bytes))
+
     # ------------------------------------------------------------------ one chunk
-    def _chunk(self, first: int, pulses: Pulses) -> tuple[NDArray[np.void], int]:
+    def _chunk(self, first: int, pulses: Pulses, returned_only: bool = False
+               ) -> Any:
         """Simulate one chunk of pulses (``first``: index of its first pulse in the
-        run); returns (points, number of pulses that hit a surface)."""
+        run); returns (points, number of pulses that hit a surface), or with
+        ``returned_only`` (single-return runs only) the ``_Returned`` pulses whose
+        records are not made yet."""
         st, phys = self.settings, self.sensor.physics
         n = len(pulses)
         rng = _Streams(self.seed, first, n)
@@ -374,8 +427,10 @@ class Run:
         mats = np.ascontiguousarray(mats.reshape(-1, 3, 3))
         pos = np.ascontiguousarray(np.asarray(pos, dtype=np.float64).reshape(-1, 3))
         # Random streams, always in this order (see sensors.physics).
-        jit = phys.angle_sigma_rad * rng.normal(0, 2) \
-            if st.angle_jitter and phys.angle_sigma_rad > 0 else np.empty((0, 2))
+        jit = np.empty((0, 2))
+        if st.angle_jitter and phys.angle_sigma_rad > 0:
+            jit = rng.normal(0, 2)
+            jit *= phys.angle_sigma_rad     # in place: the same products, no copy
         # Scattering closer than the minimum range is invisible; by the exponential
         # law's lack of memory the first visible event is range_min + Exp(rate).
         dpart = phys.range_min_m + rng.exponential(1) / st.particle_rate_per_m \
@@ -398,12 +453,9 @@ class Run:
         detect_and_noise(r, p, flag, u_det, z, st.detection, p_min,
                          1.0 / phys.detection_softness, st.range_noise, floor2, ref2,
                          returned)
-        idx = np.flatnonzero(returned)
-        out = np.empty(len(idx), dtype=POINT_DTYPE)
-        f = [out[name] for name in out.dtype.names or ()]
-        fill_points(idx, r, p, flag, tri, cos, pulses.direction, t_abs, pulses.channel,
-                    pulses.column, pulses.frame, pos, mats, p_min, log_span, *f)
-        return out, n_hit
+        got = _Returned(np.flatnonzero(returned), r, p, flag, tri, cos, pulses, t_abs, pos,
+                        mats, p_min, log_span, n_hit)
+        return got if returned_only else (got.points(), n_hit)
 
     def _chunk_returns(self, rng: _Streams, pulses: Pulses, t_abs: NDArray[np.float64],
                        pos: NDArray[np.float64], mats: NDArray[np.float64],
@@ -593,6 +645,73 @@ class Run:
                 np.where(any_hit, tri[rows, j], -1).astype(np.int32))
 
 
+#: LAS dimensions ``las_points`` fills itself (point format 6), and the POINT_DTYPE fields
+#: it can put into extra bytes (in its argument order).
+_LAS_STANDARD = ("X", "Y", "Z", "intensity", "bit_fields", "classification_flags",
+                 "classification", "user_data", "scan_angle", "point_source_id",
+                 "gps_time")
+_LAS_EXTRA_FIELDS = ("sx", "sy", "sz", "range", "azimuth", "elevation", "channel",
+                     "column", "frame", "incidence", "triangle", "flag")
+
+
+class _Returned:
+    """The returned pulses of a single-return chunk, before their records are made:
+    the per-pulse state the records are computed from, and the indices of the pulses
+    that gave a return. ``points`` makes the ``POINT_DTYPE`` records; ``fill_las``
+    writes LAS records straight from the same values, bit for bit what the LAS writer
+    makes of ``points`` (issue 33: a LAS/LAZ output skips the 97-byte record and two
+    strided passes). A writer thread may hold it: nothing in it changes once made.
+    """
+
+    def __init__(self, idx: NDArray[np.int64], r: NDArray[np.float64],
+                 p: NDArray[np.float64], flag: NDArray[np.uint8], tri: NDArray[np.int32],
+                 cos: NDArray[np.float64], pulses: Pulses, t_abs: NDArray[np.float64],
+                 pos: NDArray[np.float64], mats: NDArray[np.float64], p_min: float,
+                 log_span: float, n_hit: int) -> None:
+        self.idx, self.r, self.p, self.flag, self.tri, self.cos = idx, r, p, flag, tri, cos
+        self.pulses, self.t_abs, self.pos, self.mats = pulses, t_abs, pos, mats
+        self.p_min, self.log_span, self.n_hit = p_min, log_span, n_hit
+
+    def __len__(self) -> int:
+        return len(self.idx)
+
+    def _args(self, idx: NDArray[np.int64]) -> tuple[Any, ...]:
+        q = self.pulses
+        return (idx, self.r, self.p, self.flag, self.tri, self.cos, q.direction,
+                self.t_abs, q.channel, q.column, q.frame, self.pos, self.mats,
+                self.p_min, self.log_span)
+
+    def points(self, limit: int | None = None) -> NDArray[np.void]:
+        """The ``POINT_DTYPE`` records (of the first ``limit`` returns only, if given)."""
+        idx = self.idx if limit is None else self.idx[:limit]
+        out = np.empty(len(idx), dtype=POINT_DTYPE)
+        fill_points(*self._args(idx), *[out[name] for name in POINT_DTYPE.names or ()])
+        return out
+
+    def fill_las(self, records: NDArray[np.void], offsets: NDArray[np.float64],
+                 scales: NDArray[np.float64], extra: dict[str, str]) -> bool:
+        """Write the LAS point format 6 records ``records`` (len(self),) (a laspy point
+        dtype: the standard dimensions, then extra bytes ``extra`` {dimension:
+        POINT_DTYPE field}) for coordinate ``offsets`` and ``scales`` (3,). Returns False,
+        writing nothing, for a layout it does not know (other dimensions); raises the
+        LAS writer's ``PointFileError`` for coordinates beyond the int32 range."""
+        names = records.dtype.names or ()
+        if len(records) != len(self) or names[:len(_LAS_STANDARD)] != _LAS_STANDARD or \
+                set(names[len(_LAS_STANDARD):]) != set(extra) or \
+                not set(extra.values()) <= set(_LAS_EXTRA_FIELDS):
+            return False
+        by_field = {f: records[k] for k, f in extra.items()}
+        outs = [by_field[f] if f in by_field else np.empty(0, POINT_DTYPE[f])
+                for f in _LAS_EXTRA_FIELDS]
+        bad = las_points(*self._args(self.idx), np.asarray(offsets, dtype=np.float64),
+                         np.asarray(scales, dtype=np.float64),
+                         *[records[k] for k in _LAS_STANDARD], *outs)
+        if bad:   # the LAS writer's own check names the point
+            pts = self.points()
+            quantize(np.stack([pts["x"], pts["y"], pts["z"]], 1), scales, offsets)
+        return True
+
+
 class _Streams:
     """Random numbers for pulses [first, first + n) of a run, independent of how the
     run is chunked: stream s of block b (``RANDOM_BLOCK`` pulses) comes from
@@ -601,37 +720,53 @@ class _Streams:
     def __init__(self, seed: int, first: int, n: int) -> None:
         self.seed, self.first, self.n = seed, first, n
 
-    def _take(self, stream: int, draw: Callable[[np.random.Generator, tuple[int, int]],
-                                                NDArray[np.float64]],
-              width: int) -> NDArray[np.float64]:
+    def _take(self, stream: int, draw: Callable[[np.random.Generator, NDArray[np.float64]],
+                                                object],
+              width: int, skip: bool = False) -> NDArray[np.float64]:
+        """Rows [first, first + n) of stream ``stream`` ((n, width), or (n,) for width
+        1): ``draw(generator, out)`` fills ``out`` with the generator's next numbers.
+        ``skip``: each number is one 64-bit draw (uniforms), so the rows of a block
+        before the chunk are skipped by advancing its generator instead of drawn."""
         b0 = self.first // RANDOM_BLOCK
         b1 = (self.first + max(self.n, 1) - 1) // RANDOM_BLOCK
-        whole = np.empty(((b1 - b0 + 1) * RANDOM_BLOCK, width))
+        end = self.first + self.n
+        # The rows drawn: from the chunk's first row (skip) or its first block's start.
+        lo = self.first if skip else b0 * RANDOM_BLOCK
+        whole = np.empty((end - lo, width))
 
         def fill(b: int) -> None:
-            q = (b - b0) * RANDOM_BLOCK
-            whole[q:q + RANDOM_BLOCK] = draw(np.random.default_rng([self.seed, stream, b]),
-                                             (RANDOM_BLOCK, width))
+            a, e = max(b * RANDOM_BLOCK, lo), min((b + 1) * RANDOM_BLOCK, end)
+            if e <= a:
+                return
+            g = np.random.default_rng([self.seed, stream, b])
+            if a > b * RANDOM_BLOCK:
+                bits = g.bit_generator
+                assert isinstance(bits, np.random.PCG64)   # default_rng's, with advance
+                bits.advance((a - b * RANDOM_BLOCK) * width)
+            draw(g, whole[a - lo:e - lo])
         # DECISION: the blocks are drawn on a small thread pool (NumPy's generators
         # release the GIL while they fill): each block has its own generator, so the
         # numbers are the same bits in any order; 2x faster on 2 cores (issue 16).
+        # Each block is drawn straight into the chunk's array (``out=``), and only as
+        # far as the chunk needs: a generator's first k numbers are the same whether it
+        # draws k or a whole block (issue 33: a quarter of the draws and a copy less).
         run_each(fill, range(b0, b1 + 1))
-        off = self.first - b0 * RANDOM_BLOCK
-        out = whole[off:off + self.n]
+        out = whole[self.first - lo:]
         return out[:, 0] if width == 1 else out
 
     def normal(self, stream: int, width: int = 2) -> NDArray[np.float64]:
-        return self._take(stream, lambda g, s: g.standard_normal(s), width)
+        return self._take(stream, lambda g, o: g.standard_normal(out=o), width)
 
     def uniform(self, stream: int) -> NDArray[np.float64]:
-        return self._take(stream, lambda g, s: g.random(s), 1)
+        return self._take(stream, lambda g, o: g.random(out=o), 1, skip=True)
 
     def uniform_columns(self, stream: int, width: int) -> NDArray[np.float64]:
         """(n, width) uniforms (``uniform`` is the (n,) of width 1)."""
-        return self._take(stream, lambda g, s: g.random(s), width).reshape(-1, width)
+        return self._take(stream, lambda g, o: g.random(out=o), width,
+                          skip=True).reshape(-1, width)
 
     def exponential(self, stream: int) -> NDArray[np.float64]:
-        return self._take(stream, lambda g, s: g.standard_exponential(s), 1)
+        return self._take(stream, lambda g, o: g.standard_exponential(out=o), 1)
 
 
 # ---------------------------------------------------------------------- checks at the call

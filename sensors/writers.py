@@ -46,6 +46,12 @@ Every format names a field as ``sensors.io.fields.FILE_FIELDS`` says (issue 22):
 names (``sensor_x``, ``sensor_y``, ``sensor_z``, ``gps_time``, the rest as in
 ``POINT_DTYPE``) in LAS extra bytes, PLY properties and NPZ arrays alike.
 
+``PointWriter.write_returned`` takes a single-return chunk as its returned pulses (what
+``Run.write`` hands over for a run larger than its replay cache): the LAS/LAZ writer
+makes its records straight from them (one kernel, ``sensors._kernels.pulses.las_points``,
+into a reused record buffer; issue 33), every other format stores their point records;
+the bytes are those of ``write_points``.
+
 LAS/LAZ, PLY and NPZ are stored by a writer thread (``sensors.io.stream.Background``,
 ``open_writer(thread=True)``, the default): ``write_points`` queues the chunk (two at
 most wait) and the simulation goes on while it is turned into records and compressed
@@ -204,6 +210,29 @@ class PointWriter(Stream):
             self._write(pts)
         self.n_points += len(pts)
 
+    def write_returned(self, returned: Any) -> None:
+        """Append a chunk of a single-return simulation as its returned pulses (the
+        ``sensors.simulate`` object with ``points()`` and ``fill_las(...)``): a LAS/LAZ
+        writer makes its records straight from them (``_LasPoints``), every other
+        format stores ``returned.points()``. The file's bytes are those of
+        ``write_points(returned.points())``."""
+        if not self._takes_returned:
+            self.write_points(returned.points())
+            return
+        if not self._open:
+            raise PointFileError(f"Expected an open writer for '{self.path}', got a "
+                                 "closed one.")
+        if self.threaded:
+            if self._worker is None:
+                self._worker = Background(self._write)
+            self._worker.put(returned)
+        else:
+            self._write(returned)
+        self.n_points += len(returned)
+
+    #: Whether ``_write`` takes returned pulses as well as point records.
+    _takes_returned = False
+
     def close(self) -> Path:
         """Store the queued chunks, finish the file and move it into place; returns
         its path."""
@@ -321,21 +350,32 @@ class _LasPoints(PointWriter):
                 header.global_encoding.waveform_data_packets_external = True
         return header
 
+    #: Returned pulses (``write_returned``) become LAS records in one kernel.
+    _takes_returned = True
+
     def _write(self, c):
         if self._w is None:
-            if not len(c):
+            # The file's layout follows its first chunk (its first record for
+            # returned pulses, which are single-return POINT_DTYPE records).
+            head = c if isinstance(c, np.ndarray) else c.points(limit=1)
+            if not len(head):
                 return
-            first = np.array([c["x"][0], c["y"][0], c["z"][0]], dtype=np.float64)
+            first = np.array([head["x"][0], head["y"][0], head["z"][0]],
+                             dtype=np.float64)
             # Chunks of multiple returns (sensors.waveform) carry return numbers and
-            # echo fields; the file's layout follows its first chunk.
-            names = c.dtype.names or ()
+            # echo fields.
+            names = head.dtype.names or ()
             self._returns = all(n in names for n in _RETURN_BITS)
             self._echo = tuple(e for e in LAS_ECHO_EXTRA if e[1] in names)
-            self._start_waves(c)
+            self._start_waves(head)
             self._w = self._open_file(self._header(
-                first, c.dtype["wave"].shape[0] if self._wave else 0))
+                first, head.dtype["wave"].shape[0] if self._wave else 0))
             self._records = LasRecords(self._w.header)
         assert self._records is not None
+        if not isinstance(c, np.ndarray):
+            if self._fill_returned(c):
+                return
+            c = c.points()   # a layout the kernel does not make
         if self._wave:
             self._write_wave(c)
             return
@@ -354,6 +394,20 @@ class _LasPoints(PointWriter):
         copies.update({name: field for name, field, _, _ in self._echo})
         self._w.write_points(self._records.fill(
             (c["x"], c["y"], c["z"]), fields, records=c, copies=copies))
+
+    def _fill_returned(self, ret) -> bool:
+        """Store returned pulses (``write_returned``) as LAS records made straight from
+        them, into the reused record buffer; False where the file's layout is one the
+        kernel does not make (full waveform, multiple returns: then ``points()``)."""
+        assert self._records is not None and self._w is not None
+        if self._wave or self._returns or self._echo:
+            return False
+        rec = self._records.buffer(len(ret))
+        if not ret.fill_las(rec, self._records.offsets, self._records.scales,
+                            {name: field for name, field, _ in self._extra}):
+            return False
+        self._w.write_points(self._records.wrap(rec))
+        return True
 
     # ---------------------------------------------------------------- full waveform
     def _start_waves(self, c) -> None:

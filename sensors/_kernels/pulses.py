@@ -1,7 +1,9 @@
 """Per-pulse kernels of the simulation loop: beam directions in the world, surface
-returns, detection and noise, and the output record. Flat arrays in, flat arrays out;
-``prange`` over pulses; random numbers are drawn by the caller (NumPy Generator) so the
-result never depends on the thread count.
+returns, detection and noise, and the output record (``POINT_DTYPE``, or LAS records
+straight from the same values: ``las_points``). Flat arrays in, flat arrays out;
+``prange`` over pulses (``las_points``: serial, for the writer thread); random numbers
+are drawn by the caller (NumPy Generator) so the result never depends on the thread
+count.
 
 The return physics (``sensors.physics`` documents the model) is written once, here, as
 four scalar functions: received power, detection probability, range sigma and
@@ -169,3 +171,103 @@ def fill_points(idx, r, p, flag, tri, cos, d, t, channel, column, frame, pos, ro
         inc[j] = np.arccos(min(1.0, max(0.0, cos[i])))
         otri[j] = tri[i]
         oflag[j] = flag[i]
+
+
+#: float32 degrees per radian as NumPy's float32 ``rad2deg`` takes it (180 / pi, both
+#: rounded to float32 first): ``las_points`` gives the scan angle of the LAS writer's
+#: ``np.round(np.rad2deg(elevation) / 0.006)`` bit for bit.
+DEG_PER_RAD_F4 = np.float32(180.0) / np.float32(np.pi)
+#: LAS 1.4 scan angle unit (degrees), as float32 (R15, point data record format 6:
+#: 0.006 deg, as the LAS writer divides by it).
+SCAN_ANGLE_UNIT_F4 = np.float32(0.006)
+#: Largest magnitude of a LAS integer coordinate (int32, as ``sensors.io.las.quantize``).
+INT32_LIMIT = 2.0 ** 31 - 1
+
+
+# DECISION: serial and nogil: it runs on the writer thread (sensors.io.stream.Background)
+# beside the simulation's parallel kernels, which must not wait for the GIL meanwhile (a
+# 1M-point chunk takes ~50 ms in it, time the main thread would otherwise stand still).
+@njit(cache=CACHE, error_model=ERROR_MODEL, nogil=True)
+def las_points(idx, r, p, flag, tri, cos, d, t, channel, column, frame, pos, rot,
+               p_min, log_span, offsets, scales, X, Y, Z, inten, bits, cflags, cls, udata,
+               scan, psid, gps, sx, sy, sz, rng, az, el, ch, co, fr, inc, otri, oflag):
+    """LAS point format 6 records (with tunnelsim's extra bytes) of the returned pulses
+    ``idx``, written straight into the strided fields of a record buffer (X ... gps:
+    the dimensions of format 6 in record order; sx ... oflag: extra bytes, named as
+    the ``POINT_DTYPE`` fields they hold): what
+    ``fill_points`` followed by the LAS writer's packing gives, bit for bit, without the
+    ``POINT_DTYPE`` record in between (issue 33).
+
+    Every value is first rounded to its ``POINT_DTYPE`` type (as ``fill_points`` stores
+    it), then to the LAS field's type (as NumPy's assignment casts it). Extra-bytes
+    outputs of length 0 are not in the file's layout and are skipped. Coordinates:
+    ``round((x - offset) / scale)`` (round half to even, as ``np.round``). Returns the
+    number of records whose coordinates are NaN or beyond the int32 range (their X, Y,
+    Z are then meaningless: the caller raises).
+    """
+    per = pos.shape[0] > 1
+    has_s = sx.shape[0] > 0
+    has_r = rng.shape[0] > 0
+    has_az = az.shape[0] > 0
+    has_el = el.shape[0] > 0
+    has_ch = ch.shape[0] > 0
+    has_co = co.shape[0] > 0
+    has_fr = fr.shape[0] > 0
+    has_inc = inc.shape[0] > 0
+    has_tri = otri.shape[0] > 0
+    has_flag = oflag.shape[0] > 0
+    bad = 0
+    for j in range(idx.shape[0]):
+        i = idx[j]
+        ri = r[i]
+        x, y, z = d[i, 0] * ri, d[i, 1] * ri, d[i, 2] * ri
+        q = np.int64(i)
+        if not per:
+            q = np.int64(0)
+        # The world point exactly as fill_points computes it.
+        wx = pos[q, 0] + rot[q, 0, 0] * x + rot[q, 0, 1] * y + rot[q, 0, 2] * z
+        wy = pos[q, 1] + rot[q, 1, 0] * x + rot[q, 1, 1] * y + rot[q, 1, 2] * z
+        wz = pos[q, 2] + rot[q, 2, 0] * x + rot[q, 2, 1] * y + rot[q, 2, 2] * z
+        qx = np.rint((wx - offsets[0]) / scales[0])
+        qy = np.rint((wy - offsets[1]) / scales[1])
+        qz = np.rint((wz - offsets[2]) / scales[2])
+        if not (abs(qx) < INT32_LIMIT and abs(qy) < INT32_LIMIT and abs(qz) < INT32_LIMIT):
+            bad += 1
+            qx = qy = qz = 0.0
+        X[j] = np.int32(qx)
+        Y[j] = np.int32(qy)
+        Z[j] = np.int32(qz)
+        gps[j] = t[i]
+        # Intensity: float32 in [0, 1] in the point record, x 65535 in float32, rounded.
+        f = np.float32(intensity(p[i], p_min, log_span))
+        inten[j] = np.uint16(np.rint(f * np.float32(65535.0)))
+        bits[j] = 0x11                       # return 1 of 1 (4 + 4 bits)
+        cflags[j] = 0
+        cls[j] = 7 if flag[i] == 2 else 0    # particles are noise (class 7)
+        e = np.float32(np.arcsin(min(1.0, max(-1.0, d[i, 2]))))
+        scan[j] = np.int16(np.rint((e * DEG_PER_RAD_F4) / SCAN_ANGLE_UNIT_F4))
+        udata[j] = channel[i] % 256
+        psid[j] = frame[i] % 65536
+        if has_s:
+            sx[j] = x
+            sy[j] = y
+            sz[j] = z
+        if has_r:
+            rng[j] = ri
+        if has_az:
+            az[j] = np.float32(np.arctan2(d[i, 1], d[i, 0]))
+        if has_el:
+            el[j] = e
+        if has_ch:
+            ch[j] = channel[i]
+        if has_co:
+            co[j] = column[i]
+        if has_fr:
+            fr[j] = frame[i]
+        if has_inc:
+            inc[j] = np.float32(np.arccos(min(1.0, max(0.0, cos[i]))))
+        if has_tri:
+            otri[j] = np.int32(tri[i])
+        if has_flag:
+            oflag[j] = flag[i]
+    return bad

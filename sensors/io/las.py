@@ -495,6 +495,31 @@ class LasRecords:
         self._scales = np.asarray(header.scales, dtype=np.float64)
         self._offsets = np.asarray(header.offsets, dtype=np.float64)
 
+    @property
+    def scales(self) -> np.ndarray:
+        """(3,) float64: the header's coordinate scales."""
+        return self._scales
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """(3,) float64: the header's coordinate offsets."""
+        return self._offsets
+
+    def buffer(self, n: int) -> np.ndarray:
+        """(n,) records of the header's point dtype, from the reused buffer (valid until
+        the next ``fill`` or ``buffer``), for a caller that fills every byte itself and
+        hands the result to ``wrap``."""
+        if len(self._buf) < n:
+            self._buf = np.empty(n, dtype=self.dtype)
+        return self._buf[:n]
+
+    def wrap(self, records: np.ndarray) -> Any:
+        """A laspy ``ScaleAwarePointRecord`` viewing ``records`` (from ``buffer``)."""
+        import laspy
+
+        return laspy.ScaleAwarePointRecord(records, self.header.point_format,
+                                           self._scales, self._offsets)
+
     def _bytes_alike(self, name: str, src: np.dtype) -> bool:
         dst = self.dtype[name]
         if src.shape or dst.shape or src.itemsize != dst.itemsize or \
