@@ -21,8 +21,8 @@ detect                  ``detect_study``                          ``.detect``
 preprocess, mesh        ``preprocess_file``, ``mesh_files``       ``.clouds``
 axis                    ``axis_file``                             ``.axis``
 sections, rings         ``sections_files``, ``rings_files``       ``.sections``
-scan, drive             ``scan_to_file``, ``scan_campaign``,      ``.simulation``
-                        ``drive_to_file``
+scan                    ``scan_to_file``, ``scan_campaign``       ``.scan``
+drive                   ``drive_to_file``                         ``.drive``
 render, cameras         ``render_frame``, ``camera_models``       ``.render``
 ======================  ========================================  ============================
 """
@@ -41,15 +41,15 @@ if TYPE_CHECKING:
     from .clouds import MeshResult, PreprocessResult, mesh_files, preprocess_file
     from .compare import CompareResult, compare_files
     from .detect import DetectResult, detect_study
+    from .drive import DriveResult, drive_to_file
     from .epochs import ConvergenceResult, M3C2FileResult, convergence_files, m3c2_to_file
     from .inspection import (ClearanceFilesResult, DevelopFilesResult, clearance_files,
                              develop_files)
     from .planning import PlanResult, StudyResult, plan_stations, run_study
     from .render import CameraModel, RenderResult, camera_models, render_frame
     from .robotbag import write_robot_bag
+    from .scan import CampaignResult, ScanResult, scan_campaign, scan_to_file
     from .sections import RingsResult, SectionsResult, rings_files, sections_files
-    from .simulation import (CampaignResult, DriveResult, ScanResult, drive_to_file,
-                             scan_campaign, scan_to_file)
     from .slam import SlamResult, slam_file
     from .world import (GazeboResult, SensorModel, SoftwareInfo, TunnelResult, gazebo_files,
                         sensor_models, software_info, tunnel_files)

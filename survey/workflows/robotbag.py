@@ -8,11 +8,16 @@ frame, the IMU at the sensor); a robot adds base_link, /tf_static and wheel odom
 points stream past and puts them in the bag on the cameras' driver topics
 (``sensors.bag.camera_topics``), each frame logged at its readout end among the clouds,
 poses and IMU samples.
+
+The run's clock (``Run.stats["seconds"]``) runs while the points are consumed, so it
+counts the frames rendered among them; ``write_robot_bag`` times the frames apart and
+gives the lidar its own time and rate, and each camera its seconds.
 """
 
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -59,8 +64,11 @@ def write_robot_bag(path: str | os.PathLike[str], run: Run, robot: RobotDescript
     Returns
     -------
     dict
-        The run's ``stats`` (pulses, points, hit_ratio, seconds, rays_per_s) plus
-        ``path`` (str) and ``camera_frames`` (frames written per camera name).
+        The run's ``stats`` (pulses, points, hit_ratio, seconds, rays_per_s; with
+        ``cameras``, ``seconds`` and ``rays_per_s`` the lidar's own, without the time
+        its clock spent on the frames) plus ``path`` (str), ``camera_frames`` (frames
+        written per camera name) and ``camera_seconds`` (per camera name: seconds spent
+        rendering its frames and writing them into the bag).
 
     Raises
     ------
@@ -107,14 +115,38 @@ def write_robot_bag(path: str | os.PathLike[str], run: Run, robot: RobotDescript
                       returns=run.settings.returns,
                       cameras=[(c.cam, c.link_mount) for c in cameras], **bag) as w:
         frames = _Frames(w, cameras)
+        counted = 0.0
         for chunk in run:
+            # The run's clock stopped when it made this chunk: it counts the frames
+            # fed before, not those fed with it (the last chunk's) or after the loop.
+            counted = sum(frames.seconds)
             for part in frames.between(chunk):
                 w.write_points(part)
             if progress is not None:
                 progress(int(run.pass_stats["pulses"]), run.n_pulses)
         frames.until(float("inf"))
-    return dict(run.stats, path=str(path),
-                camera_frames={c.cam.name: len(c) for c in cameras})
+    stats = dict(run.stats)
+    if counted and stats.get("seconds") and not run.pass_stats.get("replayed"):
+        stats.update(_lidar_time(stats, counted))
+    return dict(stats, path=str(path),
+                camera_frames={c.cam.name: len(c) for c in cameras},
+                camera_seconds={c.cam.name: s for c, s in zip(cameras, frames.seconds)})
+
+
+def _lidar_time(stats: dict[str, Any], camera_s: float) -> dict[str, float]:
+    """``seconds`` and ``rays_per_s`` of a run's ``stats`` without ``camera_s`` seconds
+    its clock counted (frames rendered while the run's chunks were consumed).
+
+    Examples
+    --------
+    >>> _lidar_time({"seconds": 5.0, "rays_per_s": 2e6}, 3.0)
+    {'seconds': 2.0, 'rays_per_s': 5000000.0}
+    """
+    total = float(stats["seconds"])
+    own = max(total - camera_s, 0.0)
+    # The rays cast are the run's whatever the time: the rate scales by total / own.
+    rays = float(stats["rays_per_s"]) * total
+    return {"seconds": own, "rays_per_s": rays / own if own else 0.0}
 
 
 class _Frames:
@@ -125,6 +157,8 @@ class _Frames:
 
     def __init__(self, bag: RosbagStream, cameras: Sequence[DriveCamera]) -> None:
         self.bag, self.cameras = bag, cameras
+        #: Seconds spent on each camera's frames (render, image, write_image).
+        self.seconds = [0.0] * len(cameras)
         self.queue = sorted(((float(t) + _readout(c), k, i) for k, c in enumerate(cameras)
                              for i, t in enumerate(c.times)), key=lambda e: (e[0], e[1]))
         self.next = 0
@@ -136,8 +170,10 @@ class _Frames:
         while self.next < len(self.queue) and self.queue[self.next][0] < t_s:
             _log, k, i = self.queue[self.next]
             cam = self.cameras[k]
+            t0 = time.perf_counter()
             f = cam.render(i)
             self.bag.write_image(k, f.stamp_s, f.readout_end_s, image_counts(cam.cam, f))
+            self.seconds[k] += time.perf_counter() - t0
             self.next += 1
 
     def between(self, chunk: Any) -> Iterator[Any]:

@@ -33,7 +33,7 @@ from survey.cli.commands.simruns import (
 )
 from survey.errors import TunnelsimCLIError
 # Light at import (it loads NumPy only where it runs): every tunnelsim start reads this.
-from survey.workflows.simulation import MIN_DRIVE_RETURN, ROUTE_CLEARANCE_M
+from survey.workflows.drive import MIN_DRIVE_RETURN, ROUTE_CLEARANCE_M
 
 
 def register(commands: CommandSet) -> None:
@@ -165,7 +165,7 @@ def register(commands: CommandSet) -> None:
 
 
 def cmd_drive(args) -> int:
-    from survey.workflows.simulation import drive_to_file
+    from survey.workflows.drive import drive_to_file
 
     if (args.workers or args.scheduler) and args.window_s is None:
         raise TunnelsimCLIError("Expected --window-s with --workers or --scheduler (a "
@@ -236,7 +236,8 @@ def drive_lines(res, output) -> list[str]:
             else " and ".join(cr.topics)
         lines.append(f"camera {cr.name}: {cr.frames} frames of {cr.width}x{cr.height} at "
                      f"{cr.rate_hz:g} Hz ({cr.shutter} shutter, {cr.lamps}), "
-                     f"{cr.rays / 1e6:.3g} M rays -> {where}")
+                     f"{cr.rays / 1e6:.3g} M rays -> {where} (rendered and written in "
+                     f"{cr.seconds:.1f} s)")
     b = res.robot
     lines.append(f"robot: {b.name}, base_link {b.mast_height_m:g} m below the platform "
                  f"frame -> {b.urdf.name}, {b.launch.name}")

@@ -30,7 +30,7 @@ from survey.cli.commands.simruns import (
 )
 from survey.errors import TunnelsimCLIError
 # Light at import (it loads NumPy only where it runs): every tunnelsim start reads this.
-from survey.workflows.simulation import STATION_FORMATS, station_heading_deg
+from survey.workflows.scan import STATION_FORMATS, station_heading_deg
 
 
 def register(commands: CommandSet) -> None:
@@ -91,7 +91,7 @@ def register(commands: CommandSet) -> None:
 
 
 def cmd_scan(args) -> int:
-    from survey.workflows.simulation import scan_to_file
+    from survey.workflows.scan import scan_to_file
 
     warn_radian_like(args.heading_deg, "--heading-deg")
     warn_radian_like(args.azimuth_deg, "--azimuth-deg")
@@ -128,7 +128,7 @@ def _scan_campaign(args, heading_deg: float) -> int:
     """tunnelsim scan --chainages / --plan: one file per station and manifest.json in
     the -o folder, on the executor --workers / --scheduler choose."""
     from survey.cluster import TaskProgress
-    from survey.workflows.simulation import scan_campaign
+    from survey.workflows.scan import scan_campaign
 
     chainages = None if args.chainages is None else parse_window(
         args.chainages, "--chainages as START:STOP:STEP in m", 3)

@@ -1,7 +1,7 @@
 """What the simulating commands share (scan, drive): the --crs and --waveform options,
 the physics settings made from the options, the progress bar around a library call,
 and the summary line of a written run. The work itself is done by
-``survey.workflows.simulation``."""
+``survey.workflows.scan`` and ``survey.workflows.drive``."""
 
 from __future__ import annotations
 
@@ -63,7 +63,7 @@ def with_progress(args, call, **kwargs):
 
 def summary_line(label: str, out, path) -> str:
     """``<label>: N pulses, M points (hit ratio ..), .. s, .. Mrays/s -> <path>``, of a
-    ``survey.workflows.simulation.RunOutput``."""
+    ``survey.workflows.simrun.RunOutput``."""
     return (f"{label}: {out.pulses:,} pulses, {out.points:,} points (hit ratio "
             f"{100 * out.hit_ratio:.1f} %), {out.seconds:.1f} s, "
             f"{out.rays_per_s / 1e6:.2f} Mrays/s -> {path}")

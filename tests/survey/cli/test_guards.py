@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 
 from sensors import Trajectory
 from survey.analysis.compare import OVERLAP_TOL_M, box_gap, check_overlap
-from survey.workflows.simulation import MIN_DRIVE_RETURN
+from survey.workflows.drive import MIN_DRIVE_RETURN
 from survey.cli.common import radian_like
 from survey.cli.main import main
 from sensors.io.cloudmap import write_points_las

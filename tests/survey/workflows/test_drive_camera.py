@@ -30,7 +30,7 @@ from sensors.render import render_depth
 from sensors.shading import expose, headlamp, luminance, radiance_frame
 from sensors.trajectory import Trajectory
 from survey.cli.main import main
-from survey.workflows.simulation import drive_to_file
+from survey.workflows.drive import drive_to_file
 from tests.survey.workflows.test_drive_workflow import SENSOR
 
 rosbags = pytest.importorskip("rosbags", reason="rosbags is in the test extra")
@@ -368,3 +368,106 @@ def test_depth_camera_is_not_supersampled(tbm_20k, files, tmp_path):
                       camera_samples=4)
     assert not list(tmp_path.glob("x*"))
 
+
+
+#: What one camera frame costs on the ``frame_clock`` (s): far above all the rest of a
+#: drive there (microseconds), so a frame counted in the lidar's time cannot hide.
+FRAME_S = 10.0
+
+
+@pytest.fixture()
+def frame_clock(monkeypatch):
+    """``time.perf_counter`` (which the run's clock and the workflow's both read) as a
+    clock that ticks 1 µs a reading and FRAME_S more for each frame a camera renders:
+    the cameras' true time is then known (frames x FRAME_S), and the lidar's is the
+    microseconds left. Drives are simulated in chunks of 50 pulses, so that a bag's
+    frames are fed between the lidar's chunks, as on a long drive. Returns the runs
+    simulated."""
+    import time
+
+    import sensors
+    from sensors.camera_drive import DriveCamera
+
+    now = [0.0]
+
+    def clock():
+        now[0] += 1e-6
+        return now[0]
+
+    render = DriveCamera.render
+
+    def costly_render(self, i):
+        now[0] += FRAME_S
+        return render(self, i)
+
+    runs = []
+    simulate_drive = sensors.simulate_drive
+
+    def in_small_chunks(*args, **kwargs):
+        runs.append(simulate_drive(*args, chunk_pulses=50, **kwargs))
+        return runs[-1]
+
+    monkeypatch.setattr(time, "perf_counter", clock)
+    monkeypatch.setattr(DriveCamera, "render", costly_render)
+    monkeypatch.setattr(sensors, "simulate_drive", in_small_chunks)
+    return runs
+
+
+@pytest.mark.parametrize("out", ["d.mcap", "d.laz"])
+def test_camera_time_is_not_the_lidars(tbm_20k, files, tmp_path, frame_clock, out):
+    """The drive's summary counted the frames rendered among the points (a bag) in the
+    lidar's time and rate. On the frame clock: each camera's seconds are its frames x
+    FRAME_S; the lidar's are the run's clock less the frames it counted, below one
+    frame's; its rate is its rays over its own seconds. In a bag the run's clock did
+    count frames (the case the split repairs): lidar + those frames = the run's clock."""
+    traj_path = _trajectory(tmp_path / "t.txt", speed=2.0)
+    res = drive_to_file(tbm_20k, tmp_path / out, sensor=files["sensor"],
+                        trajectory=traj_path, duration_s=0.3,
+                        cameras=[files["color"], files["depth"]], camera_rate_hz=10.0)
+    (run,) = frame_clock
+    assert [c.name for c in res.cameras] == ["test_rgb", "test_depth"]
+    for c in res.cameras:
+        assert c.frames >= 2
+        assert c.seconds == pytest.approx(c.frames * FRAME_S, abs=0.01)
+    o = res.output
+    assert 0 < o.seconds < 0.01 * FRAME_S
+    assert o.rays_per_s == pytest.approx(o.pulses * run.settings.beam_subrays / o.seconds,
+                                         rel=1e-9)
+    counted = run.stats["seconds"] - o.seconds
+    if out == "d.mcap":
+        frames = round(counted / FRAME_S)
+        assert 1 <= frames <= sum(c.frames for c in res.cameras)
+        assert counted == pytest.approx(frames * FRAME_S, abs=0.01)
+    else:                       # the frames are rendered into folders after the points
+        assert counted == 0.0
+
+
+def test_without_a_camera_the_lidar_keeps_the_runs_time(tbm_20k, files, tmp_path,
+                                                         frame_clock):
+    """No camera: the bag's lidar time and rate are the run's own, as before."""
+    traj_path = _trajectory(tmp_path / "t.txt", speed=2.0)
+    res = drive_to_file(tbm_20k, tmp_path / "n.mcap", sensor=files["sensor"],
+                        trajectory=traj_path, duration_s=0.3)
+    (run,) = frame_clock
+    assert res.cameras == ()
+    assert (res.output.seconds, res.output.rays_per_s) == \
+        (run.stats["seconds"], run.stats["rays_per_s"])
+
+
+def test_the_command_prints_each_cameras_time_apart(tbm_20k, files, tmp_path, capsys,
+                                                    frame_clock):
+    """``tunnelsim drive -o d.mcap --camera ...``: the lidar's line gives its own time
+    (0.0 s on the frame clock, not the frames' tens of seconds) and each camera's line
+    its frames' time (3 frames x FRAME_S = 30.0 s)."""
+    traj_path = _trajectory(tmp_path / "t.txt", speed=2.0)
+    assert main(["drive", "--mesh", str(tbm_20k), "--sensor", str(files["sensor"]),
+                 "--trajectory", str(traj_path), "--duration", "0.3", "--camera",
+                 str(files["color"]), "--camera-rate-hz", "10", "-o",
+                 str(tmp_path / "d.mcap")]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    (lidar,) = [ln for ln in printed if ln.startswith("test_two_beams drive 0.3 s: ")]
+    assert "), 0.0 s, " in lidar
+    (camera,) = [ln for ln in printed if ln.startswith("camera test_rgb: ")]
+    assert camera.startswith("camera test_rgb: 3 frames of 64x48 at 10 Hz")
+    assert camera.endswith("-> /camera/color/image_raw and /camera/color/camera_info "
+                           "(rendered and written in 30.0 s)")

@@ -1,4 +1,4 @@
-"""``drive_to_file`` (survey.workflows.simulation) against ``tunnelsim drive``: a notebook
+"""``drive_to_file`` (survey.workflows.drive) against ``tunnelsim drive``: a notebook
 that calls the library gets the same files as the command line, byte for byte, and the
 numbers the command prints are the result's.
 
@@ -17,7 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from survey.cli.main import main
-from survey.workflows.simulation import drive_to_file
+from survey.workflows.drive import drive_to_file
 
 # A two-beam spinning test sensor: 2,000 pulses a second keep each drive at a few
 # thousand pulses (tests/survey/cli/test_drive_platform.py uses the same device).
@@ -212,7 +212,7 @@ def test_a_drive_is_cut_at_its_last_whole_sweep(start, dur, rate, part):
 
     from sensors import Trajectory, load_sensor
     from sensors.spec import with_rate
-    from survey.workflows.simulation import whole_sweeps_end
+    from survey.workflows.drive import whole_sweeps_end
 
     spec = with_rate(load_sensor("velodyne_vlp16"), rate)
     traj = Trajectory([start, start + dur], np.zeros((2, 3)), Rotation.identity(2))
@@ -235,7 +235,7 @@ def test_a_terrestrial_scanner_is_not_cut():
     from scipy.spatial.transform import Rotation
 
     from sensors import Trajectory, load_sensor
-    from survey.workflows.simulation import sweep_rate_hz, whole_sweeps_end
+    from survey.workflows.drive import sweep_rate_hz, whole_sweeps_end
 
     spec = load_sensor("zf_imager_5016")
     traj = Trajectory([0.0, 1.05], np.zeros((2, 3)), Rotation.identity(2))

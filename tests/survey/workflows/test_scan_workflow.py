@@ -1,4 +1,4 @@
-"""``scan_to_file`` and ``scan_campaign`` (survey.workflows.simulation) against
+"""``scan_to_file`` and ``scan_campaign`` (survey.workflows.scan) against
 ``tunnelsim scan``: the library writes the CLI's files byte for byte; ``--waveform``
 changes the file.
 
@@ -20,7 +20,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from survey.cli.main import main
-from survey.workflows.simulation import scan_campaign, scan_to_file, station_heading_deg
+from survey.workflows.scan import scan_campaign, scan_to_file, station_heading_deg
 
 #: A coarse step keeps a station at ~16k pulses (a 1-degree grid of the Z+F's field).
 STEP_DEG = 2.0

@@ -1,22 +1,18 @@
-"""Simulation workflows: what ``tunnelsim scan`` (one TLS station, or a campaign of
-stations) and ``tunnelsim drive`` (a sensor on a moving platform) do, as library
-functions that take paths and keyword options, write the same files and return what
-the commands print.
+"""Drive workflow: what ``tunnelsim drive`` (a sensor on a moving platform) does, as a
+library function that takes paths and keyword options, writes the same files and
+returns what the command prints.
 
-- ``scan_to_file``: one station on a mesh -> a point file (LAS/LAZ, PLY, NPZ, E57).
-- ``scan_campaign``: stations every STEP m on the tunnel axis, or a plan's, -> one
-  file per station and ``manifest.json`` in a folder (on an executor).
 - ``drive_to_file``: a drive along a trajectory file, the tunnel's centreline or a
   route found in the mesh -> points or a ROS 2 bag in the robot's frames, the true
   trajectory, the robot's URDF and launch file (and with ``slam_drift`` the SLAM files);
   with ``cameras`` their frames along the drive (in the bag, or PNG folders beside the
   point file: ``sensors.camera_drive``).
 
-Guards (each a ``SimulationError`` naming the command-line option): a station outside
-the mesh's bounding box, a drive whose every pose is beyond the sensor's range of it
-(unless ``allow_outside``), a run that returns no point or, for a drive, fewer than
-``MIN_DRIVE_RETURN`` of its pulses; ``duration_s`` beyond the trajectory's end is
-refused before the mesh is loaded.
+Guards (each a ``SimulationError`` naming the command-line option): a drive whose
+every pose is beyond the sensor's range of the mesh's bounding box (unless
+``allow_outside``), a drive that returns no point or fewer than ``MIN_DRIVE_RETURN``
+of its pulses; ``duration_s`` beyond the trajectory's end is refused before the mesh
+is loaded.
 
 DECISION: nothing heavy is imported at module level (NumPy, SciPy, the simulator are
 imported where they run): ``survey.cli.commands.driving`` reads this module's constants
@@ -27,27 +23,35 @@ from __future__ import annotations
 
 import math
 import os
-import warnings
-from collections.abc import Callable, Sequence
+import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from sensors.errors import SimulationError
 
-if TYPE_CHECKING:
-    from numpy.typing import ArrayLike
+from .simrun import (
+    ProgressFn,
+    RunOutput,
+    box_text,
+    check_returned,
+    number_text,
+    output_crs,
+    physics_settings,
+    run_output,
+    sensor_spec,
+    write_run,
+)
 
+if TYPE_CHECKING:
     from sensors.platform_spec import PlatformSpec
     from sensors.robot import RobotDescription
     from sensors.simulate import Run
     from sensors.spec_types import SensorSpec
     from sensors.trajectory import Trajectory
     from survey.adjust.slam import DriftedRun
-    from survey.cluster import Campaign, Executor
-
-#: A callback ``progress(done, total)`` after each chunk (pulses) or task (stations).
-ProgressFn = Callable[[int, int], None]
+    from survey.cluster import Executor
 
 #: A drive returning fewer points than this share of its pulses is refused (unless
 #: ``allow_outside``). ASSUMED from measurements (1 s drives): inside a tunnel a
@@ -60,101 +64,9 @@ MIN_DRIVE_RETURN = 0.01
 #: ``along="auto"``: the clearance the route keeps from the mesh (``find_route``'s
 #: default), and that the platform's poses must keep too (issue 20).
 ROUTE_CLEARANCE_M = 0.2
-#: A campaign's station file formats (``survey.cluster.campaign.STATION_FORMATS``).
-STATION_FORMATS = ("laz", "las", "ply", "npz", "e57")
 
 
 # ---------------------------------------------------------------------------- results
-@dataclass(frozen=True)
-class RunOutput:
-    """What writing a simulated run gave.
-
-    Attributes
-    ----------
-    path : Path
-        The file (or bag folder) written.
-    pulses, points : int
-        Pulses cast, points written.
-    hit_ratio : float
-        Share of the pulses that hit a surface (NaN for a drive in time windows).
-    seconds : float
-        Simulation time (s; NaN for a drive in time windows).
-    rays_per_s : float
-        Rays cast per second (NaN for a drive in time windows).
-    """
-
-    path: Path
-    pulses: int
-    points: int
-    hit_ratio: float
-    seconds: float
-    rays_per_s: float
-
-
-@dataclass(frozen=True)
-class ScanResult:
-    """What ``scan_to_file`` wrote.
-
-    Attributes
-    ----------
-    output : RunOutput
-    sensor : str
-        The sensor's name.
-    resolution : str
-        The resolution preset scanned, or ``"custom step"``.
-    station_xyz : (float, float, float)
-        The station's position (m).
-    crs : str or None
-        The CRS the file states.
-    """
-
-    output: RunOutput
-    sensor: str
-    resolution: str
-    station_xyz: tuple[float, float, float]
-    crs: str | None
-
-    @property
-    def label(self) -> str:
-        """``"<sensor> <resolution>"``, as the command's summary starts."""
-        return f"{self.sensor} {self.resolution}"
-
-
-@dataclass(frozen=True)
-class CampaignResult:
-    """What ``scan_campaign`` wrote.
-
-    Attributes
-    ----------
-    campaign : survey.cluster.Campaign
-        The folder, ``manifest.json`` (and what it holds), each station's time.
-    sensor, resolution : str
-        The sensor's name and the resolution scanned (``"custom step"`` for a step).
-    stations, pulses, points : int
-    wall_s : float
-        Wall-clock time of the campaign (s).
-    simulation_s : float
-        Simulation time summed over the stations (s).
-    where : str
-        Where it ran (``"in-process"``, ``"local, 4 workers"`` ...).
-    """
-
-    campaign: Campaign
-    sensor: str
-    resolution: str
-    stations: int
-    pulses: int
-    points: int
-    wall_s: float
-    simulation_s: float
-    where: str
-
-    @property
-    def manifest_path(self) -> Path:
-        """The campaign's ``manifest.json``."""
-        return self.campaign.manifest_path
-
-
 @dataclass(frozen=True)
 class AutoRoute:
     """The route a drive with ``along="auto"`` found and drove.
@@ -269,6 +181,9 @@ class CameraRun:
         ``<stem>_cameras/<name>`` for a point-file output; None in a bag.
     topics : tuple of str
         The image and camera_info topics in a bag; empty for a folder.
+    seconds : float
+        Time spent rendering the camera's frames and writing them (into the bag, or
+        the folder) (s); not in the lidar's ``RunOutput.seconds``.
     """
 
     name: str
@@ -282,6 +197,7 @@ class CameraRun:
     lamps: str
     folder: Path | None
     topics: tuple[str, ...]
+    seconds: float
 
 
 @dataclass(frozen=True)
@@ -374,48 +290,6 @@ def beside(out: str | os.PathLike[str], suffix: str) -> Path:
     return p.with_name(f"{output_stem(p)}{suffix}")
 
 
-def station_heading_deg(heading_deg: float | None, azimuth_deg: float | None) -> float:
-    """A station's heading in degrees counter-clockwise from +x (east), from a heading
-    or from an azimuth (clockwise from grid north, +y): heading = 90 - azimuth; 0 when
-    neither is given.
-
-    Examples
-    --------
-    >>> station_heading_deg(None, 30.0)
-    60.0
-    """
-    if azimuth_deg is not None:
-        return 90.0 - azimuth_deg
-    return 0.0 if heading_deg is None else heading_deg
-
-
-def output_crs(mesh: str | os.PathLike[str], crs: str | None = None, *,
-               tunnel_json: str | os.PathLike[str] | None = None) -> str | None:
-    """The CRS a simulation's output states: ``crs`` (``--crs``), else the mesh's (its
-    tunnel JSON's ``crs``, or a ``<mesh>.prj`` sidecar), else None.
-
-    Raises
-    ------
-    sensors.io.crs.CRSError
-        For a ``crs`` that pyproj cannot read, or one against the mesh's own.
-    """
-    from sensors.io.cloudread import cloud_crs_text
-    from sensors.io.crs import CRSError, mismatch_message, parse_crs, same_crs
-    from sensors.io.tunnel_json import read_meta, tunnel_crs
-
-    where = str(tunnel_json or mesh)
-    stated = tunnel_crs(read_meta(Path(tunnel_json))) if tunnel_json else \
-        cloud_crs_text(mesh)
-    if crs is None:
-        return stated
-    parsed = parse_crs(crs, what="--crs")
-    if stated is not None and not same_crs(parsed, stated):
-        raise CRSError(mismatch_message(("--crs", parsed), (where, stated),
-                                        what="output and the mesh",
-                                        hint="leave --crs out to take the mesh's"))
-    return parsed
-
-
 def trimmed(traj: Trajectory, t_end: float | None) -> Trajectory:
     """``traj`` up to ``t_end`` (s), its last pose interpolated at ``t_end``: what a
     drive with a duration covers. The same trajectory when ``t_end`` is None or at its
@@ -469,59 +343,6 @@ def whole_sweeps_end(spec: SensorSpec, traj: Trajectory, t_end: float | None
     return whole, SweepCut(n, 1 / rate, traj.start_s, whole, end - whole)
 
 
-def _box_text(lo: Any, hi: Any) -> str:
-    return f"{xyz_text(lo)}-{xyz_text(hi)}"
-
-
-def xyz_text(p: Any) -> str:
-    """(x, y, z) to the millimetre (a BVH box is padded by ~1e-6 of its size)."""
-    return "(" + ", ".join(f"{round(float(c), 3) + 0.0:.10g}" for c in p) + ")"
-
-
-def _output(stats: dict[str, Any], path: str | os.PathLike[str]) -> RunOutput:
-    return RunOutput(Path(path), int(stats["pulses"]), int(stats["points"]),
-                     float(stats["hit_ratio"]), float(stats["seconds"]),
-                     float(stats["rays_per_s"]))
-
-
-def _check_returned(label: str, pulses: int, points: int, min_return: float,
-                    where: str, *, share: bool = True) -> None:
-    """Refuse a run that returned no point, or fewer than ``min_return`` of its pulses
-    (``where`` says what the caller knows: the poses, the mesh's box; ``share``: say
-    the share returned)."""
-    if points == 0 or points < min_return * pulses:
-        said = f" ({100 * points / max(pulses, 1):.2g} % returned, below " \
-               f"{100 * min_return:g} %)" if points and share else ""
-        raise SimulationError(f"Expected the {label} to see the mesh, got {points:,} "
-                              f"points from {pulses:,} pulses{said}{where}.")
-
-
-def _write_run(run: Run, output: str | os.PathLike[str], *, fields: str | None,
-               crs: Any, progress: ProgressFn | None,
-               bag: dict[str, Any] | None = None,
-               robot: RobotDescription | None = None,
-               waveform_data: str | None = None,
-               cameras: Sequence[Any] = ()) -> RunOutput:
-    """Write ``run`` to ``output``: a bag in the frames of ``robot`` when given and the
-    output is a bag (``survey.workflows.robotbag``), else ``Run.write`` (which refuses
-    a waveform run into a bag)."""
-    from sensors.writers import format_of
-
-    wave: dict[str, Any] = {} if waveform_data is None else \
-        {"waveform_data": waveform_data}
-    if robot is not None and format_of(output) in ("mcap", "rosbag2") and \
-            not getattr(run.settings, "waveform", False):
-        from survey.workflows.robotbag import write_robot_bag
-
-        stats = write_robot_bag(output, run, robot, progress=progress, crs=crs,
-                                cameras=cameras, **(bag or {}))
-    else:
-        # A drifted run (slam_drift) states no CRS, and its write takes none.
-        stats = run.write(output, progress=progress, fields=fields,
-                          **({} if crs is None else {"crs": crs}), **(bag or {}), **wave)
-    return _output(stats, output)
-
-
 def _lever(lever_arm_m: Sequence[float]) -> tuple[float, float, float]:
     vals = [float(v) for v in lever_arm_m]
     if len(vals) != 3 or not all(map(math.isfinite, vals)):
@@ -529,304 +350,6 @@ def _lever(lever_arm_m: Sequence[float]) -> tuple[float, float, float]:
                               f"{','.join(f'{v:g}' for v in vals)!r}.")
     return vals[0], vals[1], vals[2]
 
-
-def _settings(settings: Any) -> Any:
-    from sensors import Settings
-
-    return Settings() if settings is None else settings
-
-
-def _sensor(sensor: str | os.PathLike[str] | SensorSpec, rate_hz: float | None = None
-            ) -> SensorSpec:
-    from sensors import load_sensor
-    from sensors.spec_types import SensorSpec
-    from sensors.spec import with_rate
-
-    spec = sensor if isinstance(sensor, SensorSpec) else load_sensor(sensor)
-    return spec if rate_hz is None else with_rate(spec, rate_hz)
-
-
-# ------------------------------------------------------------------------------- scan
-def scan_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], *,
-                 sensor: str | os.PathLike[str] | SensorSpec = "zf_imager_5016",
-                 at: Sequence[float] | None = None, chainage_m: float | None = None,
-                 height_m: float = 1.5, tunnel_json: str | os.PathLike[str] | None = None,
-                 resolution: str | None = None, step_rad: float | None = None,
-                 heading_rad: float = 0.0, allow_outside: bool = False,
-                 crs: str | None = None, settings: Any = None, seed: int = 0,
-                 reflectivity: float = 0.5, fields: str | None = None,
-                 waveform_data: str | None = None,
-                 progress: ProgressFn | None = None) -> ScanResult:
-    """Simulate one terrestrial laser scanner station on a mesh into a point file:
-    what ``tunnelsim scan`` does.
-
-    Parameters
-    ----------
-    mesh : str or path-like
-        Mesh file (PLY with reflectivity, OBJ, ...).
-    output : str or path-like
-        Point file: .laz, .las, .ply, .npz or .e57.
-    sensor : str, path-like or SensorSpec
-        A sensor name, a TOML file or a loaded spec.
-    at : (3,) float, optional
-        Station position (m). Give ``at`` or ``chainage_m``.
-    chainage_m : float, optional
-        Station on the tunnel axis (``tunnel_json`` or the mesh's .json), ``height_m``
-        above the floor.
-    height_m : float
-        Instrument height above the floor with ``chainage_m`` (m).
-    tunnel_json : str or path-like, optional
-        The axis for ``chainage_m`` and the CRS (default: the mesh's .json).
-    resolution : str, optional
-        Resolution preset of the sensor (default its own).
-    step_rad : float, optional
-        Angular step instead of a preset (rad).
-    heading_rad : float
-        Station heading counter-clockwise from +x (rad).
-    allow_outside : bool
-        Scan from a station outside the mesh's bounding box.
-    crs : str, optional
-        CRS of the mesh's coordinates, stated in the file (default the mesh's own).
-    settings : sensors.Settings, optional
-        Physics switches (default ``Settings()``).
-    seed : int
-    reflectivity : float
-        Reflectivity where the mesh has none.
-    fields : {"compact", "full"}, optional
-        LAS/LAZ extra bytes.
-    waveform_data : {"internal", "external"}, optional
-        With ``settings.waveform``: the wave packets in the .las, or in ``NAME.wdp``
-        beside the output (default: the format's, ``sensors.writers``).
-    progress : callable (done_pulses, total_pulses), optional
-
-    Returns
-    -------
-    ScanResult
-
-    Raises
-    ------
-    SimulationError
-        A station outside the mesh's box (unless ``allow_outside``), a station that
-        returns no point, a chainage off the axis.
-    sensors.io.errors.FileFormatError
-        An unreadable mesh or tunnel JSON.
-
-    Examples
-    --------
-    >>> from survey.workflows.simulation import scan_to_file
-    >>> # r = scan_to_file("tunnel.ply", "station.laz", at=(10, 0, 1.5),
-    >>> #                  resolution="low")
-    >>> # r.output.points, r.output.path
-    """
-    import numpy as np
-    from scipy.spatial.transform import Rotation
-
-    from sensors import simulate_station
-    from sensors.io.meshes import load_mesh
-    from sensors.patterns import TLSScan
-
-    spec = _sensor(sensor)
-    scene, refl = load_mesh(mesh)
-    stated = output_crs(mesh, crs, tunnel_json=tunnel_json)
-    if chainage_m is not None:
-        pos = stations_on_axis(mesh, scene, [chainage_m], "--chainage", height_m=height_m,
-                               tunnel_json=tunnel_json)[0]
-    elif at is not None:
-        pos = np.asarray(at, dtype=np.float64)
-    else:
-        raise SimulationError("Expected a station, got neither --at nor --chainage; "
-                              "pass --at X,Y,Z.")
-    lo, hi = scene.bounds
-    if not allow_outside and ((np.asarray(pos) < lo) | (np.asarray(pos) > hi)).any():
-        raise SimulationError(f"Expected a station inside the mesh's bounding box "
-                              f"{_box_text(lo, hi)}, got {xyz_text(pos)}; is it in another "
-                              "coordinate frame? Pass --allow-outside to scan the mesh "
-                              "from outside.")
-    with warnings.catch_warnings():
-        # Refused above, or allowed by allow_outside: the library's warning is said.
-        warnings.filterwarnings("ignore", "Station .* outside the mesh", UserWarning)
-        run = simulate_station(scene, spec, pos, attitude=Rotation.from_euler(
-                                   "z", heading_rad), resolution=resolution,
-                               step_rad=step_rad, settings=_settings(settings), seed=seed,
-                               reflectivity=refl if refl is not None else reflectivity)
-    res = (run.scan.resolution if isinstance(run.scan, TLSScan) else None) or \
-        "custom step"
-    out = _write_run(run, output, fields=fields, crs=stated, progress=progress,
-                     waveform_data=waveform_data)
-    _check_returned(f"{spec.name} {res}", out.pulses, out.points, 0.0,
-                    f" at {xyz_text(pos)}; put the station where it sees the mesh")
-    xyz = tuple(float(c) for c in pos)
-    return ScanResult(out, spec.name, res, (xyz[0], xyz[1], xyz[2]), stated)
-
-
-def stations_on_axis(mesh: str | os.PathLike[str], scene: Any, chainages: ArrayLike,
-                     flag: str, *, height_m: float,
-                     tunnel_json: str | os.PathLike[str] | None = None) -> Any:
-    """Stations (k, 3) float64 on the tunnel axis (``tunnel_json`` or the mesh's .json)
-    at ``chainages`` (k,) m, ``height_m`` above the floor of ``scene``; ``flag`` names
-    the option the chainages came from in the errors."""
-    from survey.analysis.planning import axis_stations
-    from survey.world.mesh import read_axis
-    from sensors.io.tunnel_json import sidecar
-
-    js = Path(tunnel_json) if tunnel_json else sidecar(Path(mesh))
-    if not js.is_file():
-        other = " or --at X,Y,Z" if flag == "--chainage" else ""
-        raise SimulationError(f"Expected a tunnel JSON for {flag} ('{js}'), got none; "
-                              f"pass --tunnel-json{other}.")
-    al, hc = read_axis(js)
-    c0, c1 = al.chainage_range
-    import numpy as np
-
-    ch = np.asarray(chainages, dtype=np.float64).reshape(-1)
-    lo, hi = float(ch.min()), float(ch.max())
-    if not (c0 <= lo and hi <= c1):
-        got = f"{lo:g}" if lo == hi else f"{lo:g} to {hi:g} m"
-        raise SimulationError(f"Expected {flag} within [{c0:g}, {c1:g}] m, got {got}.")
-    return axis_stations(scene, al, hc, ch, height_m=height_m)
-
-
-def _number_text(x: float) -> str:
-    """``x`` as a user would type it: ``10`` for 10.0, ``0.1`` for 0.1."""
-    short = f"{x:g}"
-    return short if float(short) == x else repr(float(x))
-
-
-def _campaign_stations(mesh: str | os.PathLike[str], scene: Any, heading_rad: float, *,
-                       chainages_m: Sequence[float] | None, plan: Any,
-                       plan_name: str | None, height_m: float,
-                       tunnel_json: Any) -> tuple[list[Any], dict[str, Any]]:
-    """(the stations of ``chainages_m`` or ``plan``, what the manifest says of them)."""
-    import numpy as np
-
-    from survey.cluster import Station, read_plan
-
-    if plan is not None:
-        name, stations = read_plan(plan, plan_name)
-        return [Station(s.position, heading_rad, s.chainage_m) for s in stations], \
-            {"plan": str(plan), "plan_name": name}
-    start, stop, step = (float(v) for v in chainages_m or ())
-    text = ":".join(_number_text(v) for v in (start, stop, step))
-    if not (all(map(math.isfinite, (start, stop, step))) and step > 0 and stop >= start):
-        raise SimulationError(f"Expected --chainages START:STOP:STEP with STEP > 0 and "
-                              f"STOP >= START, got {text!r}.")
-    # Chainages on the grid START + k STEP up to STOP, STOP included when on it (to a
-    # micrometre: 0.1 steps do not add up exactly in binary).
-    ch = start + step * np.arange(int(math.floor((stop - start) / step + 1e-9)) + 1)
-    xyz = stations_on_axis(mesh, scene, ch, "--chainages", height_m=height_m,
-                           tunnel_json=tunnel_json)
-    return [Station((float(x), float(y), float(z)), heading_rad, float(c))
-            for (x, y, z), c in zip(xyz, ch)], {"chainages": text, "height_m": height_m}
-
-
-def scan_campaign(mesh: str | os.PathLike[str], folder: str | os.PathLike[str], *,
-                  chainages_m: Sequence[float] | None = None,
-                  plan: str | os.PathLike[str] | None = None, plan_name: str | None = None,
-                  sensor: str | os.PathLike[str] | SensorSpec = "zf_imager_5016",
-                  height_m: float = 1.5, tunnel_json: str | os.PathLike[str] | None = None,
-                  resolution: str | None = None, step_rad: float | None = None,
-                  heading_rad: float = 0.0, allow_outside: bool = False,
-                  fmt: str = "laz", crs: str | None = None, settings: Any = None,
-                  seed: int = 0, reflectivity: float = 0.5, fields: str | None = None,
-                  executor: Executor | None = None,
-                  progress: ProgressFn | None = None) -> CampaignResult:
-    """Simulate a campaign of TLS stations into ``folder``: one file per station and
-    ``manifest.json``, on ``executor`` (what ``tunnelsim scan --chainages`` / ``--plan``
-    does).
-
-    Parameters
-    ----------
-    mesh : str or path-like
-    folder : str or path-like
-        Output folder, created when missing (its parent must exist); files in it are
-        replaced one by one.
-    chainages_m : (start, stop, step) float, optional
-        A station every ``step`` m from ``start`` to ``stop`` (included when on the
-        grid) on the tunnel axis, ``height_m`` above the floor.
-    plan : str or path-like, optional
-        A ``plan.json`` of ``tunnelsim plan``; ``plan_name`` picks one of its plans
-        (default the optimised one, or the only one). Give ``chainages_m`` or ``plan``.
-    sensor, height_m, tunnel_json, resolution, step_rad, heading_rad
-        As in ``scan_to_file``.
-    allow_outside, crs, settings, seed, reflectivity, fields
-        As in ``scan_to_file``.
-    fmt : {"laz", "las", "ply", "npz", "e57"}
-        The stations' file format.
-    executor : survey.cluster.Executor, optional
-        Where the stations run (default in this process).
-    progress : callable (done_stations, total_stations), optional
-
-    Returns
-    -------
-    CampaignResult
-
-    Raises
-    ------
-    SimulationError
-        A sensor that is not a TLS, stations outside the mesh's box (unless
-        ``allow_outside``), a station that returns no point, chainages off the axis.
-
-    Examples
-    --------
-    >>> from survey.workflows.simulation import scan_campaign
-    >>> # r = scan_campaign("tunnel.ply", "campaign", chainages_m=(10, 50, 10),
-    >>> #                   resolution="low")
-    >>> # r.manifest_path, r.points
-    """
-    import time
-    from dataclasses import asdict
-
-    import numpy as np
-
-    from sensors.io.meshes import load_mesh
-    from sensors.spec_types import TLSPattern
-    from survey.cluster import Executor, scan_stations
-
-    if plan_name is not None and plan is None:
-        raise SimulationError("Expected --plan-name with --plan, got it with --chainages.")
-    if (plan is None) == (chainages_m is None):
-        raise SimulationError("Expected one of --chainages START:STOP:STEP or --plan "
-                              "PLAN_JSON, got " + ("both." if plan is not None else
-                                                   "neither."))
-    spec = _sensor(sensor)
-    if not isinstance(spec.pattern, TLSPattern):
-        raise SimulationError(f"Expected a TLS sensor for a campaign of stations, got "
-                              f"{spec.name} ({spec.kind}); use 'tunnelsim drive'.")
-    out = Path(folder)
-    out.mkdir(exist_ok=True)
-    stated = output_crs(mesh, crs, tunnel_json=tunnel_json)
-    ex = Executor() if executor is None else executor
-    scene, refl = load_mesh(mesh)
-    stations, info = _campaign_stations(mesh, scene, heading_rad, chainages_m=chainages_m,
-                                        plan=plan, plan_name=plan_name, height_m=height_m,
-                                        tunnel_json=tunnel_json)
-    lo, hi = scene.bounds
-    at = np.array([s.position for s in stations])
-    outside = np.flatnonzero(((at < lo) | (at > hi)).any(axis=1))
-    if len(outside) and not allow_outside:
-        raise SimulationError(f"Expected every station inside the mesh's bounding box "
-                              f"{_box_text(lo, hi)}, got station {int(outside[0])} at "
-                              f"{xyz_text(at[outside[0]])} ({len(outside)} outside); is "
-                              "the plan of another mesh? Pass --allow-outside to scan "
-                              "them anyway.")
-    settings = _settings(settings)
-    t0 = time.perf_counter()
-    camp = scan_stations(scene, spec, stations, out, executor=ex, resolution=resolution,
-                         step_rad=step_rad, settings=settings, seed=seed,
-                         reflectivity=refl if refl is not None else reflectivity,
-                         fmt=fmt, fields=fields, crs=stated, progress=progress,
-                         info={"mesh": str(mesh), **info, "settings": asdict(settings)})
-    wall = time.perf_counter() - t0
-    empty = [s["station"] for s in camp.manifest["stations"] if s["points"] == 0]
-    if empty:
-        raise SimulationError(f"Expected every station to see the mesh, got no point at "
-                              f"station {empty[0]} ({len(empty)} such); put the stations "
-                              "where they see the mesh.")
-    res = resolution or ("custom step" if step_rad is not None else
-                         spec.pattern.default_resolution)
-    where = f"{ex.kind}, {ex.workers} workers" if ex.workers > 1 else ex.kind
-    return CampaignResult(camp, spec.name, res, len(stations), camp.pulses, camp.points,
-                          wall, float(camp.seconds.sum()), where)
 
 
 # ------------------------------------------------------------------------------ drive
@@ -937,8 +460,8 @@ def _centreline(meta: dict[str, Any], platform: PlatformSpec, speed_mps: float, 
         a, b = (float(v) for v in chainage_m)
         if not (c0 <= a < b <= c1):
             raise SimulationError(f"Expected --chainage within [{c0:g}, {c1:g}] m with "
-                                  f"START < END, got '{_number_text(a)},"
-                                  f"{_number_text(b)}'.")
+                                  f"START < END, got '{number_text(a)},"
+                                  f"{number_text(b)}'.")
     s = np.append(np.arange(a, b, 0.5), b)
     height = platform.mast_height_m if height_m is None else height_m
     return platform_trajectory(al.to_world(s, offset_m, height), platform, speed_mps,
@@ -1013,15 +536,15 @@ def _check_drive_reach(scene: Any, spec: SensorSpec, traj: Trajectory, mount: An
     lo, hi = scene.bounds
     gap = np.linalg.norm(np.maximum(np.maximum(lo - pos, pos - hi), 0.0), axis=1)
     reach = spec.physics.range_max_m
-    span = f"sensor positions within {_box_text(pos.min(axis=0), pos.max(axis=0))}"
+    span = f"sensor positions within {box_text(pos.min(axis=0), pos.max(axis=0))}"
     if gap.min() > reach and not allow_outside:
         raise SimulationError(f"Expected a trajectory within the {spec.name}'s "
                               f"{reach:g} m range of the mesh's bounding box "
-                              f"{_box_text(lo, hi)}, got {span}, {gap.min():.6g} m from it "
+                              f"{box_text(lo, hi)}, got {span}, {gap.min():.6g} m from it "
                               "at the nearest; is it in another coordinate frame? Pass "
                               "--allow-outside if you mean it.")
     hint = "" if allow_outside else "; pass --allow-outside if you mean it"
-    return (f"; the {span} may lie outside the mesh {_box_text(lo, hi)} or in another "
+    return (f"; the {span} may lie outside the mesh {box_text(lo, hi)} or in another "
             f"coordinate frame{hint}")
 
 
@@ -1090,6 +613,28 @@ def _slam_files(output: str | os.PathLike[str], run: Run, traj: Trajectory,
 
         files.cp_world.write_text(crs_comment(crs) + "\n" + files.cp_world.read_text())
     return obs.run, files
+
+
+def _write_drive(run: Run, output: str | os.PathLike[str], *, fields: str | None,
+                 crs: Any, progress: ProgressFn | None, bag: dict[str, Any] | None,
+                 robot: RobotDescription | None, waveform_data: str | None,
+                 cameras: Sequence[Any]) -> tuple[RunOutput, dict[str, float]]:
+    """Write the drive ``run`` to ``output``: a bag in the frames of ``robot`` when given
+    and the output is a bag (``survey.workflows.robotbag``, the ``cameras``' frames in
+    it), else ``write_run`` (``Run.write``, which refuses a waveform run into a bag).
+    Returns what was written (the lidar's own time and rate) and the seconds each
+    camera's frames took in the bag (name: s; empty without a robot's bag)."""
+    from sensors.writers import format_of
+
+    if robot is not None and format_of(output) in ("mcap", "rosbag2") and \
+            not getattr(run.settings, "waveform", False):
+        from survey.workflows.robotbag import write_robot_bag
+
+        stats = write_robot_bag(output, run, robot, progress=progress, crs=crs,
+                                cameras=cameras, **(bag or {}))
+        return run_output(stats, output), dict(stats["camera_seconds"])
+    return write_run(run, output, fields=fields, crs=crs, progress=progress, bag=bag,
+                     waveform_data=waveform_data), {}
 
 
 # ---------------------------------------------------------------------------- cameras
@@ -1185,8 +730,9 @@ def _drive_cameras(specs: Sequence[Any], mesh: str | os.PathLike[str], scene: An
     return out, said
 
 
-def _camera_runs(cams: Sequence[Any], lamps: str, folders: Sequence[Path | None]
-                 ) -> tuple[CameraRun, ...]:
+def _camera_runs(cams: Sequence[Any], lamps: str, folders: Sequence[Path | None],
+                 seconds: dict[str, float]) -> tuple[CameraRun, ...]:
+    """What each camera made (``seconds``: its time, by name)."""
     from sensors.bag import camera_topics
 
     out = []
@@ -1197,7 +743,8 @@ def _camera_runs(cams: Sequence[Any], lamps: str, folders: Sequence[Path | None]
                              dc.rays * dc.samples_per_pixel,
                              "global" if c.global_shutter else "rolling",
                              lamps if c.kind == "color" else "no light needed", folder,
-                             () if folder is not None else (tp.image, tp.info)))
+                             () if folder is not None else (tp.image, tp.info),
+                             float(seconds.get(c.name, 0.0))))
     return tuple(out)
 
 
@@ -1391,7 +938,7 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
 
     Examples
     --------
-    >>> from survey.workflows.simulation import drive_to_file
+    >>> from survey.workflows.drive import drive_to_file
     >>> # r = drive_to_file("tunnel.ply", "drive.laz", sensor="velodyne_vlp16",
     >>> #                   along="centreline", speed_mps=1.0, duration_s=2.0)
     >>> # r.output.points, r.true_trajectory, r.robot.urdf
@@ -1409,7 +956,7 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
                               "is split into time windows to run on a cluster), got no "
                               "--window-s.")
     lever = _lever(lever_arm_m)
-    spec = _sensor(sensor, rate_hz)
+    spec = sensor_spec(sensor, rate_hz)
     if not Path(mesh).is_file():
         raise SimulationError(f"Expected a mesh file, got '{mesh}' which does not exist.")
     cam_specs = _check_camera_options(output, cameras, rate_hz=camera_rate_hz,
@@ -1443,8 +990,9 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
     robot = drive_robot(spec, plat, mnt, height_m)
     refl_or = refl if refl is not None else reflectivity
     # A Run, or with slam_drift the DriftedRun made of it (written alike).
-    run: Any = simulate_drive(scene, spec, traj, mnt, settings=_settings(settings),
-                              seed=seed, reflectivity=refl_or, t_end=t_end)
+    run: Any = simulate_drive(scene, spec, traj, mnt,
+                              settings=physics_settings(settings), seed=seed,
+                              reflectivity=refl_or, t_end=t_end)
     driven = trimmed(traj, t_end)      # every output covers the same time span
     cams: list[Any] = []
     lamps_said = ""
@@ -1472,6 +1020,7 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
     label = f"{spec.name} drive {run.duration_s:.1f} s"
     min_return = 0.0 if allow_outside else MIN_DRIVE_RETURN
     n_windows, ran_on = 0, None
+    cam_s: dict[str, float] = {}       # each camera's seconds (name: s)
     if window_s is not None:
         from survey.cluster import Executor, simulate_windows
 
@@ -1482,31 +1031,31 @@ def drive_to_file(mesh: str | os.PathLike[str], output: str | os.PathLike[str], 
         wins = man.get("windows", [])
         n_windows = len(wins)
         points = sum(int(w.get("points", 0)) for w in wins)
-        _check_returned(label, run.n_pulses, points, min_return, "", share=False)
+        check_returned(label, run.n_pulses, points, min_return, "", share=False)
         nan = float("nan")
         out = RunOutput(Path(output), int(run.n_pulses), points, nan, nan, nan)
     else:
         # DECISION: a drifted run's bag keeps its own frames (the SLAM frame's poses).
-        out = _write_run(run, output, fields=fields, crs=stated, progress=progress,
-                         bag=bag, robot=None if slam_drift else robot,
-                         waveform_data=waveform_data, cameras=cams)
-        _check_returned(label, out.pulses, out.points, min_return, where)
+        out, cam_s = _write_drive(run, output, fields=fields, crs=stated,
+                                  progress=progress, bag=bag,
+                                  robot=None if slam_drift else robot,
+                                  waveform_data=waveform_data, cameras=cams)
+        check_returned(label, out.pulses, out.points, min_return, where)
     folders: list[Path | None] = [None] * len(cams)
     if cams and format_of(output) not in ("mcap", "rosbag2"):
         from sensors.camera_drive import write_frame_folder
 
-        folders = [write_frame_folder(dc, beside(output, "_cameras") / dc.cam.name,
-                                      info={"lamps": lamps_said, "sensor": spec.name})
-                   for dc in cams]
+        for k, dc in enumerate(cams):
+            t0 = time.perf_counter()
+            folders[k] = write_frame_folder(dc, beside(output, "_cameras") / dc.cam.name,
+                                            info={"lamps": lamps_said, "sensor": spec.name})
+            cam_s[dc.cam.name] = time.perf_counter() - t0
     files = _robot_files(output, robot)
     return DriveResult(out, spec.name, float(run.duration_s), stated, route, sweeps,
                        true_path, base_path, len(driven), slam, files, n_windows,
-                       window_s, ran_on, _camera_runs(cams, lamps_said, folders))
+                       window_s, ran_on, _camera_runs(cams, lamps_said, folders, cam_s))
 
 
-__all__ = ["MIN_DRIVE_RETURN", "ROUTE_CLEARANCE_M", "STATION_FORMATS", "AutoRoute",
-           "CameraRun", "CampaignResult", "DriveResult", "ProgressFn", "RobotFiles", "RunOutput",
-           "ScanResult", "SlamFiles", "SweepCut", "beside", "drive_end", "drive_robot",
-           "drive_to_file", "output_crs", "output_stem", "scan_campaign", "scan_to_file",
-           "station_heading_deg", "stations_on_axis", "sweep_rate_hz", "trimmed",
-           "whole_sweeps_end", "xyz_text"]
+__all__ = ["MIN_DRIVE_RETURN", "ROUTE_CLEARANCE_M", "AutoRoute", "CameraRun", "DriveResult",
+           "RobotFiles", "SlamFiles", "SweepCut", "beside", "drive_end", "drive_robot",
+           "drive_to_file", "output_stem", "sweep_rate_hz", "trimmed", "whole_sweeps_end"]
