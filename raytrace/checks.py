@@ -13,11 +13,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._kernels.rays import count_nonfinite, unit_directions
+from ._kernels.rays import (count_bad_directions, count_nonfinite, shift_origins,
+                           unit_directions)
 from .errors import MeshError, RayError
 
-__all__ = ["as_points", "as_xyz", "first_rows", "positive", "prepare_rays", "shape_text",
-           "validate_mesh"]
+__all__ = ["as_points", "as_xyz", "first_rows", "positive", "prepare_cast", "prepare_rays",
+           "shape_text", "validate_mesh"]
 
 
 def shape_text(a: Any) -> str:
@@ -210,6 +211,54 @@ def prepare_rays(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
     ------
     RayError
     """
+    o, _, d, _, tmin, tmax = _prepare(origins, directions, t_min, t_max, None)
+    return o, d, tmin, tmax
+
+
+#: Fewest rays that ``prepare_cast`` checks with its parallel kernels (fewer: NumPy and
+#: the serial path of ``prepare_rays``).
+_PARALLEL_ROWS = 64
+
+
+def prepare_cast(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
+                 t_max: ArrayLike, offset: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                            bool, NDArray[np.float64], NDArray[np.float64]]:
+    """Checked rays for ``Scene.cast``: ``prepare_rays`` with the origins also shifted
+    into a scene's local frame, and the directions left as given where the traversal can
+    normalise them itself.
+
+    Parameters
+    ----------
+    origins, directions, t_min, t_max
+        As in ``prepare_rays``.
+    offset : (3,) float64
+        The scene's local origin: ``local = origins - offset``.
+
+    Returns
+    -------
+    origins : (1, 3) or (n, 3) float64, C-contiguous (world frame)
+    local : the same shape, float64, C-contiguous: ``origins - offset``, bit for bit
+    directions : (n, 3) float64, C-contiguous: unit vectors when ``unit``, else the
+        caller's non-zero finite directions, to be normalised per ray exactly as
+        ``prepare_rays`` normalises them (``_kernels/rays.py``)
+    unit : bool
+    t_min, t_max : (1,) or (n,) float64, both the same length
+
+    Raises
+    ------
+    RayError
+        As ``prepare_rays``, with the same messages.
+    """
+    return _prepare(origins, directions, t_min, t_max, offset)
+
+
+def _prepare(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
+             t_max: ArrayLike, offset: NDArray[np.float64] | None
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                        bool, NDArray[np.float64], NDArray[np.float64]]:
+    """``prepare_rays`` (``offset`` None: directions normalised, local = origins) and
+    ``prepare_cast``."""
     d = _rows(as_xyz(directions, "directions", RayError), "directions")
     o = _rows(as_xyz(origins, "origins", RayError), "origins")
     if o.shape[0] == 1:
@@ -223,14 +272,35 @@ def prepare_rays(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
     d = np.ascontiguousarray(d)
     # One fused parallel pass each (_kernels/rays.py); the NumPy passes below only run
     # to name the offending rows when something is wrong.
-    unit = np.empty_like(d)
     # DECISION: a single origin (a station, a camera) is checked without the parallel
     # kernel: on a loaded 2-core machine each parallel region waits milliseconds for
     # its worker thread, longer than checking a few rows.
-    bad_o = count_nonfinite(o) if o.shape[0] > 64 else int((~np.isfinite(o)).sum())
-    if bad_o or unit_directions(d, unit):
+    if o.shape[0] > _PARALLEL_ROWS:
+        if offset is None:
+            local = o
+            bad_o = count_nonfinite(o)
+        else:
+            local = np.empty_like(o)
+            bad_o = shift_origins(o, offset, local)
+    else:
+        bad_o = int((~np.isfinite(o)).sum())
+        local = o if offset is None else o - offset
+    # DECISION: one (n, 3) direction per ray is left to the traversal to normalise
+    # (``traverse.closest_hit`` with unit=False, same arithmetic, same bits): writing
+    # the (n, 3) unit array cost ~7 ns a drive ray plus the page faults of a fresh
+    # 24 bytes a ray, for an array the drive's casts never read again.
+    # A single origin (a station, a camera) goes to a cube map or near map, whose
+    # kernels take unit vectors: normalised here, as before.
+    unit = offset is None or d.shape[0] != n or o.shape[0] != n or n <= _PARALLEL_ROWS
+    if unit:
+        u = np.empty_like(d)
+        bad_d = unit_directions(d, u)
+    else:
+        bad_d = count_bad_directions(d)
+    if bad_o or bad_d:
         _raise_bad_rays(o, d)
-    d = unit
+    if unit:
+        d = u
     if d.shape[0] != n:  # one direction shared by several origins
         d = np.broadcast_to(d, (n, 3))
     tmin = _limit(t_min, "t_min", n)
@@ -247,4 +317,4 @@ def prepare_rays(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
         raise RayError(f"Expected `t_min` <= `t_max` for every ray, got t_min "
                        f"{tmin[bad[0]]} > t_max {tmax[bad[0]]}{_at(bad, tmin.size)}; pass "
                        "the limits by keyword: cast(o, d, t_min=..., t_max=...).")
-    return o, d, tmin, tmax
+    return o, local, d, unit, tmin, tmax

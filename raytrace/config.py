@@ -205,6 +205,15 @@ NEARMAP_MAX_CELLS_PER_TRI = 16.0
 ORDER_MIN_RAYS = 65_536
 #: Grid for the Morton key: 2^ORDER_BITS cells per axis of the scene's box.
 ORDER_BITS = 7
+#: The same for ``Scene.cast`` (closest hits through the BVH); ``ORDER_BITS`` stays for
+#: ``occluded`` and ``closest``. DECISION: 5 (cells of ~9 m on the 300 m bfo preset):
+#: measured on bfo (1M random rays from origins within 0.5 m of the centreline, one
+#: quiet 2-core run, wall ns a ray of the traversal with 7 / 5 bits / no order):
+#: origins along 8 m 233 / 208 / 213, 30 m 288 / 229 / 220, 100 m 309 / 292 / 279,
+#: 250 m 351 / 354 / 382. Finer cells scatter the kernel's reads of the rays and writes
+#: of the answers over memory for little tree locality, and their counting sort over
+#: 2^21 buckets costs ~15 ns a ray (5 bits: ~2). Issue 33.
+CAST_ORDER_BITS = 5
 #: A batch keeps its own order when, on average, at least ORDER_RUN consecutive
 #: origins stay within one such cell's width of each other (a drive's rays in time
 #: order): sorting them costs ~20-60 ns a ray and gains nothing (issue 16).
@@ -255,6 +264,7 @@ __all__ = [
     "NEARMAP_CELLS_PER_TRI", "NEARMAP_MAX_CELLS_PER_TRI",
     "ORDER_MIN_RAYS",
     "ORDER_BITS",
+    "CAST_ORDER_BITS",
     "ORDER_RUN",
     "SAH_BINS", "SAH_ALL_AXES", "SAH_C_TRAV", "SAH_C_ISECT", "MAX_LEAF_SIZE", "BUILD_TASKS",
     "BUILD_TASK_MIN", "MAX_LEAF_SIZE_FORCED",

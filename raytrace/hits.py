@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._kernels.normals import hit_normals
+from ._kernels.rays import unit_directions
 
 __all__ = ["Hits"]
 
@@ -31,22 +32,29 @@ class Hits:
     Notes
     -----
     Properties ``hit``, ``points``, ``normals`` and ``incidence_rad`` are derived from
-    these (the last three computed on first access and kept).
+    these (the last three computed on first access and kept). Like ``points``, which
+    uses the origins passed to ``Scene.cast`` (no copy when they are float64),
+    ``directions`` of an (n, 3) float64 batch are normalised on first access from the
+    array that was passed: change it in place only after reading what you need.
     """
 
     def __init__(self, t: NDArray[np.float64], triangle: NDArray[np.int64],
                  u: NDArray[np.float64], v: NDArray[np.float64], *,
                  origins: NDArray[np.float64], directions: NDArray[np.float64],
-                 slots: NDArray[np.int64], records: NDArray[np.float64]) -> None:
+                 slots: NDArray[np.int64], records: NDArray[np.float64],
+                 unit: bool = True) -> None:
         """``origins`` (1, 3) or (n, 3) and unit ``directions`` (n, 3) are the rays as
         cast (world frame); ``slots`` (n,) the hit rows of the scene's triangle
-        ``records`` (m, 9), -1 on a miss."""
+        ``records`` (m, 9), -1 on a miss. ``unit`` False: ``directions`` are the
+        caller's checked (finite, non-zero) directions, normalised on first use as the
+        cast normalised them (``checks.prepare_rays``)."""
         self.t = t
         self.triangle = triangle
         self.u = u
         self.v = v
         self._origins = origins
         self._directions = directions
+        self._unit = unit
         self._slots = slots
         self._records = records
         self._points: NDArray[np.float64] | None = None
@@ -67,9 +75,21 @@ class Hits:
     @property
     def directions(self) -> NDArray[np.float64]:
         """(n, 3) float64: the rays' unit directions, as cast (read-only)."""
-        d = self._directions.view()
+        d = self._unit_directions().view()
         d.flags.writeable = False
         return d
+
+    def _unit_directions(self) -> NDArray[np.float64]:
+        """The unit directions, normalised on first use (and kept) when the cast left
+        that to the traversal. DECISION: the cast keeps the caller's array (as it keeps
+        the caller's origins for ``points``) rather than writing 24 bytes a ray that a
+        drive's casts never read."""
+        if not self._unit:
+            u = np.empty_like(self._directions)
+            unit_directions(self._directions, u)
+            self._directions = u
+            self._unit = True
+        return self._directions
 
     @property
     def points(self) -> NDArray[np.float64]:
@@ -77,7 +97,7 @@ class Hits:
         on a miss."""
         if self._points is None:
             with np.errstate(invalid="ignore"):
-                p = self._origins + self.t[:, None] * self._directions
+                p = self._origins + self.t[:, None] * self._unit_directions()
             p[~self.hit] = np.nan
             self._points = p
         return self._points
@@ -104,7 +124,7 @@ class Hits:
         """
         if self._incidence is None:
             nrm = self.normals
-            d = self._directions
+            d = self._unit_directions()
             # arctan2(|d x n|, |d . n|) rather than arccos(|d . n|): accurate at normal
             # incidence too, where arccos loses half the digits (~1e-8 rad).
             cos = np.abs(np.einsum("ij,ij->i", d, nrm))

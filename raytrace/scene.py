@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from . import config
-from .checks import as_points, first_rows, prepare_rays, validate_mesh
+from .checks import as_points, first_rows, prepare_cast, prepare_rays, validate_mesh
 from .closest import ClosestPoints
 from ._kernels.build import build_bvh, slot_triangles, triangle_setup
 from ._kernels.closest import closest_points
@@ -39,6 +39,7 @@ from ._kernels.collapse import to_wide_layout
 from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
 from ._kernels.nearmap import gather_near, ray_cone
 from ._kernels.order import counting_sort, is_coherent, morton_keys, origin_runs
+from ._kernels.rays import unit_directions
 from ._kernels.simd import LANES
 from ._kernels.traverse import CHILD, RECORD, any_hit, closest_hit
 from .errors import ConfigError, MeshError, RayError, SceneFileError
@@ -257,12 +258,12 @@ class Scene:
         if not isinstance(method, str) or method not in ("auto", "bvh", "cubemap", "near"):
             raise RayError(f"Expected `method` to be 'auto', 'bvh', 'cubemap' or 'near', "
                            f"got {method!r}; leave it at 'auto' unless timing the paths.")
-        org, dirs, tmin, tmax = prepare_rays(origins, directions, t_min, t_max)
+        org, local, dirs, unit, tmin, tmax = prepare_cast(origins, directions, t_min,
+                                                          t_max, self.origin_offset)
         n = dirs.shape[0]
         # t, slot, input triangle, u, v
         out = (np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64),
                np.empty(n), np.empty(n))
-        local = org - self.origin_offset
         # Rays sharing one origin go to that origin's cube map. DECISION: shared origins
         # are also found in an (n, 3) array (runs of bit-identical consecutive rows, one
         # O(n) pass): a station's rays passed with one row per ray were 3x slower than
@@ -282,6 +283,9 @@ class Scene:
             if method == "auto" or (runs.shape[0] and runs[0, 1] - runs[0, 0] < n):
                 runs = runs[runs[:, 1] - runs[:, 0] >= shortest]
         rest = None
+        if runs.shape[0] and not unit:  # the maps' kernels take unit directions
+            dirs = _unit(dirs)
+            unit = True
         for a, b in runs:
             # A run too short for a whole map takes a near map, unless the whole map of
             # its origin is already kept (the last, short chunk of a station).
@@ -300,19 +304,19 @@ class Scene:
             rest[part] = False
         if rest is None:
             if n:
-                self._cast_bvh(local, dirs, tmin, tmax, out)
+                self._cast_bvh(local, dirs, unit, tmin, tmax, out)
         elif rest.any():
             idx = np.flatnonzero(rest)
             sub = (np.empty(idx.size), np.empty(idx.size, dtype=np.int64),
                    np.empty(idx.size, dtype=np.int64), np.empty(idx.size),
                    np.empty(idx.size))
-            self._cast_bvh(local[idx] if local.shape[0] > 1 else local, dirs[idx],
+            self._cast_bvh(local[idx] if local.shape[0] > 1 else local, dirs[idx], unit,
                            _part(tmin, idx), _part(tmax, idx), sub)
             for o, so in zip(out, sub):
                 o[idx] = so
         out_t, out_slot, tri, out_u, out_v = out
         return Hits(out_t, tri, out_u, out_v, origins=org, directions=dirs,
-                    slots=out_slot, records=self._tris)
+                    slots=out_slot, records=self._tris, unit=unit)
 
     def _cast_view(self, view: Any, local1: NDArray[np.float64], dirs: NDArray[np.float64],
                    tmin: NDArray[np.float64], tmax: NDArray[np.float64],
@@ -327,13 +331,16 @@ class Scene:
                              dirs, tmin, tmax, self._stack_size, config.RAY_BLOCK, *out)
 
     def _cast_bvh(self, local: NDArray[np.float64], dirs: NDArray[np.float64],
-                  tmin: NDArray[np.float64], tmax: NDArray[np.float64], out: Any) -> None:
+                  unit: bool, tmin: NDArray[np.float64], tmax: NDArray[np.float64],
+                  out: Any) -> None:
         """Closest hits through the BVH, written into ``out`` (t, slot, triangle, u,
-        v)."""
-        with numba.parallel_chunksize(config.PRANGE_CHUNK):
+        v); ``unit`` False: ``dirs`` are normalised per ray by the kernel."""
+        order = self._ray_order(local, config.CAST_ORDER_BITS)
+        # One prange iteration a worker; the workers share out the blocks themselves.
+        with numba.parallel_chunksize(1):
             closest_hit(self._nodes, self._nodes.view(np.int32), self._tris, self._ids,
-                        local, dirs, tmin, tmax, self._stack_size, self._ray_order(local),
-                        *out)
+                        local, dirs, tmin, tmax, self._stack_size, order, *out, bool(unit),
+                        numba.get_num_threads(), np.zeros(1, dtype=np.int64))
 
     def occluded(self, origins: ArrayLike, directions: ArrayLike, *,
                  t_min: ArrayLike = 0.0, t_max: ArrayLike = np.inf) -> NDArray[np.bool_]:
@@ -413,20 +420,23 @@ class Scene:
                                dist, tri, off, side)
         return ClosestPoints(dist, tri, pts - off, off, side)
 
-    def _ray_order(self, local_origins: NDArray[np.float64]) -> NDArray[np.int64]:
-        """Processing order for a batch: Morton order of the origins for large batches
-        of scattered origins, else empty (input order: small batches, and batches whose
-        consecutive origins are already close). Speed only; see order.py."""
+    def _ray_order(self, local_origins: NDArray[np.float64], bits: int | None = None
+                   ) -> NDArray[np.int64]:
+        """Processing order for a batch: Morton order of the origins on a grid of 2^bits
+        cells an axis (default ``config.ORDER_BITS``) for large batches of scattered
+        origins, else empty (input order: small batches, and batches whose consecutive
+        origins are already within a cell of each other). Speed only; see order.py."""
         n = local_origins.shape[0]
         if n < config.ORDER_MIN_RAYS:
             return _NO_ORDER
+        bits = config.ORDER_BITS if bits is None else int(bits)
         box = self.bounds - self.origin_offset
-        step = float(np.max(box[1] - box[0])) / (1 << config.ORDER_BITS)
+        step = float(np.max(box[1] - box[0])) / (1 << bits)
         if is_coherent(local_origins, step, n // config.ORDER_RUN):
             return _NO_ORDER
         keys = np.empty(n, dtype=np.int64)
-        morton_keys(local_origins, box[0], box[1], config.ORDER_BITS, keys)
-        return counting_sort(keys, 1 << (3 * config.ORDER_BITS))
+        morton_keys(local_origins, box[0], box[1], bits, keys)
+        return counting_sort(keys, 1 << (3 * bits))
 
     def _has_view(self, local_origin: NDArray[np.float64]) -> bool:
         """Whether the cube map kept from the last call is that of ``local_origin``."""
@@ -618,6 +628,14 @@ class Scene:
         lo, hi = (", ".join(f"{x:.6g}" for x in row) for row in box)
         return (f"Scene({self.n_triangles:,} triangles, BVH {self.nbytes / 1e6:.1f} MB, "
                 f"bounds ({lo}) .. ({hi}) m)")
+
+
+def _unit(d: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(n, 3) unit vectors of the checked (non-zero, finite) directions ``d``, as
+    ``checks.prepare_rays`` normalises them."""
+    u = np.empty_like(d)
+    unit_directions(d, u)
+    return u
 
 
 def _part(limit: NDArray[np.float64], part: Any) -> NDArray[np.float64]:

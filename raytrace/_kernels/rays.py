@@ -44,3 +44,37 @@ def count_nonfinite(a):
             bad += 1
     return bad
 
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
+def count_bad_directions(d):
+    """How many rows of d (n, 3) float64 ``unit_directions`` would count as bad (not
+    finite, or zero length), without writing anything: the check of a cast whose
+    directions the traversal normalises itself (``traverse.closest_hit``)."""
+    bad = 0
+    for i in prange(d.shape[0]):
+        x = d[i, 0]
+        y = d[i, 1]
+        z = d[i, 2]
+        length = np.sqrt(x * x + y * y + z * z)
+        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z) and length != 0.0):
+            bad += 1
+    return bad
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
+def shift_origins(o, offset, out):
+    """out[i] = o[i] - offset for o (n, 3) float64 (NumPy's ``o - offset``, the same
+    float64 subtraction, in one parallel pass); returns how many rows of ``o`` hold a
+    NaN or inf (``count_nonfinite`` fused in)."""
+    bad = 0
+    for i in prange(o.shape[0]):
+        x = o[i, 0]
+        y = o[i, 1]
+        z = o[i, 2]
+        out[i, 0] = x - offset[0]
+        out[i, 1] = y - offset[1]
+        out[i, 2] = z - offset[2]
+        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
+            bad += 1
+    return bad

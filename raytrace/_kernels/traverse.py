@@ -33,9 +33,9 @@ tests are the float64 ``intersect.moller_trumbore``, unchanged.
 Determinism: the closest hit is the minimum of (t, input index) over all triangles the
 ray hits within [t_min, t_max] — a total order, so the result does not depend on the
 visiting order, the block split or the thread count. Rays run in fixed-size blocks
-(``config.RAY_BLOCK``); within a block the previous ray's triangle is tested first
-("warm start"): for rays in scan order it is usually the answer, and a tight t_max from
-the start prunes most of the tree. It changes only the work, never the result.
+(``config.RAY_BLOCK``). ``trace_closest`` and ``trace_any`` can test a previous ray's
+triangle first ("warm start": ``any_hit`` and the cube-map kernels do; ``closest_hit``
+no longer does, see ``_closest_block``). It changes only the work, never the result.
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ from numba import njit, prange
 from ..config import CACHE, ERROR_MODEL, RAY_BLOCK
 from .intersect import closer, moller_trumbore
 from .simd import ENTRY_SLACK, LANES, PLANES, axis_setup, order8, round_down32, round_up32, slab8
+from .tasks import fetch_add
 
 #: float32 columns of one record: 48 planes, 8 child links, 8 counts.
 RECORD = PLANES + 2 * LANES
@@ -167,34 +168,51 @@ def trace_closest(nodes, links, tris, ids, ox, oy, oz, dx, dy, dz, t0, t1, prev,
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
 def _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, order,
-                   r0, r1, out_t, out_slot, out_tri, out_u, out_v):
+                   unit, r0, r1, out_t, out_slot, out_tri, out_u, out_v):
     """Rays order[r0:r1] of ``closest_hit`` (or rays r0..r1 when ``order`` is empty),
-    sequentially, with the warm start.
+    sequentially.
 
     DECISION: the per-block work is its own (serial) function called from the prange
     loop, not inlined into it: Numba's parfor lowering compiled the same loop ~35 %
     slower (measured: 0.9 vs 1.45 Mrays/s on one thread, incoherent rays).
+
+    DECISION: no warm start here (the previous ray's triangle tested first, as the
+    cube-map kernels still do): with the nearest-first 8-wide walk the first leaf
+    reached is usually the answer anyway, and the extra triangle test cost more than the
+    tighter t saved. Measured on bfo (one process, CPU ns a ray at 2 threads, three
+    passes each, with / without): drive 258-261 / 238-240, station from one origin
+    183-187 / 166-169, random 383-411 / 373-383; even an oracle that tests the true
+    answer first gave only 230 on the drive (issue 33).
+
+    ``unit`` False: ``dirs`` are the caller's directions, normalised here per ray with
+    the arithmetic of ``rays.unit_directions`` (sqrt(x x + y y + z z), one division per
+    component), so the ray cast is bit for bit the one of the normalised array.
     """
     st_node, st_dist, sd, cn, cd = new_scratch(stack_size)
     one_org = org.shape[0] == 1
     one_t = tmin.shape[0] == 1
     ordered = order.shape[0] > 0
-    prev = -1
     for p in range(r0, r1):
         r = order[p] if ordered else p
         ro = 0 if one_org else r
         rt = 0 if one_t else r
+        dx = dirs[r, 0]
+        dy = dirs[r, 1]
+        dz = dirs[r, 2]
+        if not unit:
+            length = np.sqrt(dx * dx + dy * dy + dz * dz)
+            dx = dx / length
+            dy = dy / length
+            dz = dz / length
         bt, bid, bslot, bu, bv = trace_closest(
             nodes, links, tris, ids, org[ro, 0], org[ro, 1], org[ro, 2],
-            dirs[r, 0], dirs[r, 1], dirs[r, 2], tmin[rt], tmax[rt], prev,
-            st_node, st_dist, sd, cn, cd)
+            dx, dy, dz, tmin[rt], tmax[rt], -1, st_node, st_dist, sd, cn, cd)
         if bslot >= 0:
             out_t[r] = bt
             out_slot[r] = bslot
             out_tri[r] = bid
             out_u[r] = bu
             out_v[r] = bv
-            prev = bslot
         else:
             out_t[r] = np.inf
             out_slot[r] = -1
@@ -205,23 +223,42 @@ def _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, o
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
 def closest_hit(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, order,
-                out_t, out_slot, out_tri, out_u, out_v):
+                out_t, out_slot, out_tri, out_u, out_v, unit, workers, counter):
     """Closest hit for n rays.
 
-    org : (n_o, 3) float64, n_o in {1, n}; dirs : (n, 3) float64 unit vectors;
+    org : (n_o, 3) float64, n_o in {1, n}; dirs : (n, 3) float64 unit vectors, or (with
+    ``unit`` False) non-zero finite vectors that each ray normalises itself, as
+    ``rays.unit_directions`` would (no (n, 3) array of unit vectors is written);
     tmin, tmax : (n_t,) float64, n_t in {1, n}; order : (n,) int64 processing order
     (see ``order.py``) or empty for 0..n-1. Writes out_t (inf on miss), out_slot
     (-1 on miss), out_tri (the input triangle ``ids[slot]``, -1 on miss), out_u, out_v
-    (0 on miss), each at the ray's own index. DECISION: the input index is written here,
+    (0 on miss), each at the ray's own index. ``workers``: the thread count
+    (``numba.get_num_threads()``); ``counter``: a (1,) int64 zero (``tasks.fetch_add``);
+    call with ``numba.parallel_chunksize(1)``.
+
+    DECISION: the workers take blocks of ``RAY_BLOCK`` rays one at a time from the shared
+    counter (dynamic scheduling), not a ``prange`` over the blocks: Numba's OpenMP layer
+    gives each thread a fixed half of a ``prange`` (``tasks.py``), so on this shared
+    2-core VM a thread descheduled by another process held up its whole half
+    (bench_raycast's drive row fell from 7.4 to 2.9-3.7 Mrays/s at load average 2-3,
+    Open3D's only from 5.6 to 4.4-4.8; issue 33). The BVH build balances its tasks the
+    same way. Not measured in isolation: on a quiet machine both schedules should
+    cast alike. Which worker casts a block never changes what it writes.
+
+    DECISION: the input index is written here,
     not mapped from the slots by a separate parallel pass: on this loaded 2-core VM
     every parallel region costs milliseconds of waiting for the worker thread.
     """
     n = dirs.shape[0]
     n_blocks = (n + RAY_BLOCK - 1) // RAY_BLOCK
-    for b in prange(n_blocks):
-        _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size, order,
-                       b * RAY_BLOCK, min(n, (b + 1) * RAY_BLOCK),
-                       out_t, out_slot, out_tri, out_u, out_v)
+    for _ in prange(min(workers, n_blocks)):
+        while True:
+            b = fetch_add(counter, 0, 1)
+            if b >= n_blocks:
+                break
+            _closest_block(nodes, links, tris, ids, org, dirs, tmin, tmax, stack_size,
+                           order, unit, b * RAY_BLOCK, min(n, (b + 1) * RAY_BLOCK),
+                           out_t, out_slot, out_tri, out_u, out_v)
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
