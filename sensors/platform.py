@@ -380,7 +380,9 @@ def _profile(curve: _Curve, speed: float, lim: Limits, c: float, rate_hz: float,
     k, dk, s = np.abs(curve.kappa), np.abs(curve.dkappa), curve.s
     a_max, yaw_acc = lim.max_accel_mps2 * c, lim.max_yaw_accel_radps2 * c
     jerk = lim.max_jerk_mps3 * c
-    with np.errstate(divide="ignore"):
+    # A straight stretch (kappa 0 or ~1e-160) makes its caps infinite: divisions by
+    # zero and squares that overflow to inf are the intended "no cap" there.
+    with np.errstate(divide="ignore", over="ignore"):
         x_cap = np.minimum.reduce([
             np.full(len(s), speed ** 2), (c * lim.max_yaw_rate_radps / k) ** 2,
             SHARES["lateral"] * a_max / k, SHARES["yaw_speed"] * yaw_acc / dk,
