@@ -19,7 +19,7 @@ pixel (-0.5..0.5) supersamples it.
 
 >>> import numpy as np
 >>> from raytrace.shapes import tunnel_tube
->>> from raytrace import Scene
+>>> from raytrace import Hits, Scene
 >>> from sensors.camera import load_camera
 >>> v, f = tunnel_tube(4_000, length_m=30.0)
 >>> cam = load_camera("realsense_d435_depth")
@@ -32,13 +32,12 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
 from numpy.typing import ArrayLike, NDArray
 
-from raytrace import Scene
+from raytrace import Hits, Scene
 from raytrace.config import CACHE, ERROR_MODEL
 
 from .camera import CameraSpec, pixel_rays, unproject
@@ -47,9 +46,13 @@ from .errors import SimulationError
 __all__ = ["Frame", "camera_pose", "render_depth"]
 
 
-@dataclass(frozen=True)
 class Frame:
-    """One rendered frame's geometry, row-major (height, width).
+    """One rendered frame's geometry, row-major (height, width). Read-only.
+
+    ``render_depth`` makes frames whose surface fields (``normal``, ``points``,
+    ``bary_u``, ``bary_v``) are computed on first use and kept, so that a depth frame
+    costs only its depth; ``Frame(...)`` with every field given makes one from arrays
+    of your own (a depth image from elsewhere, for the frame writers).
 
     Attributes
     ----------
@@ -84,21 +87,96 @@ class Frame:
         shutter); None for a frame rendered from one pose.
     """
 
+    __slots__ = ("hit", "valid", "range_m", "depth_z_m", "triangle", "rays_cam",
+                 "world_from_camera", "row_poses", "_surface", "_source")
     hit: NDArray[np.bool_]
     valid: NDArray[np.bool_]
     range_m: NDArray[np.float64]
     depth_z_m: NDArray[np.float64]
     triangle: NDArray[np.int64]
-    normal: NDArray[np.float64]
-    points: NDArray[np.float64]
     rays_cam: NDArray[np.float64]
     world_from_camera: NDArray[np.float64]
-    bary_u: NDArray[np.float64]
-    bary_v: NDArray[np.float64]
-    # DECISION: a trailing field with a default, so that a Frame built positionally
-    # (the eleven fields above) stays valid; ``world_from_camera`` stays (4, 4) for every
-    # consumer (camera_info.json, headlamp) and is row 0's pose.
-    row_poses: NDArray[np.float64] | None = None
+    row_poses: NDArray[np.float64] | None
+    _surface: tuple[NDArray[np.float64], ...] | None
+    _source: tuple[Hits, NDArray[np.float64], NDArray[np.float64], int] | None
+
+    def __init__(self, hit: NDArray[np.bool_], valid: NDArray[np.bool_],
+                 range_m: NDArray[np.float64], depth_z_m: NDArray[np.float64],
+                 triangle: NDArray[np.int64], normal: NDArray[np.float64] | None,
+                 points: NDArray[np.float64] | None, rays_cam: NDArray[np.float64],
+                 world_from_camera: NDArray[np.float64], bary_u: NDArray[np.float64] | None,
+                 bary_v: NDArray[np.float64] | None,
+                 row_poses: NDArray[np.float64] | None = None) -> None:
+        for name, value in (("hit", hit), ("valid", valid), ("range_m", range_m),
+                            ("depth_z_m", depth_z_m), ("triangle", triangle),
+                            ("rays_cam", rays_cam), ("world_from_camera", world_from_camera),
+                            ("row_poses", row_poses), ("_source", None)):
+            object.__setattr__(self, name, value)
+        surface = (normal, points, bary_u, bary_v)
+        object.__setattr__(self, "_surface",
+                           None if any(x is None for x in surface) else surface)
+
+    @classmethod
+    def _of_cast(cls, hit: NDArray[np.bool_], valid: NDArray[np.bool_],
+                 range_m: NDArray[np.float64], depth_z_m: NDArray[np.float64],
+                 triangle: NDArray[np.int64], rays_cam: NDArray[np.float64],
+                 world_from_camera: NDArray[np.float64],
+                 row_poses: NDArray[np.float64] | None, hits: Hits,
+                 dirs: NDArray[np.float64], origins: NDArray[np.float64],
+                 block: int) -> Frame:
+        """A frame whose surface fields are computed from the cast on first use: its
+        ``hits``, the world directions as cast, the origins (ray i leaves from
+        ``origins[i // block]``).
+        DECISION: lazily (issue 35's depth-frame rate): a depth camera reads none of
+        them, and writing them took 3 ms of a 36 ms 640x480 frame."""
+        fr = cls(hit, valid, range_m, depth_z_m, triangle, None, None, rays_cam,
+                 world_from_camera, None, None, row_poses)
+        object.__setattr__(fr, "_source", (hits, dirs, origins, block))
+        return fr
+
+    def __setattr__(self, name: str, value: object) -> None:
+        raise AttributeError(f"Frame is read-only: cannot set {name!r}.")
+
+    def _surface_fields(self) -> tuple[NDArray[np.float64], ...]:
+        surface, source = self._surface, self._source
+        if surface is None:
+            if source is None:
+                raise AttributeError("Expected a frame with normal, points, bary_u and "
+                                     "bary_v, got one made without them; pass all four "
+                                     "to Frame(...) or render it with render_depth().")
+            hits, dirs, origins, block = source
+            h, w = self.hit.shape
+            n = h * w
+            normal, pts = np.empty((n, 3)), np.empty((n, 3))
+            bu, bv = np.empty(n), np.empty(n)
+            _surface(self.hit.reshape(-1), dirs, origins, block, self.range_m.reshape(-1),
+                     hits.u, hits.v, np.asarray(hits.normals, dtype=np.float64), normal,
+                     pts, bu, bv)
+            surface = (normal.reshape(h, w, 3), pts.reshape(h, w, 3), bu.reshape(h, w),
+                       bv.reshape(h, w))
+            object.__setattr__(self, "_surface", surface)
+            object.__setattr__(self, "_source", None)   # the cast's arrays can go
+        return surface
+
+    @property
+    def normal(self) -> NDArray[np.float64]:
+        """(h, w, 3) float64: unit geometric normals towards the camera; 0 on a miss."""
+        return self._surface_fields()[0]
+
+    @property
+    def points(self) -> NDArray[np.float64]:
+        """(h, w, 3) float64: the hit points, world frame; NaN on a miss."""
+        return self._surface_fields()[1]
+
+    @property
+    def bary_u(self) -> NDArray[np.float64]:
+        """(h, w) float64: the hit's barycentric u; 0 on a miss."""
+        return self._surface_fields()[2]
+
+    @property
+    def bary_v(self) -> NDArray[np.float64]:
+        """(h, w) float64: the hit's barycentric v; 0 on a miss."""
+        return self._surface_fields()[3]
 
 
 def camera_pose(position: ArrayLike, heading_rad: float, pitch_rad: float = 0.0,
@@ -231,16 +309,14 @@ def render_depth(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike, *,
     hits = scene.cast(np.repeat(origins, w, axis=0) if per_row else origins[0], dirs)
     lo, hi = cam.depth_range_m if cam.depth_range_m is not None else (-np.inf, np.inf)
     hit, valid = np.empty(n, np.bool_), np.empty(n, np.bool_)
-    rng, z, bu, bv = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    rng, z = np.empty(n), np.empty(n)
     tri = np.empty(n, np.int64)
-    normal, pts = np.empty((n, 3)), np.empty((n, 3))
-    _assemble(dirs_cam, dirs, ok_ray, origins, block, hits.t, hits.triangle, hits.u,
-              hits.v, np.asarray(hits.normals, dtype=np.float64), float(lo), float(hi),
-              hit, valid, rng, z, tri, normal, pts, bu, bv)
-    return Frame(hit.reshape(h, w), valid.reshape(h, w), rng.reshape(h, w),
-                 z.reshape(h, w), tri.reshape(h, w), normal.reshape(h, w, 3),
-                 pts.reshape(h, w, 3), rays_cam, T[0] if per_row else T,
-                 bu.reshape(h, w), bv.reshape(h, w), T if per_row else None)
+    _assemble(dirs_cam, ok_ray, hits.t, hits.triangle, float(lo), float(hi), hit, valid,
+              rng, z, tri)
+    return Frame._of_cast(hit.reshape(h, w), valid.reshape(h, w), rng.reshape(h, w),
+                          z.reshape(h, w), tri.reshape(h, w), rays_cam,
+                          T[0] if per_row else T, T if per_row else None, hits, dirs,
+                          origins, block)
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)  # type: ignore[call-overload]
@@ -263,13 +339,11 @@ def _world_rays(dirs_cam, Rs, block, ok_ray, dirs):  # pragma: no cover (Numba)
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)  # type: ignore[call-overload]
-def _assemble(dirs_cam, dirs, ok_ray, origins, block, t, triangle, u, v, normals, lo, hi,
-              hit, valid, rng, z, tri, normal, pts, bu, bv):  # pragma: no cover (Numba)
-    """The frame's per-pixel arrays from the cast's hits, in one pass (the NumPy
-    version's dozen temporaries took longer than the cast: 0.12 s at 640x480).
-    Misses: range, z, points NaN; triangle -1; normal and barycentrics 0. The normal is
-    turned towards the camera; z is the range times the ray's optical-axis cosine. Ray
-    i leaves from ``origins[i // block]``."""
+def _assemble(dirs_cam, ok_ray, t, triangle, lo, hi, hit, valid, rng, z,
+              tri):  # pragma: no cover (Numba)
+    """The frame's depth arrays from the cast's hits, in one pass (the NumPy version's
+    temporaries took longer than the cast). Misses: range and z NaN, triangle -1; z is
+    the range times the ray's optical-axis cosine, NaN outside [lo, hi]."""
     for i in prange(t.shape[0]):
         h_ = ok_ray[i] and triangle[i] >= 0 and np.isfinite(t[i])
         hit[i] = h_
@@ -281,6 +355,22 @@ def _assemble(dirs_cam, dirs, ok_ray, origins, block, t, triangle, u, v, normals
             valid[i] = ok
             z[i] = zi if ok else np.nan
             tri[i] = triangle[i]
+        else:
+            valid[i] = False
+            rng[i] = np.nan
+            z[i] = np.nan
+            tri[i] = -1
+
+
+@njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)  # type: ignore[call-overload]
+def _surface(hit, dirs, origins, block, rng, u, v, normals, normal, pts, bu,
+             bv):  # pragma: no cover (Numba)
+    """The frame's surface arrays: the normal turned towards the camera, the hit point
+    (ray i leaves from ``origins[i // block]``), the barycentrics. Misses: normal and
+    barycentrics 0, points NaN."""
+    for i in prange(hit.shape[0]):
+        if hit[i]:
+            r = rng[i]
             d = normals[i, 0] * dirs[i, 0] + normals[i, 1] * dirs[i, 1] + \
                 normals[i, 2] * dirs[i, 2]
             s = -1.0 if d > 0 else 1.0
@@ -291,10 +381,6 @@ def _assemble(dirs_cam, dirs, ok_ray, origins, block, t, triangle, u, v, normals
             bu[i] = u[i]
             bv[i] = v[i]
         else:
-            valid[i] = False
-            rng[i] = np.nan
-            z[i] = np.nan
-            tri[i] = -1
             for k in range(3):
                 normal[i, k] = 0.0
                 pts[i, k] = np.nan

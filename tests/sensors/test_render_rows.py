@@ -20,7 +20,7 @@ from raytrace import Scene
 from raytrace.shapes import tunnel_tube
 from sensors.camera import load_camera, pixel_rays
 from sensors.errors import SimulationError
-from sensors.render import camera_pose, render_depth
+from sensors.render import Frame, camera_pose, render_depth
 
 _V, _F = tunnel_tube(3_000, length_m=20.0, roughness_m=0.02, seed=3)
 _SCENE = Scene(_V, _F)
@@ -141,3 +141,37 @@ def test_bad_poses_are_refused(pose, match):
 def test_bad_offsets_are_refused(offset):
     with pytest.raises(SimulationError, match=r"Expected pixel_offset as 2 finite numbers"):
         render_depth(_SCENE, _cam(), np.eye(4), pixel_offset=offset)
+
+
+def test_surface_fields_computed_on_first_use_equal_the_cast_and_frames_are_read_only():
+    """A depth frame's normal, points and barycentrics are made on first use (a depth
+    camera reads none of them): they equal the cast's own, the normal turned towards
+    the camera, the point o + t d; 0 / NaN on a miss. A frame made by hand without them
+    says so, and no field can be reassigned."""
+    cam = _cam()
+    T = camera_pose([3.0, -0.4, 1.2], np.radians(-20.0), np.radians(8.0))
+    fr = render_depth(_SCENE, cam, T)
+    d = pixel_rays(cam).reshape(-1, 3)
+    R = T[:3, :3]
+    dirs = np.stack([R[k, 0] * d[:, 0] + R[k, 1] * d[:, 1] + R[k, 2] * d[:, 2]
+                     for k in range(3)], 1)
+    ref = _SCENE.cast(T[:3, 3], dirs)
+    hit = ref.triangle >= 0
+    assert 0 < hit.sum() < hit.size          # rays out of the tube's open ends miss
+    n_ref = ref.normals * np.where(np.einsum("ij,ij->i", ref.normals, dirs) > 0,
+                                   -1.0, 1.0)[:, None]
+    np.testing.assert_array_equal(fr.normal.reshape(-1, 3)[hit], n_ref[hit])
+    np.testing.assert_array_equal(fr.normal.reshape(-1, 3)[~hit], 0.0)
+    np.testing.assert_array_equal(fr.points.reshape(-1, 3)[hit],
+                                  T[:3, 3] + dirs[hit] * ref.t[hit, None])
+    assert np.isnan(fr.points.reshape(-1, 3)[~hit]).all()
+    np.testing.assert_array_equal(fr.bary_v.ravel()[hit], ref.v[hit])
+    np.testing.assert_array_equal(fr.bary_u.ravel()[~hit], 0.0)
+    assert fr.normal is fr.normal                      # computed once, kept
+    bare = Frame(fr.hit, fr.valid, fr.range_m, fr.depth_z_m, fr.triangle, None, None,
+                 fr.rays_cam, T, None, None)
+    np.testing.assert_array_equal(bare.depth_z_m, fr.depth_z_m)
+    with pytest.raises(AttributeError, match="made without them; pass all four"):
+        bare.points
+    with pytest.raises(AttributeError, match="read-only"):
+        fr.depth_z_m = fr.range_m
