@@ -5,8 +5,8 @@
 The tunnel is the ``bfo`` preset (the demo's 300 m gallery) at 0.1 m edges; the cameras
 stand on the centreline at chainage 183 m, 1.5 m above the floor, looking along the
 axis: the wet floor (180-230 m), the cables on the left wall, rock bolts and the
-prisms at 187.5 m are in view. The colour camera's headlamp is 4000 cd (the default
-1000 cd gives a correct but dark frame at the D435's 16 ms exposure).
+prisms at 187.5 m are in view. The colour camera's headlamp is the default 1000 cd; the
+D435's auto-exposure sets the time and gain (stated in the panel's title).
 
 Usage::
 
@@ -30,7 +30,7 @@ def main(argv: list[str] | None = None) -> Path:
     ap.add_argument("-o", "--output", default=str(ROOT / "docs" / "cameras_frame.png"))
     ap.add_argument("--keep", help="keep the frames' files in this folder")
     ap.add_argument("--chainage", type=float, default=183.0)
-    ap.add_argument("--lamp-cd", type=float, default=4000.0)
+    ap.add_argument("--lamp-cd", type=float, default=1000.0)
     a = ap.parse_args(argv)
 
     import matplotlib
@@ -59,7 +59,9 @@ def main(argv: list[str] | None = None) -> Path:
     fig, ax = plt.subplots(1, 3, figsize=(16, 3.9), constrained_layout=True)
     rgb = np.asarray(Image.open(work / "realsense_d435_color" / "rgb.png"))
     ax[0].imshow(rgb)
-    ax[0].set_title(f"colour: D435 RGB 1920x1080, lamp {a.lamp_cd:g} cd", fontsize=10)
+    c = res["realsense_d435_color"]
+    ax[0].set_title(f"colour: D435 RGB 1920x1080, {a.lamp_cd:g} cd lamp, AE "
+                    f"{c.exposure_s * 1e3:.3g} ms, gain {c.gain:.3g}", fontsize=9)
     depth = np.load(work / "realsense_d435_depth" / "depth.npy")
     im = ax[1].imshow(depth, cmap="viridis_r", vmin=0.0, vmax=10.0)
     ax[1].set_title("depth: D435 depth 1280x720 (z within 0.28-10 m)", fontsize=10)

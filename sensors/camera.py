@@ -68,7 +68,8 @@ TABLE_KEYS: Final = {
     "image": ("width", "height", "frame_rate_hz"),
     "lens": ("model", "hfov_deg", "distortion"),
     "sensor": ("exposure_ms", "read_noise_e", "full_well_e", "bit_depth",
-               "line_time_us", "shutter", "pixel_um", "f_number", "quantum_efficiency"),
+               "line_time_us", "shutter", "pixel_um", "f_number", "quantum_efficiency",
+               "auto_exposure", "gain_max"),
     "depth": ("min_m", "max_m"),
     "thermal": ("band_um", "netd_mk"),
 }
@@ -93,7 +94,8 @@ class CameraSpec:
     distortion : (5,) or (4,) float64
         ``k1 k2 p1 p2 k3`` (pinhole) or ``k1 k2 k3 k4`` (fisheye).
     exposure_s, read_noise_e, full_well_e : float
-        Exposure time, read noise and full-well capacity (electrons).
+        Exposure time, read noise and full-well capacity (electrons). With
+        ``auto_exposure`` the longest exposure (the frame's timing uses it).
     pixel_m, f_number, quantum_efficiency : float
         Pixel pitch, the lens's f-number and the sensor's quantum efficiency: the
         exposure's electrons per luminance (``sensors.shading.expose``).
@@ -109,6 +111,13 @@ class CameraSpec:
         Noise-equivalent temperature difference of a thermal camera (kelvin).
     sources : tuple of str
     path : str
+    auto_exposure : bool
+        Colour cameras: each frame's exposure time (at most ``exposure_s``) and analog
+        gain (1 to ``gain_max``) are chosen from the frame's light
+        (``sensors.shading.auto_exposure``); False: ``exposure_s`` at gain 1. Optional
+        ``[sensor] auto_exposure`` (default false).
+    gain_max : float
+        Largest analog gain auto-exposure may take (``[sensor] gain_max``, default 1).
     """
 
     name: str
@@ -137,6 +146,8 @@ class CameraSpec:
     netd_k: float
     sources: tuple[str, ...]
     path: str = ""
+    auto_exposure: bool = False
+    gain_max: float = 1.0
 
     @property
     def K(self) -> NDArray[np.float64]:  # noqa: N802 (the symbol every user knows)
@@ -208,6 +219,10 @@ def _load(path: Path) -> CameraSpec:
         b0, b1 = t.nums("band_um", 2) * 1e-6
         band = (float(b0), float(b1))
         netd = t.num("netd_mk", positive=True) * 1e-3
+    auto = sen.flag("auto_exposure") if "auto_exposure" in sen.data else False
+    if auto and kind != "color":
+        raise sen.err("auto_exposure", "false (auto-exposure is for colour cameras)", auto)
+    gain_max = sen.num("gain_max", lo=1.0) if "gain_max" in sen.data else 1.0
     return CameraSpec(dev.text("name"), dev.text("vendor"), dev.text("model"), kind, w, h,
                       img.num("frame_rate_hz", positive=True), model, fx, fx,
                       (w - 1) / 2.0, (h - 1) / 2.0, dist,
@@ -215,7 +230,8 @@ def _load(path: Path) -> CameraSpec:
                       sen.num("read_noise_e", lo=0.0), sen.num("full_well_e", positive=True),
                       sen.num("pixel_um", positive=True) * 1e-6,
                       sen.num("f_number", positive=True),
-                      sen.num("quantum_efficiency", lo=0.0, hi=1.0), bits, line, depth, band, netd, dev.texts("sources"), str(path))
+                      sen.num("quantum_efficiency", lo=0.0, hi=1.0), bits, line, depth,
+                      band, netd, dev.texts("sources"), str(path), auto, gain_max)
 
 
 #: The shipped camera files by name.

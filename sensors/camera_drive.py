@@ -43,7 +43,7 @@ import os
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Final
+from typing import Final, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -56,12 +56,12 @@ from .camera import CameraSpec
 from .errors import SimulationError
 from .render import Frame, render_depth
 from .platform_spec import PlatformSpec
-from .shading import (Lamp, expose, headlamp, platform_lamps, radiance_frame,
+from .shading import (Lamp, auto_exposure, expose, headlamp, platform_lamps, radiance_frame,
                       stratified_offsets, thermal_frame)
 from .trajectory import Mount, Trajectory
 
 __all__ = ["CAMERA_BELOW_LIDAR_M", "CAMERA_STREAM", "DEFAULT_LAMP_CD",
-           "LINK_FROM_OPTICAL", "CameraFrame", "DriveCamera", "LampsFn", "camera_mount",
+           "LINK_FROM_OPTICAL", "CameraFrame", "DriveCamera", "LampsFn", "ShadedFrame", "camera_mount",
            "default_camera_mount", "drive_lamps", "frame_seed", "frame_times",
            "frame_image", "image_counts", "optical_mount", "readout_s", "row_times",
            "stamp_ns", "write_frame_folder"]
@@ -199,17 +199,42 @@ def drive_lamps(platform: PlatformSpec | None = None, lamp_cd: float | None = No
 
 
 # ---------------------------------------------------------------------------- shading
+class ShadedFrame(NamedTuple):
+    """A rendered and shaded frame (``frame_image``).
+
+    Attributes
+    ----------
+    frame : Frame
+        The pixel-centre geometry.
+    rgb_linear : (h, w, 3) float64 or None
+        Colour: digital value / full scale (linear, [0, 1]).
+    thermal_k : (h, w) float64 or None
+        Thermal: apparent temperature (K), NaN where the pixel centre's ray misses.
+    exposure_s : float
+        The exposure time the colour image was taken with (auto-exposure's, or the
+        camera's ``exposure_s``; the camera's for depth and thermal frames).
+    gain : float
+        The analog gain of the colour image (1 without auto-exposure).
+    """
+
+    frame: Frame
+    rgb_linear: NDArray[np.float64] | None
+    thermal_k: NDArray[np.float64] | None
+    exposure_s: float
+    gain: float
+
+
 def frame_image(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike,
                 appearance: Appearance, lamps: Sequence[Lamp], *,
                 samples_per_pixel: int = 1, seed: int = 0, noise: bool = True,
-                ambient_k: float | None = None
-                ) -> tuple[Frame, NDArray[np.float64] | None, NDArray[np.float64] | None]:
+                ambient_k: float | None = None) -> ShadedFrame:
     """One frame rendered and shaded as ``tunnelsim render`` shades one
     (``survey.workflows.render.render_frame``): colour, the Lambertian luminance under
     ``lamps`` averaged over ``samples_per_pixel`` rays (``sensors.shading.
-    radiance_frame``) exposed with the sensor's noise; thermal, the apparent
-    temperature of the averaged band radiance (``sensors.shading.thermal_frame``);
-    depth, the frame's z-depth alone.
+    radiance_frame``) exposed with the sensor's noise, at the exposure time and gain
+    ``sensors.shading.auto_exposure`` chooses for a camera with ``auto_exposure``;
+    thermal, the apparent temperature of the averaged band radiance
+    (``sensors.shading.thermal_frame``); depth, the frame's z-depth alone.
 
     Parameters
     ----------
@@ -220,26 +245,24 @@ def frame_image(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike,
 
     Returns
     -------
-    frame : Frame
-        The pixel-centre geometry.
-    rgb_linear : (h, w, 3) float64 or None
-        Colour: digital value / full scale (linear, [0, 1]).
-    thermal_k : (h, w) float64 or None
-        Thermal: apparent temperature (K), NaN where the pixel centre's ray misses.
+    ShadedFrame
     """
     from .appearance import ROCK_K
 
     if cam.kind == "color":
         frame, lum = radiance_frame(scene, cam, world_from_camera, lamps, appearance,
                                     samples_per_pixel)
-        rgb = expose(cam, lum, seed=seed, noise=noise) / (2.0 ** cam.bit_depth - 1)
-        return frame, rgb, None
+        t, gain = auto_exposure(cam, lum) if cam.auto_exposure else (cam.exposure_s, 1.0)
+        rgb = expose(cam, lum, seed=seed, noise=noise, exposure_s=t, gain=gain) / \
+            (2.0 ** cam.bit_depth - 1)
+        return ShadedFrame(frame, rgb, None, t, gain)
     if cam.kind == "thermal":
         frame, thermal = thermal_frame(scene, cam, world_from_camera, appearance,
                                        ROCK_K if ambient_k is None else float(ambient_k),
                                        samples_per_pixel, seed=seed, noise=noise)
-        return frame, None, thermal
-    return render_depth(scene, cam, world_from_camera), None, None
+        return ShadedFrame(frame, None, thermal, cam.exposure_s, 1.0)
+    return ShadedFrame(render_depth(scene, cam, world_from_camera), None, None,
+                       cam.exposure_s, 1.0)
 
 
 # ---------------------------------------------------------------------------- frames
@@ -263,6 +286,8 @@ class CameraFrame:
         Colour cameras (``shade_frame``).
     thermal_k : (h, w) float64 or None
         Thermal cameras.
+    exposure_s, gain : float
+        The exposure time and analog gain of a colour frame (``ShadedFrame``).
     """
 
     index: int
@@ -272,6 +297,8 @@ class CameraFrame:
     world_from_base: NDArray[np.float64]
     rgb_linear: NDArray[np.float64] | None
     thermal_k: NDArray[np.float64] | None
+    exposure_s: float = math.nan
+    gain: float = 1.0
 
 
 def _matrices(pos: NDArray[np.float64], rot: Rotation) -> NDArray[np.float64]:
@@ -363,12 +390,12 @@ class DriveCamera:
         pos, rot = self.trajectory.interpolate([t0])
         base = _matrices(pos, rot)[0]
         lamps = self.lamps(base, T if T.ndim == 2 else T[0])
-        frame, rgb, thermal = frame_image(
-            self.scene, self.cam, T, self.appearance, lamps,
-            samples_per_pixel=self.samples_per_pixel,
-            seed=frame_seed(self.seed, self.index, i), noise=self.noise,
-            ambient_k=self.ambient_k)
-        return CameraFrame(i, t0, t0 + readout_s(self.cam), frame, base, rgb, thermal)
+        shot = frame_image(self.scene, self.cam, T, self.appearance, lamps,
+                           samples_per_pixel=self.samples_per_pixel,
+                           seed=frame_seed(self.seed, self.index, i), noise=self.noise,
+                           ambient_k=self.ambient_k)
+        return CameraFrame(i, t0, t0 + readout_s(self.cam), shot.frame, base,
+                           shot.rgb_linear, shot.thermal_k, shot.exposure_s, shot.gain)
 
     def __iter__(self) -> Iterator[CameraFrame]:
         for i in range(len(self)):
@@ -413,5 +440,6 @@ def write_frame_folder(camera: DriveCamera, folder: str | os.PathLike[str], *,
     with FrameFolder(folder, camera.cam, camera.base_from_optical, extra) as w:
         for f in camera:
             w.write(f.index, stamp_ns(f.stamp_s), f.frame, readout_end_s=f.readout_end_s,
-                    time_s=f.stamp_s, rgb_linear=f.rgb_linear, thermal_k=f.thermal_k)
+                    time_s=f.stamp_s, rgb_linear=f.rgb_linear, thermal_k=f.thermal_k,
+                    exposure_s=f.exposure_s, gain=f.gain)
     return Path(folder)

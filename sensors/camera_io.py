@@ -14,7 +14,8 @@ without being told:
   ("pinhole" / "fisheye") and ``distortion_model`` as ROS's ``sensor_msgs/CameraInfo``
   names it ("plumb_bob" / "equidistant"), ``world_from_camera`` (the 4x4 pose of the
   OpenCV optical frame: x right, y down, z forward), the camera's ``name`` and
-  ``kind``, ``time_s``, and the units of the images.
+  ``kind``, ``time_s``, the units of the images, and a colour frame's
+  ``exposure_s`` and ``gain`` (``sensors.shading.auto_exposure``).
 
 Every file is written to a temporary name and renamed (``raytrace.fileio``).
 
@@ -23,8 +24,9 @@ camera, ``<stem>_cameras/<camera name>/`` beside the drive's point file::
 
     camera_info.json          the intrinsics as above, the mount (base_link ->
                               optical frame), the frame rate and the shutter
-    frames.csv                index, stamp_ns, time_s, readout_end_s and the pose of
-                              row 0 (x y z qx qy qz qw, the optical frame in the world)
+    frames.csv                index, stamp_ns, time_s, readout_end_s, the pose of
+                              row 0 (x y z qx qy qz qw, the optical frame in the world),
+                              exposure_s and gain (the colour image's, auto-exposure)
     rgb/NNNNNN_<stamp_ns>.png      colour cameras (as rgb.png)
     thermal/NNNNNN_<stamp_ns>.png  thermal cameras (as thermal.png)
     depth/NNNNNN_<stamp_ns>.png    every camera: its z-depth (as depth.png)
@@ -161,7 +163,8 @@ def thermal_counts(thermal_k: NDArray[np.float64]) -> NDArray[np.uint16]:
 def write_frame(folder: str | os.PathLike[str], cam: CameraSpec, frame: Frame, *,
                 rgb_linear: NDArray[np.float64] | None = None,
                 thermal_k: NDArray[np.float64] | None = None,
-                time_s: float = 0.0) -> FrameFiles:
+                time_s: float = 0.0, exposure_s: float | None = None,
+                gain: float = 1.0) -> FrameFiles:
     """Write one frame's files into ``folder`` (created if missing).
 
     Parameters
@@ -178,6 +181,9 @@ def write_frame(folder: str | os.PathLike[str], cam: CameraSpec, frame: Frame, *
         Apparent temperature in kelvin, NaN = no data; written as ``thermal.png``.
     time_s : float
         The frame's time stamp, kept in ``camera_info.json``.
+    exposure_s, gain : float
+        The colour image's exposure time (default the camera's) and analog gain, kept
+        in ``camera_info.json``.
 
     Returns
     -------
@@ -216,7 +222,10 @@ def write_frame(folder: str | os.PathLike[str], cam: CameraSpec, frame: Frame, *
         _png(thermal_path, thermal_counts(t))
     info_path = out / "camera_info.json"
     with atomic_writer(info_path, "w") as fh:
-        json.dump(camera_info(cam, frame.world_from_camera, time_s), fh, indent=1)
+        info = camera_info(cam, frame.world_from_camera, time_s)
+        info.update(exposure_s=cam.exposure_s if exposure_s is None else float(exposure_s),
+                    gain=float(gain), auto_exposure=cam.auto_exposure)
+        json.dump(info, fh, indent=1)
         fh.write("\n")
     return FrameFiles(out, rgb_path, depth_png, depth_npy, thermal_path, info_path,
                       clipped)
@@ -262,9 +271,11 @@ class FrameFolder(Stream):
     def write(self, index: int, stamp_ns: int, frame: Frame, *,
               readout_end_s: float, time_s: float,
               rgb_linear: NDArray[np.float64] | None = None,
-              thermal_k: NDArray[np.float64] | None = None) -> None:
+              thermal_k: NDArray[np.float64] | None = None,
+              exposure_s: float | None = None, gain: float = 1.0) -> None:
         """Write frame ``index`` (stamped ``stamp_ns``, trajectory time ``time_s``): its
-        depth, and its colour or thermal image."""
+        depth, and its colour or thermal image taken with ``exposure_s`` (default the
+        camera's) at ``gain``."""
         h, w = self.cam.height, self.cam.width
         if frame.depth_z_m.shape != (h, w):
             raise SimulationError(f"Expected a frame of {w}x{h} pixels for "
@@ -283,12 +294,14 @@ class FrameFolder(Stream):
             _png(self._tmp / sub / name, img)
             self.files += 1
         pose = " ".join(f"{v:.9f}" for v in _pose_row(frame.world_from_camera))
+        t_exp = self.cam.exposure_s if exposure_s is None else float(exposure_s)
         self._rows.append(f"{index},{stamp_ns},{time_s:.9f},{readout_end_s:.9f},"
-                          + pose.replace(" ", ","))
+                          + pose.replace(" ", ",") + f",{t_exp:.9g},{gain:.6g}")
 
     def _finish(self) -> None:
         with atomic_writer(self._tmp / "frames.csv", "w") as fh:
-            fh.write("index,stamp_ns,time_s,readout_end_s,x,y,z,qx,qy,qz,qw\n")
+            fh.write("index,stamp_ns,time_s,readout_end_s,x,y,z,qx,qy,qz,qw,exposure_s,"
+                     "gain\n")
             fh.write("".join(r + "\n" for r in self._rows))
         info = camera_info(self.cam, np.eye(4))
         del info["world_from_camera"], info["time_s"]
@@ -296,6 +309,7 @@ class FrameFolder(Stream):
                     base_from_optical=self._base.tolist(),
                     shutter="global" if self.cam.global_shutter else "rolling",
                     line_time_s=self.cam.line_time_s, exposure_s=self.cam.exposure_s,
+                    auto_exposure=self.cam.auto_exposure, gain_max=self.cam.gain_max,
                     stamp="exposure start of row 0, ns of the trajectory's time base",
                     pose="frames.csv: the optical frame of row 0 in the world; row r "
                          "is exposed line_time_s * r later")

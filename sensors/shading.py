@@ -34,8 +34,16 @@ luminance in cd/m^2; each colour channel scaled by the surface's albedo):
   ch. 3): image-plane exposure ``H = L t pi / (4 N^2)`` (lux s) for f-number ``N``
   and exposure ``t``; electrons ``e = QE K_v H A_pix`` with ``K_v = 4.1e15`` photons
   per lux s per m^2 at 555 nm; Poisson shot noise and Gaussian read noise; the
-  digital value ``e / full_well * (2^bits - 1)``, clipped; the colour PNG is sRGB
-  encoded (IEC 61966-2-1).
+  digital value ``g e / full_well * (2^bits - 1)`` at analog gain ``g`` (read noise
+  amplified with the signal), clipped; the colour PNG is sRGB encoded (IEC 61966-2-1).
+- Auto-exposure (``auto_exposure``, cameras with ``auto_exposure``): average metering
+  of the noiseless frame, aiming its mean linear digital value at 18 % of full scale
+  (the photographic mid grey, ISO 12232's 18 % reference reflectance: about 118 of 255
+  after sRGB encoding); the exposure time first (between ``AE_MIN_EXPOSURE_S`` and the
+  camera's ``exposure_s``), then the gain (up to ``gain_max``) once the time is at its
+  longest. DECISION: metered on the frame itself (a converged AE loop), not on the
+  previous frame, so that each frame is exposed as a settled camera would expose it;
+  the frame's timing (stamps, rolling-shutter rows) keeps the camera's ``exposure_s``.
 - Thermal (``apparent_temperature``): the surface's radiance in the camera's band,
   ``eps B(T) + (1 - eps) B(T_ambient)``, inverted to the temperature of a black body
   of that radiance (Planck's law integrated over the band), plus Gaussian noise of
@@ -66,14 +74,19 @@ class _Surfaces(Protocol):
 
     def at(self, frame: Frame) -> Any: ...
 
-__all__ = ["Lamp", "K_V", "RETRO_ENTRANCE_DEG", "RETRO_ENTRANCE_ZERO_DEG",
-           "RETRO_OBSERVATION_DEG", "RETRO_RA_WHITE", "apparent_temperature", "expose",
-           "headlamp", "luminance", "platform_lamps", "radiance_frame",
-           "retro_coefficient", "srgb_decode", "srgb_encode", "stratified_offsets",
-           "thermal_frame"]
+__all__ = ["AE_MIN_EXPOSURE_S", "AE_TARGET", "Lamp", "K_V", "RETRO_ENTRANCE_DEG",
+           "RETRO_ENTRANCE_ZERO_DEG", "RETRO_OBSERVATION_DEG", "RETRO_RA_WHITE",
+           "apparent_temperature", "auto_exposure", "expose", "headlamp", "luminance",
+           "platform_lamps", "radiance_frame", "retro_coefficient", "srgb_decode",
+           "srgb_encode", "stratified_offsets", "thermal_frame"]
 
 #: Photons per lux second per square metre at 555 nm (683 lm/W; Holst & Lomheim ch. 2).
 K_V = 4.1e15
+#: Auto-exposure's aim: the frame's mean linear digital value, a fraction of full scale
+#: (18 %: the photographic mid grey, ISO 12232).
+AE_TARGET = 0.18
+#: Shortest exposure auto-exposure takes (s). ASSUMED: 20 us, a CMOS sensor's few rows.
+AE_MIN_EXPOSURE_S = 20e-6
 #: Offset along the normal for shadow rays (metres): above the float64 surface noise.
 SHADOW_EPS_M = 1e-6
 
@@ -409,17 +422,47 @@ def radiance_frame(scene: Scene, cam: CameraSpec, world_from_camera: ArrayLike,
 
 
 def expose(cam: CameraSpec, lum: NDArray[np.float64], *, seed: int = 0,
-           noise: bool = True) -> NDArray[np.float64]:
+           noise: bool = True, exposure_s: float | None = None,
+           gain: float = 1.0) -> NDArray[np.float64]:
     """Digital values (h, w, c) float64 in [0, 2^bits - 1] of luminance ``lum``: the
     electrons of the exposure (module docstring), Poisson shot noise and Gaussian read
-    noise (seeded), the full well's clip."""
-    H = lum * cam.exposure_s * math.pi / (4.0 * cam.f_number ** 2)
+    noise (seeded), the full well's clip, the analog ``gain``.
+
+    ``exposure_s`` (default the camera's) and ``gain`` (>= 1): as ``auto_exposure``
+    chooses them, or fixed."""
+    t = cam.exposure_s if exposure_s is None else float(exposure_s)
+    if not (math.isfinite(t) and t > 0.0):
+        raise SimulationError(f"Expected a positive exposure time (s), got {t}; pass "
+                              "the camera's exposure or auto_exposure()'s.")
+    if not (math.isfinite(gain) and gain >= 1.0):
+        raise SimulationError(f"Expected an analog gain >= 1, got {gain}; pass 1.0 for "
+                              "none.")
+    H = lum * t * math.pi / (4.0 * cam.f_number ** 2)
     e = cam.quantum_efficiency * K_V * cam.pixel_area_m2 * H
     if noise:
         rng = np.random.default_rng(seed)
         e = rng.poisson(e).astype(np.float64) + rng.normal(0.0, cam.read_noise_e, e.shape)
-    dn = np.clip(e / cam.full_well_e, 0.0, 1.0) * (2 ** cam.bit_depth - 1)
+    e = np.minimum(e, cam.full_well_e)     # the pixel saturates before the gain
+    dn = np.clip(gain * e / cam.full_well_e, 0.0, 1.0) * (2 ** cam.bit_depth - 1)
     return dn
+
+
+def auto_exposure(cam: CameraSpec, lum: NDArray[np.float64]) -> tuple[float, float]:
+    """(exposure_s, gain) that bring the mean linear digital value of the noiseless
+    frame of luminance ``lum`` (h, w, c) to ``AE_TARGET`` of full scale (module
+    docstring): the time within [``AE_MIN_EXPOSURE_S``, ``cam.exposure_s``] first,
+    then the gain within [1, ``cam.gain_max``]. A frame without light gets the longest
+    time and the largest gain."""
+    mean = float(np.mean(np.nan_to_num(lum, nan=0.0))) if np.size(lum) else 0.0
+    t_max = cam.exposure_s
+    e_mean = cam.quantum_efficiency * K_V * cam.pixel_area_m2 * mean * t_max * \
+        math.pi / (4.0 * cam.f_number ** 2)
+    if not (math.isfinite(e_mean) and e_mean > 0.0):
+        return t_max, cam.gain_max
+    want = AE_TARGET / (e_mean / cam.full_well_e)      # factor on (t_max, gain 1)
+    t = min(t_max, max(min(AE_MIN_EXPOSURE_S, t_max), t_max * want))
+    gain = min(cam.gain_max, max(1.0, want * t_max / t))
+    return t, gain
 
 
 def srgb_encode(linear: NDArray[np.float64]) -> NDArray[np.float64]:

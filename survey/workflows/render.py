@@ -144,6 +144,9 @@ class RenderResult:
         Lamps that lit the frame (the headlamp and the platform's).
     samples_per_pixel : int
         Rays averaged per pixel (``samples=``).
+    exposure_s, gain : float
+        The colour image's exposure time and analog gain (auto-exposure's for a camera
+        with ``auto_exposure``; else the camera's exposure at gain 1).
     """
 
     files: tuple[Path, ...]
@@ -167,6 +170,8 @@ class RenderResult:
     platform: str | None = None
     lamps: int = 0
     samples_per_pixel: int = 1
+    exposure_s: float = math.nan
+    gain: float = 1.0
 
 
 def label_names(mesh_path: PathLike) -> tuple[str, ...]:
@@ -358,9 +363,9 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
         mast = RobotDescription.from_platform(spec, "camera").mast_height_m
         lamps += platform_lamps(spec, _world_from_base(p, heading_deg, mast))
     # One shading path: the frame a drive's camera takes (sensors.camera_drive).
-    frame, rgb, thermal = frame_image(scene, cam, T, app, lamps,
-                                      samples_per_pixel=n_samples, seed=seed, noise=noise,
-                                      ambient_k=ambient_k)
+    shot = frame_image(scene, cam, T, app, lamps, samples_per_pixel=n_samples, seed=seed,
+                       noise=noise, ambient_k=ambient_k)
+    frame, rgb, thermal = shot.frame, shot.rgb_linear, shot.thermal_k
     if not frame.hit.any():
         raise SimulationError(
             f"Expected the camera at --at {','.join(f'{x:g}' for x in p)} to see the "
@@ -372,7 +377,7 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
     elif thermal is not None:
         mean_value = float(np.nanmean(thermal))
     files = write_frame(output, cam, frame, rgb_linear=rgb, thermal_k=thermal,
-                        time_s=time_s)
+                        time_s=time_s, exposure_s=shot.exposure_s, gain=shot.gain)
     z = frame.depth_z_m[frame.valid]
     stats = (float(z.min()), float(np.median(z)), float(z.max())) if z.size else \
         (math.nan,) * 3
@@ -380,7 +385,8 @@ def render_frame(mesh: PathLike, camera: str | PathLike, at: ArrayLike, output: 
                         cam.height, T, float(frame.hit.mean()), float(frame.valid.mean()),
                         *stats, files.depth_clipped, head_cd, mean_value, saturated,
                         dict(app.source), time.perf_counter() - t0,
-                        None if spec is None else spec.name, len(lamps), n_samples)
+                        None if spec is None else spec.name, len(lamps), n_samples,
+                        shot.exposure_s, shot.gain)
 
 
 def _world_from_base(camera_at: NDArray[np.float64], heading_deg: float,

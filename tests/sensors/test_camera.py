@@ -124,6 +124,11 @@ def test_points_behind_a_pinhole_do_not_project():
     ("line_time_us = 0.0", "line_time_us = 10.0", r"`sensor.line_time_us` .* 0 for a "
                                                    "global shutter"),
     ("min_m = 0.28", "min_m = 20.0", r"`depth.max_m` > `depth.min_m`"),
+    ("bit_depth = 16", "bit_depth = 16\nauto_exposure = true",
+     r"`sensor.auto_exposure` .* false \(auto-exposure is for colour cameras\)"),
+    ("bit_depth = 16", "bit_depth = 16\nauto_exposure = 1",
+     r"`sensor.auto_exposure` .* true or false"),
+    ("bit_depth = 16", "bit_depth = 16\ngain_max = 0.5", r"`sensor.gain_max` .* within \[1.0"),
 ])
 def test_bad_camera_files_are_refused(old, new, match, tmp_path):
     text = (CAMERA_DIR / "realsense_d435_depth.toml").read_text()
@@ -132,3 +137,12 @@ def test_bad_camera_files_are_refused(old, new, match, tmp_path):
     path.write_text(text.replace(old, new, 1))
     with pytest.raises(CameraSpecError, match=match):
         load_camera(path)
+
+
+def test_auto_exposure_keys_are_read_and_default_off():
+    """The D435's colour file turns auto-exposure on (gain up to 16x); a file without
+    the keys has it off at gain 1 (the depth camera's)."""
+    color, depth = load_camera("realsense_d435_color"), load_camera("realsense_d435_depth")
+    assert color.auto_exposure and color.gain_max == 16.0
+    assert "auto_exposure" not in (CAMERA_DIR / "realsense_d435_depth.toml").read_text()
+    assert not depth.auto_exposure and depth.gain_max == 1.0

@@ -27,7 +27,7 @@ from sensors.camera_drive import (CAMERA_BELOW_LIDAR_M, DEFAULT_LAMP_CD, DriveCa
 from sensors.errors import SimulationError
 from sensors.platform_spec import load_platform
 from sensors.render import render_depth
-from sensors.shading import expose, headlamp, luminance, platform_lamps
+from sensors.shading import auto_exposure, expose, headlamp, luminance, platform_lamps
 from sensors.trajectory import Mount, Trajectory
 
 _V, _F = tunnel_tube(3_000, length_m=40.0, roughness_m=0.02, seed=5)
@@ -168,7 +168,10 @@ def test_rolling_shutter_frame_equals_rows_rendered_one_by_one():
         ref_depth[r] = fr.depth_z_m[r]
         ref_lum[r] = luminance(_SCENE, fr, [lamp], np.full(3, 0.5))[r]
     np.testing.assert_allclose(got.frame.depth_z_m, ref_depth, rtol=0, atol=1e-9)
-    ref_rgb = expose(cam, ref_lum, noise=False) / 255.0
+    # Auto-exposure (the D435's) metered on the whole frame's light, as taken.
+    t_exp, gain = auto_exposure(cam, ref_lum)
+    assert (got.exposure_s, got.gain) == (t_exp, gain) and gain > 1.0
+    ref_rgb = expose(cam, ref_lum, noise=False, exposure_s=t_exp, gain=gain) / 255.0
     np.testing.assert_allclose(got.rgb_linear, ref_rgb, rtol=1e-12, atol=1e-15)
     assert got.stamp_s == dc.times[i] and got.readout_end_s == dc.times[i] + readout_s(cam)
     # The global shutter sees another image.
@@ -199,12 +202,12 @@ def test_depth_and_thermal_frames():
     app = _grey(len(_F))
     depth_cam = replace(load_camera("realsense_d435_depth"), width=32, height=24, fx=20.0,
                         fy=20.0, cx=15.5, cy=11.5)
-    fr, rgb, th = frame_image(_SCENE, depth_cam, T, app, [])
-    assert rgb is None and th is None
+    fr, rgb, th, t_exp, gain = frame_image(_SCENE, depth_cam, T, app, [])
+    assert rgb is None and th is None and (t_exp, gain) == (depth_cam.exposure_s, 1.0)
     np.testing.assert_array_equal(fr.depth_z_m, render_depth(_SCENE, depth_cam, T).depth_z_m)
     lwir = replace(load_camera("lwir_640"), width=32, height=24, fx=20.0, fy=20.0,
                    cx=15.5, cy=11.5)
-    fr, rgb, th = frame_image(_SCENE, lwir, T, app, [], noise=False, ambient_k=290.0)
+    fr, rgb, th, _, _ = frame_image(_SCENE, lwir, T, app, [], noise=False, ambient_k=290.0)
     assert rgb is None
     # Walls at 290 K reflecting 290 K surroundings read 290 K (to the table's 1e-6 K).
     np.testing.assert_allclose(th[fr.hit], 290.0, atol=1e-5)

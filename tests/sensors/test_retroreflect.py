@@ -209,19 +209,25 @@ def test_coefficient_is_monotone_and_bounded(a1, a2, b):
 def test_render_cli_prism_is_bright_under_the_headlamp(tmp_path):
     """``tunnelsim render`` on a plate labelled prism (the generator's label index,
     ``survey.world.mesh.LABELS``) against the same plate labelled lining: in the
-    rgb.png the user gets, the prism's pixels are far brighter (noise off)."""
+    rgb.png the user gets, the prism's pixels are far brighter (noise off; the D435's
+    auto-exposure off, so that both plates are exposed alike)."""
     from PIL import Image
 
+    from sensors.camera import CAMERA_DIR
     from sensors.io.meshes import write_mesh
     from survey.world.mesh import LABEL
 
+    cam = tmp_path / "d435_fixed.toml"
+    text = (CAMERA_DIR / "realsense_d435_color.toml").read_text()
+    assert "auto_exposure = true" in text
+    cam.write_text(text.replace("auto_exposure = true", "auto_exposure = false"))
     images = {}
     for name in ("prism", "lining"):
         mesh = _plate(LABEL[name], half=0.5)
         path = tmp_path / f"{name}.ply"
         write_mesh(path, mesh.vertices, mesh.faces, face_fields=dict(mesh.face_fields))
         # (The camera outside the plate's bounding box gets a warning on stderr.)
-        assert main(["render", "--mesh", str(path), "--camera", "realsense_d435_color",
+        assert main(["render", "--mesh", str(path), "--camera", str(cam),
                      "--at", "0,0,0", "--heading-deg", "0", "--no-noise", "--lamp-cd",
                      "100", "-o", str(tmp_path / name), "--quiet"]) == 0
         images[name] = np.asarray(Image.open(tmp_path / name / "rgb.png"), dtype=float)

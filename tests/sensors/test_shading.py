@@ -17,8 +17,8 @@ from raytrace import Scene
 from sensors.camera import load_camera
 from sensors.errors import SimulationError
 from sensors.render import camera_pose, render_depth
-from sensors.shading import (K_V, Lamp, _band_radiance, apparent_temperature, expose,
-                             luminance)
+from sensors.shading import (AE_MIN_EXPOSURE_S, AE_TARGET, K_V, Lamp, _band_radiance,
+                             apparent_temperature, auto_exposure, expose, luminance)
 
 
 def _floor(half=20.0, z=0.0):
@@ -108,3 +108,57 @@ def test_exposure_is_the_formula_and_its_noise_poisson_plus_read():
     noisy = expose(cam, lum, seed=3) / scale
     assert noisy.mean() == pytest.approx(e_mean, rel=0.01)
     assert noisy.var() == pytest.approx(e_mean + cam.read_noise_e ** 2, rel=0.05)
+
+
+def _electrons(cam, lum, t):
+    """Noiseless electrons of luminance ``lum`` (cd/m^2) over ``t`` seconds (the
+    module's formula, written out)."""
+    return cam.quantum_efficiency * K_V * cam.pixel_area_m2 * lum * t * math.pi / \
+        (4 * cam.f_number ** 2)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(-6.0, 6.0), st.floats(1.0, 64.0))
+def test_auto_exposure_brings_a_frame_to_mid_grey_time_first_then_gain(log_lum, gain_max):
+    """A uniform frame of luminance L: auto-exposure's noiseless image has the mean
+    AE_TARGET of full scale wherever the time (AE_MIN_EXPOSURE_S .. exposure_s) and the
+    gain (1 .. gain_max) reach it; else the nearest end, the longest time and largest
+    gain for a dark frame, the shortest time for a bright one (then clipped at full
+    scale). The gain rises only once the time is at its longest."""
+    cam = replace(load_camera("realsense_d435_color"), gain_max=gain_max, bit_depth=16)
+    L = 10.0 ** log_lum
+    lum = np.full((4, 5, 3), L)
+    t, g = auto_exposure(cam, lum)
+    assert AE_MIN_EXPOSURE_S <= t <= cam.exposure_s and 1.0 <= g <= gain_max
+    assert g == 1.0 or t == cam.exposure_s
+    frac_max = _electrons(cam, L, cam.exposure_s) / cam.full_well_e * gain_max
+    frac_min = _electrons(cam, L, AE_MIN_EXPOSURE_S) / cam.full_well_e
+    want = min(max(AE_TARGET, frac_min), frac_max, 1.0)
+    got = expose(cam, lum, noise=False, exposure_s=t, gain=g) / (2 ** 16 - 1)
+    np.testing.assert_allclose(got, want, rtol=1e-9)
+
+
+def test_auto_exposure_in_the_dark_and_on_a_real_frame():
+    """No light: the longest time at the largest gain. A frame lit by a lamp over a
+    floor: its noiseless mean lands on AE_TARGET (the mean includes the dark pixels)."""
+    cam = _small()
+    assert auto_exposure(cam, np.zeros((3, 3, 3))) == (cam.exposure_s, cam.gain_max)
+    v, f = _floor()
+    scene = Scene(v, f)
+    T = camera_pose([0.0, 0.0, 3.0], 0.0, -math.pi / 2)
+    fr = render_depth(scene, cam, T)
+    lum = luminance(scene, fr, [Lamp([0.5, -0.3, 2.0], [0, 0, -1], 800.0)], np.full(3, 0.4))
+    t, g = auto_exposure(cam, lum)
+    img = expose(cam, lum, noise=False, exposure_s=t, gain=g) / 255.0
+    assert (img >= 1.0).mean() < 0.01          # mid grey: almost nothing clipped here
+    assert img.mean() == pytest.approx(AE_TARGET, rel=0.02)
+    # A fixed exposure (the camera's, gain 1) is another image.
+    assert abs(expose(cam, lum, noise=False).mean() / 255.0 - AE_TARGET) > 0.02
+
+
+@pytest.mark.parametrize("t, g, msg", [(0.0, 1.0, "positive exposure"),
+                                       (float("nan"), 1.0, "positive exposure"),
+                                       (0.01, 0.5, "gain >= 1")])
+def test_expose_refuses_bad_exposure_or_gain(t, g, msg):
+    with pytest.raises(SimulationError, match=msg):
+        expose(_small(), np.ones((2, 2, 3)), exposure_s=t, gain=g)

@@ -79,7 +79,8 @@ def cmd_render(args) -> int:
                 n = r.lamps - (r.lamp_cd > 0)
                 light.append(f"{r.platform}'s {n} lamp{'s' if n != 1 else ''}")
             print(f"{' + '.join(light)}, {r.samples_per_pixel} sample"
-                  f"{'s' if r.samples_per_pixel > 1 else ''} per pixel: mean value "
+                  f"{'s' if r.samples_per_pixel > 1 else ''} per pixel: exposure "
+                  f"{r.exposure_s * 1e3:.3g} ms at gain {r.gain:.3g}, mean value "
                   f"{r.mean_value:.3f} of full scale, {r.saturated_fraction:.1%} saturated")
         elif r.kind == "thermal":
             print(f"mean apparent temperature {r.mean_value:.2f} K")

@@ -22,16 +22,21 @@ from survey.cli.main import main
 cv2 = pytest.importorskip("cv2", reason="OpenCV decodes the PNGs (test extra)")
 
 
-def _camera(tmp_path, name="realsense_d435_color", w=64, h=48):
-    """A shipped camera's file with a small image (fast tests)."""
+def _camera(tmp_path, name="realsense_d435_color", w=64, h=48, auto_exposure=False):
+    """A shipped camera's file with a small image (fast tests); a colour camera's
+    auto-exposure off unless asked (the image then scales with the light)."""
     text = (CAMERA_DIR / f"{name}.toml").read_text()
+    if not auto_exposure:
+        text = text.replace("auto_exposure = true", "auto_exposure = false")
     full = load_camera(name)
     text = text.replace(f"width = {full.width}", f"width = {w}").replace(
         f"height = {full.height}", f"height = {h}").replace(
         f'name = "{name}"', f'name = "small_{name}"')
-    p = tmp_path / f"small_{name}.toml"
+    p = tmp_path / f"small_{name}{'_ae' if auto_exposure else ''}.toml"
     p.write_text(text)
     assert load_camera(p).width == w
+    assert load_camera(p).auto_exposure == (auto_exposure and load_camera(name).kind
+                                            == "color")
     return p
 
 
@@ -90,6 +95,40 @@ def test_lamp_intensity_scales_the_image_and_zero_is_dark(tmp_path):
     np.testing.assert_allclose(b[lit] / a[lit], 4.0, rtol=0.15)
     assert abs(np.median(b[lit] / a[lit]) - 4.0) < 0.05
     assert np.all(c == 0)
+
+
+def test_auto_exposure_brings_the_image_to_mid_grey_and_is_reported(tmp_path, capsys):
+    """The D435's colour file has auto-exposure on: under a weak and a strong lamp the
+    noiseless image's mean (decoded from rgb.png) is the 18 % mid grey, the exposure
+    time shorter under the strong lamp; camera_info.json and the summary state the
+    time and gain. The same camera with auto-exposure off takes another image at its
+    fixed 16 ms, gain 1."""
+    mesh = _tube(tmp_path)[0]
+    ae, fixed = _camera(tmp_path, auto_exposure=True), _camera(tmp_path)
+    info = {}
+    for name, cam, cd in (("weak", ae, "3000"), ("strong", ae, "300000"),
+                          ("fixed", fixed, "3000")):
+        capsys.readouterr()
+        assert _render(tmp_path, name, "--lamp-cd", cd, "--no-noise", mesh=mesh,
+                       camera=cam) == 0
+        out = capsys.readouterr().out
+        info[name] = json.loads((tmp_path / name / "camera_info.json").read_text())
+        t, g = info[name]["exposure_s"], info[name]["gain"]
+        assert f"exposure {t * 1e3:.3g} ms at gain {g:.3g}, mean value" in out
+    weak, strong, fixed_i = info["weak"], info["strong"], info["fixed"]
+    assert weak["auto_exposure"] and strong["auto_exposure"]
+    assert not fixed_i["auto_exposure"]
+    assert (fixed_i["exposure_s"], fixed_i["gain"]) == (0.016, 1.0)
+    assert weak["exposure_s"] == 0.016 and 1.0 < weak["gain"] < 16.0   # time, then gain
+    assert strong["exposure_s"] < 0.016 and strong["gain"] == 1.0
+    for name in ("weak", "strong"):
+        img = _rgb_linear(tmp_path / name / "rgb.png")
+        assert (img >= 1.0).mean() < 0.02
+        assert img.mean() == pytest.approx(0.18, abs=0.01)     # 8-bit sRGB rounding
+    dim = _rgb_linear(tmp_path / "fixed" / "rgb.png")
+    assert dim.mean() < 0.18 / 2 and \
+        (tmp_path / "fixed" / "rgb.png").read_bytes() != (tmp_path / "weak" / "rgb.png"
+                                                          ).read_bytes()
 
 
 def test_noise_follows_the_seed_and_no_noise_removes_it(tmp_path):

@@ -176,5 +176,6 @@ def test_the_summary_names_the_lights_and_samples(tmp_path, tube, capsys):
                  "--heading-deg", "20", "--platform", "walker", "--samples", "4", "-o",
                  str(tmp_path / "o")]) == 0
     out = capsys.readouterr().out
-    assert "walker's 1 lamp, 4 samples per pixel: mean value" in out
+    assert "walker's 1 lamp, 4 samples per pixel: exposure 16 ms at gain 1, mean value" \
+        in out
     assert "headlamp" not in out

@@ -27,7 +27,7 @@ from sensors.camera_io import depth_counts, rgb8
 from sensors.io.meshes import read_mesh
 from sensors.pointcloud2 import GENERIC_DRIVER
 from sensors.render import render_depth
-from sensors.shading import expose, headlamp, luminance, radiance_frame
+from sensors.shading import auto_exposure, expose, headlamp, luminance, radiance_frame
 from sensors.trajectory import Trajectory
 from survey.cli.main import main
 from survey.workflows.drive import drive_to_file
@@ -471,3 +471,45 @@ def test_the_command_prints_each_cameras_time_apart(tbm_20k, files, tmp_path, ca
     assert camera.startswith("camera test_rgb: 3 frames of 64x48 at 10 Hz")
     assert camera.endswith("-> /camera/color/image_raw and /camera/color/camera_info "
                            "(rendered and written in 30.0 s)")
+
+
+def test_auto_exposure_frames_state_their_time_and_gain(tbm_20k, files, tmp_path):
+    """A colour camera with auto-exposure along a drive: frames.csv gives each frame's
+    exposure time and gain, and the noiseless PNG of frame 0 is the frame exposed with
+    exactly those (its luminance re-rendered here row by row); the camera without
+    auto-exposure states its fixed 5 ms at gain 1 and writes another image."""
+    ae = tmp_path / "color_ae.toml"
+    ae.write_text(COLOR.replace("bit_depth = 8\n", "bit_depth = 8\nauto_exposure = true\n"
+                                "gain_max = 64.0\n").replace('"test_rgb"', '"test_ae"'))
+    traj_path = _trajectory(tmp_path / "t.txt", speed=2.0)
+    kw = dict(sensor=files["sensor"], trajectory=traj_path, duration_s=0.2,
+              camera_rate_hz=10.0, camera_mount=MOUNT, camera_noise=False)
+    drive_to_file(tbm_20k, tmp_path / "a.laz", cameras=[ae], **kw)
+    drive_to_file(tbm_20k, tmp_path / "f.laz", cameras=[files["color"]], **kw)
+
+    def rows(folder):
+        with open(folder / "frames.csv", newline="") as fh:
+            return list(csv.DictReader(fh))
+
+    a_dir, f_dir = tmp_path / "a_cameras" / "test_ae", tmp_path / "f_cameras" / "test_rgb"
+    fixed = rows(f_dir)
+    assert all((float(r["exposure_s"]), float(r["gain"])) == (0.005, 1.0) for r in fixed)
+    got = rows(a_dir)
+    assert len(got) == len(fixed) == 2
+    cam = load_camera(ae)
+    assert json.loads((a_dir / "camera_info.json").read_text())["auto_exposure"] is True
+    scene, look = _scene_and_look(tbm_20k)
+    t0 = _expected_starts(cam, 0.2, 10.0)[0]
+    T = _row_poses(Trajectory.read(traj_path), t0 + np.arange(cam.height) * cam.line_time_s)
+    lamp = headlamp(T[0], 1000.0)
+    lum = np.empty((cam.height, cam.width, 3))
+    for r in range(cam.height):
+        fr = render_depth(scene, cam, T[r])
+        lum[r] = luminance(scene, fr, [lamp], np.nan_to_num(look.at(fr).albedo, nan=0.0))[r]
+    t_exp, gain = auto_exposure(cam, lum)
+    assert float(got[0]["exposure_s"]) == pytest.approx(t_exp, rel=1e-8)
+    assert float(got[0]["gain"]) == pytest.approx(gain, rel=1e-5)
+    want = rgb8(expose(cam, lum, noise=False, exposure_s=t_exp, gain=gain) / 255.0)
+    png = _png(sorted((a_dir / "rgb").iterdir())[0])
+    np.testing.assert_array_equal(png, want)
+    assert not np.array_equal(png, _png(sorted((f_dir / "rgb").iterdir())[0]))
