@@ -91,6 +91,7 @@ import json
 import os
 import shutil
 import tempfile
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from functools import partial
@@ -293,6 +294,9 @@ class RosbagStream(Stream):
                  cameras: Sequence[tuple[CameraSpec, Mount]] = ()) -> None:
         self.path = Path(path)
         self._cameras = self._check_cameras(cameras, trajectory, span_s)
+        #: Seconds spent serialising and writing each camera's queued messages (they
+        #: are written later, among the points: callers timing the lidar take them out).
+        self.image_seconds = [0.0] * len(self._cameras)
         if returns is not None and returns not in RETURN_MODES:
             raise PointFileError(f"Expected a return mode in {list(RETURN_MODES)}, got "
                                  f"{returns!r}; pass --returns dual (or another mode).")
@@ -480,6 +484,12 @@ class RosbagStream(Stream):
         self._bag.write(self._conn[topic], ns,
                         self._ts.serialize_cdr(msg, msg.__msgtype__))
         self.messages[topic] = self.messages.get(topic, 0) + 1
+
+    def _put_timed(self, camera: int, topic: str, log_s: float, msg: Any) -> None:
+        """``_put`` of a camera's message, its time added to ``image_seconds``."""
+        t0 = time.perf_counter()
+        self._put(topic, log_s, msg)
+        self.image_seconds[camera] += time.perf_counter() - t0
 
     def _header(self, t_s: float, frame: str) -> Any:
         T = self._ts.types
@@ -856,7 +866,7 @@ class RosbagStream(Stream):
         info = self._camera_info(cam, header)
         for order, topic, m in ((4, tp.image, msg), (5, tp.info, info)):
             entry: tuple[float, int, Callable[[], None]] = (
-                float(log_s), order, partial(self._put, topic, log_s, m))
+                float(log_s), order, partial(self._put_timed, camera, topic, log_s, m))
             bisect.insort(self._pending, entry, key=_time_order)
 
     def _camera_info(self, cam: CameraSpec, header: Any) -> Any:

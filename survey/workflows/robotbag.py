@@ -68,7 +68,7 @@ def write_robot_bag(path: str | os.PathLike[str], run: Run, robot: RobotDescript
         ``cameras``, ``seconds`` and ``rays_per_s`` the lidar's own, without the time
         its clock spent on the frames) plus ``path`` (str), ``camera_frames`` (frames
         written per camera name) and ``camera_seconds`` (per camera name: seconds spent
-        rendering its frames and writing them into the bag).
+        rendering its frames and serialising and writing them into the bag).
 
     Raises
     ------
@@ -118,8 +118,9 @@ def write_robot_bag(path: str | os.PathLike[str], run: Run, robot: RobotDescript
         counted = 0.0
         for chunk in run:
             # The run's clock stopped when it made this chunk: it counts the frames
-            # fed before, not those fed with it (the last chunk's) or after the loop.
-            counted = sum(frames.seconds)
+            # fed before, not those fed with it (the last chunk's) or after the loop,
+            # and the images the bag wrote among the points before.
+            counted = sum(frames.seconds) + sum(w.image_seconds)
             for part in frames.between(chunk):
                 w.write_points(part)
             if progress is not None:
@@ -130,7 +131,8 @@ def write_robot_bag(path: str | os.PathLike[str], run: Run, robot: RobotDescript
         stats.update(_lidar_time(stats, counted))
     return dict(stats, path=str(path),
                 camera_frames={c.cam.name: len(c) for c in cameras},
-                camera_seconds={c.cam.name: s for c, s in zip(cameras, frames.seconds)})
+                camera_seconds={c.cam.name: s + si for c, s, si in
+                                zip(cameras, frames.seconds, w.image_seconds)})
 
 
 def _lidar_time(stats: dict[str, Any], camera_s: float) -> dict[str, float]:

@@ -57,6 +57,10 @@ def test_thermal_image_round_trips_in_time_order(tmp_path):
     with _stream(tmp_path / "b.mcap", [(cam, Mount((0.1, 0.0, 0.2)))]) as w:
         w.write_image(0, 0.25, 0.2537, counts)
         w.write_image(0, 0.5, 0.5037, counts[::-1].copy())
+        # Queued, not yet written: no time spent on them yet (a lidar's clock running
+        # while the bag writes them later takes ``image_seconds`` out).
+        assert w.image_seconds == [0.0]
+    assert w.image_seconds[0] > 0.0 and w.messages["/lwir_640/image_raw"] == 2
     with AnyReader([tmp_path / "b.mcap"]) as r:
         logs = [(t, c.topic, r.deserialize(raw, c.msgtype)) for c, t, raw in r.messages()]
     images = [(t, m) for t, tp, m in logs if tp == "/lwir_640/image_raw"]
