@@ -62,6 +62,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from raytrace import Scene
 
+from ._kernels.lamps import HARD, POINT, RAMP, lamp_light
 from .camera import CameraSpec
 from .errors import SimulationError
 from .platform_spec import PlatformSpec
@@ -264,6 +265,13 @@ def platform_lamps(platform: PlatformSpec, world_from_base: ArrayLike) -> list[L
     return out
 
 
+def _profile_kind(lamp: Lamp) -> tuple[int, float, float]:
+    """``Lamp.profile`` as the kernel's (kind, beam, cutoff)."""
+    b, c = float(lamp.beam_half_angle_rad), float(lamp.cutoff_half_angle_rad)
+    kind = POINT if c >= math.pi else (HARD if c == b else RAMP)
+    return kind, b, c
+
+
 def _camera_centres(frame: Frame) -> NDArray[np.float64]:
     """(h, w, 3) optical centre each pixel's ray starts from (its row's pose for a
     rolling shutter)."""
@@ -302,14 +310,13 @@ def luminance(scene: Scene, frame: Frame, lamps: Sequence[Lamp],
             to_cam /= np.linalg.norm(to_cam, axis=1)[:, None]
             cos_v = np.einsum("ij,ij->i", n[r], to_cam)
             L_retro = np.zeros(r.size)
+    m = idx.size
+    ell, d, cos_i, cos_a, e = np.empty((m, 3)), np.empty(m), np.empty(m), np.empty(m), \
+        np.empty(m)
     for lamp in lamps:
-        to_lamp = lamp.position - p
-        d = np.linalg.norm(to_lamp, axis=1)
-        ell = to_lamp / d[:, None]
-        cos_i = np.einsum("ij,ij->i", n, ell)
-        lit = cos_i > 0
-        cos_a = -(ell @ lamp.direction)
-        e = np.where(lit, lamp.intensity_cd * lamp.profile(cos_a) * cos_i / (d * d), 0.0)
+        lamp_light(p, n, np.asarray(lamp.position, dtype=np.float64),
+                   np.asarray(lamp.direction, dtype=np.float64), float(lamp.intensity_cd),
+                   *_profile_kind(lamp), ell, d, cos_i, cos_a, e)
         # One shadow ray per lit point, from just above the surface towards the lamp.
         check = np.flatnonzero(e > 0)
         if check.size:

@@ -162,3 +162,44 @@ def test_auto_exposure_in_the_dark_and_on_a_real_frame():
 def test_expose_refuses_bad_exposure_or_gain(t, g, msg):
     with pytest.raises(SimulationError, match=msg):
         expose(_small(), np.ones((2, 2, 3)), exposure_s=t, gain=g)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(["point", "hard", "ramp"]))
+def test_the_lamp_kernel_is_the_formula(seed, kind):
+    """``_kernels.lamps.lamp_light`` (one pass a lamp) equals the module's formula in
+    NumPy with ``Lamp.profile``: E = I f(alpha) cos(theta_i) / d^2 facing the lamp, else
+    0; and its directions, distances and cosines."""
+    from sensors._kernels.lamps import lamp_light
+    from sensors.shading import _profile_kind
+
+    rng = np.random.default_rng(seed)
+    m = 500
+    p = rng.uniform(-5, 5, (m, 3))
+    n = rng.normal(size=(m, 3))
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    pos = rng.uniform(-1, 1, 3)
+    axis = p[0] - pos                        # aimed at point 0, which faces the lamp
+    axis /= np.linalg.norm(axis)
+    n[0] = -axis
+    beam = rng.uniform(0.3, 1.0)
+    cut = {"point": math.pi, "hard": beam, "ramp": beam + rng.uniform(0.05, 0.8)}[kind]
+    lamp = Lamp(pos, axis, 1234.5, beam, cut)
+    ell, d, ci, ca, e = np.empty((m, 3)), np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    lamp_light(p, n, lamp.position, lamp.direction, lamp.intensity_cd,
+               *_profile_kind(lamp), ell, d, ci, ca, e)
+    to = lamp.position - p
+    d_ref = np.linalg.norm(to, axis=1)
+    ell_ref = to / d_ref[:, None]
+    ci_ref = np.einsum("ij,ij->i", n, ell_ref)
+    ca_ref = -(ell_ref @ lamp.direction)
+    e_ref = np.where(ci_ref > 0, 1234.5 * lamp.profile(ca_ref) * ci_ref / d_ref ** 2, 0.0)
+    np.testing.assert_allclose(d, d_ref, rtol=1e-14)
+    np.testing.assert_allclose(ell, ell_ref, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(ci, ci_ref, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(ca, ca_ref, rtol=0, atol=1e-14)
+    # A hard beam's edge: a cosine within rounding of it may fall either side.
+    edge = np.abs(np.arccos(np.clip(ca_ref, -1, 1)) - beam) < 1e-9 if kind == "hard" \
+        else np.zeros(m, bool)
+    np.testing.assert_allclose(e[~edge], e_ref[~edge], rtol=1e-12, atol=1e-12)
+    assert (e_ref > 0).sum() > 0 and ((e > 0) == (e_ref > 0))[~edge].all()
