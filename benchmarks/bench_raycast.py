@@ -371,7 +371,13 @@ def main(argv=None):
         print(json.dumps(worker(args.worker, args.mesh, args.ray_file, args.out)))
         return 0
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    # DECISION: the repository root only where raytrace is not importable otherwise (an
+    # uninstalled checkout): first on the path it hid the engine a PYTHONPATH names, so
+    # in-process A/B runs (--build-rounds) timed this tree twice.
+    import importlib.util
+
+    if importlib.util.find_spec("raytrace") is None:
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from raytrace.shapes import tunnel_tube
 
     engines = args.engines.split(",")
