@@ -167,7 +167,9 @@ CUBEMAP_CELLS_PER_TRI = 1.0
 CUBEMAP_MIN_G = 64
 CUBEMAP_MAX_G = 2048
 #: Use a cube map for a single-origin batch when it has at least this many rays per
-#: triangle (building one costs about as much as casting ~0.1 rays per triangle).
+#: triangle, and per cell of the map (building one costs about as much as casting ~0.1
+#: rays per triangle; on a small mesh the map's cells, at least 6 x CUBEMAP_MIN_G^2,
+#: cost more than its triangles).
 CUBEMAP_MIN_RAYS_PER_TRI = 0.5
 #: ... and never fewer than this many rays: on a tiny mesh the rule above asked a map
 #: for every run of one origin (a drive against a 2-face wall built 14,464 maps, 148 s).
@@ -175,6 +177,14 @@ CUBEMAP_MIN_RUN = 256
 #: Give up on the cube map (use the BVH) when its lists would exceed this many entries
 #: (4 bytes each): an origin right against large triangles.
 CUBEMAP_MAX_ENTRIES = 64_000_000  # must stay below 2^31 (int32 offsets)
+#: A map of at least this many triangles counts and lists its entries with one task a
+#: thread (``cubemap.count_entries``, ``fill_entries``; the same lists), smaller ones
+#: serially: on this shared 2-core VM each parallel region may wait milliseconds for a
+#: descheduled thread, more than a small map's lists take. Measured 2026-11-27 at load
+#: average 4 (bfo, 640x480 frames, a near map of ~31k triangles): count + fill 14-18 ms
+#: of wall clock a frame in parts, 3.8-8 ms serially; a station's whole map (0.81M
+#: triangles, ~12 ms of serial count + fill) keeps its parts.
+CUBEMAP_PARALLEL_MIN_TRIS = 65_536
 
 #: Near maps (``_kernels/nearmap.py``): a run of rays from one origin too short for a
 #: map of the whole mesh (fewer than CUBEMAP_MIN_RAYS_PER_TRI rays a triangle: a camera
@@ -240,15 +250,16 @@ SAH_C_TRAV = 3.0
 SAH_C_ISECT = 1.0
 #: A node with at most this many triangles may become a leaf when SAH says so.
 MAX_LEAF_SIZE = 16
-#: Parallel build: the breadth-first top phase (each level binned and partitioned in
-#: parallel work items) stops at tasks of at most max(BUILD_TASK_MIN, m // BUILD_TASKS)
-#: triangles, which are then built in parallel, largest first, from a shared task
-#: counter. The tree does not depend on either value (tests/raytrace/test_build.py).
-#: Measured on the bfo preset (0.81M triangles, 2 threads, 8 alternated rounds on a
-#: loaded VM): m // 16 builds the binary tree in 0.63 s best / 0.74 s median against
-#: 0.74 / 0.78 for m // 64 (0.70 / 0.72 for m // 8, 0.73 / 0.76 for m // 32): fewer
-#: top levels, and 16-25 tasks still balance two threads.
-BUILD_TASKS = 16
+#: Parallel build (``_kernels/build.py``): nodes of more than
+#: max(BUILD_TASK_MIN, m // BUILD_TASKS) triangles are split one at a time as tasks on a
+#: shared queue; smaller ones are built whole by the worker that reaches them. The tree
+#: does not depend on either value (tests/raytrace/test_build.py). DECISION: 4096 rows
+#: (m // 256 above ~1M triangles): a subtree of that size takes ~1 ms, so the workers
+#: finish within about that of each other (the earlier m // 16 suited a largest-first
+#: list of subtrees fixed in advance, which the queue replaced). Measured on the bfo
+#: preset (0.81M triangles, 2 threads, 8 alternated rounds, load ~5): 4096 and m // 16
+#: tie (0.38 / 0.37 s CPU, 0.77 / 0.74 s wall median).
+BUILD_TASKS = 256
 BUILD_TASK_MIN = 4096
 #: A node whose triangles all share one centroid cannot be split by position; it becomes
 #: a leaf if it has at most this many, otherwise it is split in two by index.
@@ -260,6 +271,7 @@ __all__ = [
     "BARY", "AREA_REL", "BOX_PAD_REL",
     "CUBEMAP_PAD", "CUBEMAP_HOT", "CUBEMAP_CELLS_PER_TRI", "CUBEMAP_MIN_G", "CUBEMAP_MAX_G",
     "CUBEMAP_MIN_RAYS_PER_TRI", "CUBEMAP_MIN_RUN", "CUBEMAP_MAX_ENTRIES",
+    "CUBEMAP_PARALLEL_MIN_TRIS",
     "NEARMAP_MIN_RUN", "NEARMAP_TRIS_PER_RAY", "NEARMAP_MIN_TRIS",
     "NEARMAP_CELLS_PER_TRI", "NEARMAP_MAX_CELLS_PER_TRI",
     "ORDER_MIN_RAYS",

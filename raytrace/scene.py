@@ -33,10 +33,11 @@ from numpy.typing import ArrayLike, NDArray
 from . import config
 from .checks import as_points, first_rows, prepare_cast, prepare_rays, validate_mesh
 from .closest import ClosestPoints
-from ._kernels.build import build_bvh, slot_triangles, triangle_setup
+from ._kernels.build import build_bvh, slot_triangles, triangle_setup, vertex_bounds
 from ._kernels.closest import closest_points
-from ._kernels.collapse import to_wide_layout
-from ._kernels.cubemap import closest_hit_view, count_entries, fill_entries, footprints
+from ._kernels.collapse import pack_records, to_wide_layout
+from ._kernels.cubemap import (closest_hit_view, count_part, entry_offsets, fill_entries,
+                               fill_part, footprints, footprints_counted)
 from ._kernels.nearmap import gather_near, ray_cone
 from ._kernels.order import counting_sort, is_coherent, morton_keys, origin_runs
 from ._kernels.rays import unit_directions
@@ -49,8 +50,6 @@ from .hits import Hits
 __all__ = ["FILE_FORMAT", "Scene"]
 
 _NO_ORDER = np.empty(0, dtype=np.int64)
-#: The frame of a map that is not turned (a station's cube map).
-_NO_TURN = np.eye(3)
 #: Largest half-angle of a ray cone mapped on one turned face (a near map): 44 deg, one
 #: degree inside the face's 45, so that rounding never puts a ray on another face (if
 #: it did, that ray would walk the BVH: still exact).
@@ -155,30 +154,32 @@ class Scene:
             v, f = v.copy(), f.copy()
         self._vertices = _read_only(v)
         self._faces = _read_only(f)
-        lo = v.min(axis=0)
-        hi = v.max(axis=0)
+        lo, hi = vertex_bounds(v)
         # Local origin: the box centre rounded to a whole metre, so that it is a short,
         # exactly representable number a user can read back and reason about.
         self.origin_offset = _read_only(np.round(0.5 * (lo + hi)))
-        local = v - self.origin_offset
         m = f.shape[0]
         prim = np.empty((m, 9), dtype=np.float32)
         good = np.empty(m, dtype=np.bool_)
-        triangle_setup(local, f, config.AREA_REL, prim, good)
+        triangle_setup(v, self.origin_offset, f, config.AREA_REL, prim, good)
         n_bad = m - int(good.sum())
         if n_bad == m:
             raise MeshError(
                 f"Expected a mesh with at least one triangle of non-zero area, got "
                 f"{n_bad} degenerate triangles; check the face indices and units."
             )
-        keep = np.arange(m)
+        if m >= 2 ** 31:
+            raise MeshError("Expected fewer than 2**31 triangles, got more; split the mesh.")
+        # int32 row indices: 4 bytes less to move per row and partition, and already the
+        # dtype of the scene's slot -> triangle map.
+        keep = np.arange(m, dtype=np.int32)
         if n_bad:
             warnings.warn(
                 f"Dropped {n_bad} zero-area triangle(s) of {m} "
                 f"(first: {first_rows(np.flatnonzero(~good))}); they cannot be hit.",
                 UserWarning, stacklevel=2,
             )
-            keep = np.flatnonzero(good)
+            keep = np.flatnonzero(good).astype(np.int32)
             prim = prim[keep]
         stop = max(config.BUILD_TASK_MIN, len(keep) // config.BUILD_TASKS)
         with numba.parallel_chunksize(1):
@@ -196,9 +197,8 @@ class Scene:
         # lines, which made incoherent rays ~1.5x slower on the 1M-triangle benchmark
         # tunnel; the scene stays within 1.5x of Open3D's memory (benchmarks/RESULTS.md).
         self._tris = np.empty((len(keep), 9))
-        slot_triangles(local, f, keep, self._tris)
-        del local
-        self._ids = keep.astype(np.int32)
+        slot_triangles(v, self.origin_offset, f, keep, self._tris)
+        self._ids = keep
         self._nodes = _pack_nodes(wide_box, wide_link, hi - lo)
         self._max_depth = int(max_depth)
         # A visit pushes at most 7 records: 7 per 8-wide level, plus slack.
@@ -268,13 +268,18 @@ class Scene:
         # are also found in an (n, 3) array (runs of bit-identical consecutive rows, one
         # O(n) pass): a station's rays passed with one row per ray were 3x slower than
         # the same rays with a (3,) origin (issue 16).
+        # DECISION: per triangle or per cell of the whole map, whichever is more: on a
+        # small artist-made mesh (3,776 large triangles, a 64-cell floor per face side)
+        # every 1920-ray row of a rolling-shutter frame passed the per-triangle rule and
+        # built a whole map of its own (its own origin): 13 s a frame instead of 3.
         min_run = max(config.CUBEMAP_MIN_RUN,
-                      int(np.ceil(config.CUBEMAP_MIN_RAYS_PER_TRI * self.n_triangles)))
+                      int(np.ceil(config.CUBEMAP_MIN_RAYS_PER_TRI *
+                                  max(self.n_triangles, 6 * self._map_side() ** 2))))
         # Shortest run worth a map: a whole map ("cubemap") or a near map.
         shortest = min_run if method == "cubemap" else min(min_run, config.NEARMAP_MIN_RUN)
         runs = np.empty((0, 2), dtype=np.int64)
         if n and method != "bvh":
-            if org.shape[0] == 1:
+            if local.shape[0] == 1:  # one origin, or n equal rows (prepare_cast)
                 runs = np.array([[0, n]], dtype=np.int64)
             else:
                 # "cubemap"/"near": at least a run that is the whole batch (one origin);
@@ -324,9 +329,15 @@ class Scene:
         """Closest hits of rays from the one origin ``local1`` (1, 3) through its cube
         map or near map ``view``, written into ``out`` (t, slot, triangle, u, v)."""
         start, slots, counts, g, n_faces, rot, scale, radius = view
+        # DECISION: an infinite radius (a whole map, or a near map that holds every
+        # triangle of its cone) and a scale of 1 are passed as None: the kernel is then
+        # compiled without the radius test, the warm start of its BVH walks and the
+        # divisions by the scale, as whole maps were before near maps existed
+        # (cubemap._view_block). Same cells, same answers.
         with numba.parallel_chunksize(config.PRANGE_CHUNK):
-            closest_hit_view(start, slots, counts, g, n_faces, rot, rot is not _NO_TURN,
-                             scale, config.CUBEMAP_HOT, radius, self._nodes,
+            closest_hit_view(start, slots, counts, g, n_faces, rot,
+                             None if scale == 1.0 else scale, config.CUBEMAP_HOT,
+                             radius if radius < np.inf else None, self._nodes,
                              self._nodes.view(np.int32), self._tris, self._ids, local1,
                              dirs, tmin, tmax, self._stack_size, config.RAY_BLOCK, *out)
 
@@ -451,36 +462,60 @@ class Scene:
         cached = self._view_cache
         if cached is not None and cached[0] == key:  # same origin: reuse
             return cached[1]
-        m = self.n_triangles
-        g = int(np.sqrt(config.CUBEMAP_CELLS_PER_TRI * m / 6.0))
-        g = min(config.CUBEMAP_MAX_G, max(config.CUBEMAP_MIN_G, g))
-        view = self._map(local_origin, np.arange(m, dtype=np.int32), g)
+        view = self._map(local_origin, None, self._map_side())
         self._view_cache = (key, view)
         return view
 
-    def _map(self, local_origin: NDArray[np.float64], sel: NDArray[np.int32], g: int,
-             radius: float = np.inf, rot: NDArray[np.float64] = _NO_TURN,
+    def _map_side(self) -> int:
+        """Cells along a side of each face of the whole mesh's cube map: about
+        ``config.CUBEMAP_CELLS_PER_TRI`` cells a triangle, clamped."""
+        g = int(np.sqrt(config.CUBEMAP_CELLS_PER_TRI * self.n_triangles / 6.0))
+        return min(config.CUBEMAP_MAX_G, max(config.CUBEMAP_MIN_G, g))
+
+    def _map(self, local_origin: NDArray[np.float64], sel: NDArray[np.int32] | None,
+             g: int, radius: float = np.inf, rot: NDArray[np.float64] | None = None,
              scale: float = 1.0, n_faces: int = 6) -> Any:
-        """Cube map of the triangles ``sel`` around one origin (local frame), in the
-        frame turned by ``rot`` (``_NO_TURN``: none), each face's grid spanning
-        [-scale, scale]^2, the first ``n_faces`` faces kept. Returns (start, slots,
-        counts, g, n_faces, rot, scale, radius), or None when it would be too large."""
-        fp = np.empty((sel.shape[0], 6, 4), dtype=np.int32)
+        """Cube map of the triangles ``sel`` (None: all) around one origin (local
+        frame), in the frame turned by ``rot`` (None: not turned), each face's grid
+        spanning [-scale, scale]^2, the first ``n_faces`` faces kept. Returns (start,
+        slots, counts, g, n_faces, rot, scale, radius), or None when it would be too
+        large."""
+        # int16 cell ranges: g <= CUBEMAP_MAX_G (2048) < 2^15 (cubemap.footprints).
+        fp = np.empty((self.n_triangles if sel is None else sel.shape[0], 6, 4),
+                      dtype=np.int16 if g < 2**15 else np.int32)
         o = local_origin[0]
-        footprints(self._tris, sel, float(o[0]), float(o[1]), float(o[2]), rot,
-                   rot is not _NO_TURN, float(scale), g, fp)
-        counts = count_entries(fp, g, n_faces)
-        kept = int(counts[counts <= config.CUBEMAP_HOT].sum())
+        ox, oy, oz = float(o[0]), float(o[1]), float(o[2])
+        # The footprints in one part a thread, each part counted (as its footprints are
+        # written) and listed by its own task (the lists do not depend on the split).
+        # DECISION: the lists serially below config.CUBEMAP_PARALLEL_MIN_TRIS
+        # footprints: on a loaded 2-core machine each parallel region can wait
+        # milliseconds for its second thread.
+        m = fp.shape[0]
+        n_parts = numba.get_num_threads() if m >= config.CUBEMAP_PARALLEL_MIN_TRIS else 1
+        parts = np.zeros((n_parts, n_faces * g * g), dtype=np.int32)
+        if n_parts == 1:
+            footprints(self._tris, sel, ox, oy, oz, rot, float(scale), g, fp)
+            count_part(fp, g, n_faces, 0, m, parts[0])
+        else:
+            footprints_counted(self._tris, sel, ox, oy, oz, rot, float(scale), g, fp,
+                               n_faces, parts)
+        counts, start, kept = entry_offsets(parts, config.CUBEMAP_HOT)
         if kept > config.CUBEMAP_MAX_ENTRIES:
             return None
-        start, slots = fill_entries(fp, sel, g, n_faces, counts, config.CUBEMAP_HOT)
+        slots = np.empty(kept, dtype=np.int32)
+        if n_parts == 1:
+            fill_part(fp, sel, g, n_faces, 0, m, counts, config.CUBEMAP_HOT, parts[0],
+                      slots)
+        else:
+            fill_entries(fp, sel, g, n_faces, parts, counts, config.CUBEMAP_HOT, slots)
         return (start, slots, counts, g, n_faces, rot, float(scale), float(radius))
 
     def _near_view(self, local_origin: NDArray[np.float64],
                    dirs: NDArray[np.float64]) -> Any:
-        """Near map around one origin (local frame) for the rays ``dirs``: the cube map
-        of the triangles nearest to it inside the cone of ``dirs`` (``nearmap.py``).
-        Returns (start, slots, counts, g, radius), or None when it would be too large."""
+        """Near map around one origin (local frame) for the rays ``dirs`` (unit vectors):
+        the cube map of the triangles nearest to it inside the cone of ``dirs``
+        (``nearmap.py``). Returns the view of ``_map`` (its radius last), or None when
+        it would be too large."""
         m = self.n_triangles
         ax, ay, az, cos_cone = ray_cone(dirs)
         k_max = max(config.NEARMAP_MIN_TRIS,
@@ -677,14 +712,12 @@ def _pack_nodes(wide_box, wide_link, extent):
     with it (the watertight guarantee). Links are stored as int32 bits in columns 48:64.
     """
     pad = config.BOX_PAD_REL * float(max(np.max(extent), 1e-12))
-    half = 3 * LANES
-    nodes = np.empty((wide_box.shape[0], RECORD), dtype=np.float32)
-    with np.errstate(invalid="ignore", over="ignore"):
-        lo = (wide_box[:, :half].astype(np.float64) - pad).astype(np.float32)
-        hi = (wide_box[:, half:2 * half].astype(np.float64) + pad).astype(np.float32)
-    nodes[:, :half] = np.nextafter(lo, np.float32(-np.inf))
-    nodes[:, half:2 * half] = np.nextafter(hi, np.float32(np.inf))
     if wide_link.max() >= 2 ** 31:
         raise MeshError("Expected fewer than 2**31 triangles, got more; split the mesh.")
-    nodes.view(np.int32)[:, CHILD:RECORD] = wide_link.astype(np.int32)
+    assert wide_box.shape[1] == 6 * LANES and CHILD == 6 * LANES
+    nodes = np.empty((wide_box.shape[0], RECORD), dtype=np.float32)
+    # DECISION: one parallel kernel (collapse.pack_records), not NumPy: the same float64
+    # arithmetic and float32 rounding per value, without the five temporaries of a
+    # serial NumPy pass (~18 ms at 0.8M triangles).
+    pack_records(wide_box, wide_link, pad, nodes, nodes.view(np.int32))
     return nodes

@@ -4,8 +4,8 @@ frame: 307k rays against 0.8M triangles, a new origin every frame).
 
 Two serial passes before the map is built:
 
-* ``ray_cone``: the cone of the batch's directions (axis = the normalised sum of the
-  unit directions, half-angle = the largest angle of a direction to it).
+* ``ray_cone``: the cone of the batch's directions (axis = the normalised sum of a
+  sample of the unit directions, half-angle = the largest angle of any direction to it).
 * ``gather_near``: best-first walk of the BVH from the origin (Hjaltason & Samet 1999,
   "Distance browsing in spatial databases": a priority queue of boxes keyed by their
   distance to the query point), skipping every box that lies outside the cone, until
@@ -40,31 +40,65 @@ _SPHERE_PAD_REL = 1e-9
 #: may round up by a few ulps, and a hit's t along the normalised direction may differ
 #: from the hit point's distance by as much.
 _RADIUS_SLACK_REL = 1e-9
+#: Rows summed for ``ray_cone``'s axis (a stride through the batch).
+_CONE_SAMPLE = 4096
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL)
 def ray_cone(dirs):
     """Axis (ax, ay, az) and cosine of the half-angle of a cone holding every row of
     ``dirs`` (n, 3) float64 unit vectors; cosine -1 (all directions) when the rows sum to
-    (almost) zero. Serial, so the cone does not depend on the thread count."""
+    (almost) zero.
+
+    The axis is the normalised sum of every ``_cone_stride(n)``-th row (every row below
+    2 _CONE_SAMPLE rows); the cosine is the exact minimum over all rows. Serial, so the
+    cone does not depend on the thread count.
+
+    DECISION: a sampled axis (any axis gives a cone that holds every ray, as the cosine
+    is exact; a camera's sample sum points where the full sum does) reads the rays once
+    instead of twice. DECISION: serial: a parallel version (chunks, the minimum per
+    chunk) took 7 ms of wall clock a 640x480 frame at load average 4 on this 2-core VM,
+    waiting for its second thread, against 1.5 ms for the old serial two passes.
+    """
+    n = dirs.shape[0]
+    step = _cone_stride(n)
     sx = 0.0
     sy = 0.0
     sz = 0.0
-    n = dirs.shape[0]
-    for i in range(n):
+    k = 0
+    for i in range(0, n, step):
         sx += dirs[i, 0]
         sy += dirs[i, 1]
         sz += dirs[i, 2]
+        k += 1
     norm = np.sqrt(sx * sx + sy * sy + sz * sz)
-    if not norm > 1e-9 * n:
+    if not norm > 1e-9 * k:
         return 1.0, 0.0, 0.0, -1.0
     ax = sx / norm
     ay = sy / norm
     az = sz / norm
-    c = 1.0
-    for i in range(n):
-        c = min(c, dirs[i, 0] * ax + dirs[i, 1] * ay + dirs[i, 2] * az)
-    return ax, ay, az, c
+    # Four running minima (exact in any order: the same result), so that each step
+    # does not wait for the previous one's.
+    c0 = 1.0
+    c1 = 1.0
+    c2 = 1.0
+    c3 = 1.0
+    n4 = n - n % 4
+    for i in range(0, n4, 4):
+        c0 = min(c0, dirs[i, 0] * ax + dirs[i, 1] * ay + dirs[i, 2] * az)
+        c1 = min(c1, dirs[i + 1, 0] * ax + dirs[i + 1, 1] * ay + dirs[i + 1, 2] * az)
+        c2 = min(c2, dirs[i + 2, 0] * ax + dirs[i + 2, 1] * ay + dirs[i + 2, 2] * az)
+        c3 = min(c3, dirs[i + 3, 0] * ax + dirs[i + 3, 1] * ay + dirs[i + 3, 2] * az)
+    for i in range(n4, n):
+        c0 = min(c0, dirs[i, 0] * ax + dirs[i, 1] * ay + dirs[i, 2] * az)
+    return ax, ay, az, min(min(c0, c1), min(c2, c3))
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def _cone_stride(n):
+    """Row stride of ``ray_cone``'s axis sample: about _CONE_SAMPLE rows (all rows below
+    twice that)."""
+    return max(1, n // _CONE_SAMPLE)
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")

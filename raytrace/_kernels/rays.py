@@ -78,3 +78,19 @@ def shift_origins(o, offset, out):
         if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
             bad += 1
     return bad
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
+def rows_unlike_first(bits):
+    """How many rows of bits (n, 3) int64 (float64 origins viewed as int64) differ from
+    the first row, bit for bit (0: one origin given once per ray, a station as an
+    (n, 3) array). Bitwise, as ``order.origin_runs`` compares origins: -0.0 differs
+    from 0.0, and a NaN equals only the same NaN."""
+    differ = 0
+    b0 = bits[0, 0]
+    b1 = bits[0, 1]
+    b2 = bits[0, 2]
+    for i in prange(bits.shape[0]):
+        if bits[i, 0] != b0 or bits[i, 1] != b1 or bits[i, 2] != b2:
+            differ += 1
+    return differ

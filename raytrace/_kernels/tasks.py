@@ -51,3 +51,27 @@ def fetch_add(typingctx, arr, i, value):
         return builder.atomic_rmw("add", ptr, args[2], "seq_cst")
 
     return sig, codegen
+
+
+@intrinsic
+def atomic_load(typingctx, arr, i):
+    """Atomically read ``arr[i]`` (a C-contiguous int64 array; acquire ordering): a
+    value another thread publishes with ``fetch_add``, read inside a wait loop (a plain
+    load there may be hoisted out of the loop by the compiler). No bounds check.
+
+    LLVM IR::
+
+        %p = getelementptr i64, i64* %data, i64 %i
+        %v = load atomic i64, i64* %p acquire, align 8            ; mov
+    """
+    if not (isinstance(arr, types.Array) and arr.dtype == types.int64 and arr.layout == "C"
+            and isinstance(i, types.Integer)):
+        return None
+    sig = types.int64(arr, types.intp)
+
+    def codegen(context, builder, sig, args):
+        data = context.make_array(sig.args[0])(context, builder, args[0]).data
+        ptr = builder.gep(data, [args[1]])
+        return builder.load_atomic(ptr, "acquire", 8)
+
+    return sig, codegen

@@ -29,7 +29,7 @@ def _soup(m, seed):
     f = np.arange(3 * m).reshape(m, 3)
     prim = np.empty((m, 9), dtype=np.float32)
     good = np.empty(m, dtype=np.bool_)
-    build.triangle_setup(v, f, config.AREA_REL, prim, good)
+    build.triangle_setup(v, np.zeros(3), f, config.AREA_REL, prim, good)
     return prim
 
 
@@ -64,11 +64,9 @@ def _leaf_sets(idx, node_box, node_meta):
 @pytest.mark.parametrize("m, stop", [(3 * 4096 + 123, 1), (3 * 4096 + 123, 4096),
                                      (5 * 8192 + 77, 4096)])
 def test_parallel_top_phase_builds_the_serial_tree(m, stop):
-    """The breadth-first top phase (all nodes of a level binned and partitioned in
-    parallel work items, a stable partition into a second buffer) must build the serial
-    build's tree (stop >= m: everything in place, depth first), node for node, with only
-    the row order inside a node free to differ. 5 * 8192 + 77 rows: several work items
-    per node and several levels."""
+    """The parallel build (nodes above ``stop`` split as tasks on the shared queue) must
+    build the serial build's tree (stop >= m: one worker, depth first), node for node.
+    5 * 8192 + 77 rows: several levels of tasks."""
     prim = _soup(m, 3)
     p_ref, i_ref, box_ref, meta_ref = _build(prim, m)
     p, idx, box, meta = _build(prim, stop)
@@ -85,8 +83,8 @@ def test_parallel_top_phase_builds_the_serial_tree(m, stop):
 
 def test_node_boxes_are_tight_bounds_of_their_rows():
     """Every reached node's box is exactly the min/max over the boxes of its rows
-    (brute force), for a build whose top phase runs the parallel partition."""
-    m = 2 * build._PAR_BIN_MIN + 7
+    (brute force), for a build that splits its top nodes as queue tasks."""
+    m = 2 * 4096 + 7
     prim = _soup(m, 11)
     p, idx, box, meta = _build(prim, 4096)
     # Rows of node i: the union of its leaves' ranges; compute bottom-up by recursion.
@@ -266,23 +264,29 @@ def test_fetch_add_hands_out_every_task_exactly_once(workers):
     assert end == n + workers
 
 
-def test_subtree_tasks_are_largest_first():
-    """build_top hands the subtree phase its tasks largest first (the dynamic queue then
-    balances the threads); every row is in exactly one task."""
-    m = 5 * 8192 + 77
+@pytest.mark.parametrize("workers", [1, 2, 3, 5])
+def test_task_queue_builds_the_same_tree_for_any_worker_count(workers):
+    """The shared task queue (nodes split by whichever worker takes them, right child
+    published, left child continued): for any worker count, more workers than threads
+    included, every row ends where the one-worker build puts it, and the trees are the
+    same node for node (numbering aside). Small ``stop`` values make many tasks."""
+    m = 5 * 4096 + 77
     prim = _soup(m, 4)
-    p = prim.copy()
-    idx = np.arange(m)
-    _, _, pend, _, bases, _, _ = build.build_top(p, idx, *_ARGS, 4096, 2)
-    sizes = pend[:, 2] - pend[:, 1]
-    assert len(pend) > 2
-    assert (np.diff(sizes) <= 0).all()
-    rows = np.zeros(m, dtype=np.int64)
-    for s, e in pend[:, 1:3]:
-        rows[s:e] += 1
-    np.testing.assert_array_equal(rows, 1)
-    # Node ranges: consecutive, 2 c - 2 nodes each.
-    np.testing.assert_array_equal(np.diff(bases), 2 * sizes[:-1] - 2)
+    ref = prim.copy()
+    ref_idx = np.arange(m)
+    ref_box, ref_meta = build.build_bvh(ref, ref_idx, *_ARGS, m, workers=1)
+    for stop in (1, 300, 4096):
+        p = prim.copy()
+        idx = np.arange(m)
+        box, meta = build.build_bvh(p, idx, *_ARGS, stop, workers=workers)
+        np.testing.assert_array_equal(idx, ref_idx)
+        np.testing.assert_array_equal(p, ref)
+        walk, walk_ref = _walk(box, meta), _walk(ref_box, ref_meta)
+        assert len(walk) == len(walk_ref)
+        np.testing.assert_array_equal(box[walk], ref_box[walk_ref])
+        np.testing.assert_array_equal(meta[walk, 2:], ref_meta[walk_ref, 2:])
+        # Every node is used once: the node ranges the workers reserved do not overlap.
+        assert len(set(walk)) == len(walk) and max(walk) < 2 * m - 1
 
 
 _GENERIC_SCRIPT = r"""
