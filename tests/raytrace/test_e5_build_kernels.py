@@ -239,13 +239,7 @@ def _collapse_reference(node_box, node_meta, c_trav, c_isect, width):
 def test_wide_collapse_equals_a_plain_reference(m):
     """Records (children, links, boxes, empty lanes) and statistics of the one-walk
     collapse against the plain two-walk reference, on trees from the real build."""
-    rng = np.random.default_rng(m)
-    centre = rng.standard_normal((m, 3)) * rng.choice([0.2, 1.0, 5.0], size=(m, 1))
-    v = (centre[:, None, :] + 0.05 * rng.standard_normal((m, 3, 3))).reshape(-1, 3)
-    f = np.arange(3 * m).reshape(m, 3)
-    prim = np.empty((m, 9), dtype=np.float32)
-    good = np.empty(m, dtype=np.bool_)
-    build.triangle_setup(v, np.zeros(3), f, config.AREA_REL, prim, good)
+    prim = _soup(m, m)
     node_box, node_meta = build.build_bvh(prim, np.arange(m), config.SAH_BINS, True,
                                           config.SAH_C_TRAV, config.SAH_C_ISECT,
                                           config.MAX_LEAF_SIZE,

@@ -6,11 +6,7 @@ the test compiles to packed instructions, and a generic (no-AVX) CPU agrees."""
 
 from __future__ import annotations
 
-import json
-import os
 import re
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -20,7 +16,7 @@ from hypothesis.extra.numpy import arrays
 from numba import njit
 
 from raytrace._kernels.intersect import GROUP, moller_trumbore, mt4, mt4_scalar
-from tests.raytrace.cpu import needs_avx2
+from tests.raytrace.cpu import generic_and_host, needs_avx2
 
 _SPECIAL = st.sampled_from([0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, 1e-300, 1e300])
 _COORD = st.one_of(st.floats(-4.0, 4.0, width=64), _SPECIAL)
@@ -175,19 +171,6 @@ if __name__ == "__main__":
 def test_generic_cpu_gives_the_same_groups(tmp_path):
     """``NUMBA_CPU_NAME=generic`` (no AVX: LLVM splits the 4-lane vectors) in a
     subprocess with its own Numba cache agrees bit for bit with this process."""
-    script = tmp_path / "generic_mt4.py"
-    script.write_text(_GENERIC_SCRIPT)
-    env = dict(os.environ, NUMBA_CPU_NAME="generic", NUMBA_CPU_FEATURES="",
-               NUMBA_CACHE_DIR=str(tmp_path / "numba_cache"))
-    res = subprocess.run([sys.executable, str(script), "33"], capture_output=True,
-                         text=True, env=env, check=False)
-    assert res.returncode == 0, res.stderr[-2000:]
-    generic = json.loads(res.stdout.strip().splitlines()[-1])
-    sys.path.insert(0, str(tmp_path))
-    try:
-        import generic_mt4  # the same script, compiled for this host
-    finally:
-        sys.path.remove(str(tmp_path))
-    host = generic_mt4.case(33)
+    generic, host = generic_and_host(tmp_path, "generic_mt4", _GENERIC_SCRIPT)
     assert 0 < sum(m != 0 for m in host["mask"]) < len(host["mask"])  # mixed hits/misses
     assert generic == host

@@ -5,11 +5,7 @@ gets the same answers."""
 
 from __future__ import annotations
 
-import json
-import os
 import re
-import subprocess
-import sys
 from fractions import Fraction
 
 import numpy as np
@@ -20,7 +16,7 @@ from hypothesis.extra.numpy import arrays
 from numba import njit
 
 from raytrace._kernels import simd
-from tests.raytrace.cpu import needs_avx2
+from tests.raytrace.cpu import generic_and_host, needs_avx2
 
 _F32_ANY = st.floats(width=32, allow_nan=True, allow_infinity=True)
 _SPECIAL = st.sampled_from([0.0, -0.0, np.inf, -np.inf, np.nan, 1.0, -1.0, 1e-30, 3e38])
@@ -287,20 +283,7 @@ def test_generic_cpu_gives_the_same_results(tmp_path):
     """``NUMBA_CPU_NAME=generic`` (no AVX: LLVM splits the 8-lane vectors) runs the same
     kernels in a subprocess, with its own Numba cache directory, and must agree bit for
     bit with this process (the host CPU)."""
-    script = tmp_path / "generic_simd.py"
-    script.write_text(_GENERIC_SCRIPT)
-    env = dict(os.environ, NUMBA_CPU_NAME="generic", NUMBA_CPU_FEATURES="",
-               NUMBA_CACHE_DIR=str(tmp_path / "numba_cache"))
-    res = subprocess.run([sys.executable, str(script), "33"], capture_output=True,
-                         text=True, env=env, check=False)
-    assert res.returncode == 0, res.stderr[-2000:]
-    generic = json.loads(res.stdout.strip().splitlines()[-1])
-    sys.path.insert(0, str(tmp_path))
-    try:
-        import generic_simd  # the same script, compiled for this host
-    finally:
-        sys.path.remove(str(tmp_path))
-    host = generic_simd.case(33)
+    generic, host = generic_and_host(tmp_path, "generic_simd", _GENERIC_SCRIPT)
     assert 0 < sum(m != 0 for m in host["mask"]) < len(host["mask"])  # mixed hits/misses
     assert generic == host
 

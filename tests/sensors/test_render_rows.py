@@ -37,6 +37,15 @@ _FIELDS = ("hit", "valid", "range_m", "depth_z_m", "triangle", "normal", "points
            "bary_u", "bary_v")
 
 
+def _world_dirs(cam, T):
+    """The camera's pixel rays (n, 3) and their world directions turned by the pose's
+    rotation in ``render_depth``'s arithmetic order (no BLAS reordering)."""
+    d = pixel_rays(cam).reshape(-1, 3)
+    R = T[:3, :3]
+    return d, np.stack([R[k, 0] * d[:, 0] + R[k, 1] * d[:, 1] + R[k, 2] * d[:, 2]
+                        for k in range(3)], 1)
+
+
 def _assert_frames_equal(a, b, rows=slice(None)):
     for name in _FIELDS:
         np.testing.assert_array_equal(getattr(a, name)[rows], getattr(b, name)[rows],
@@ -50,11 +59,7 @@ def test_zero_offset_is_the_pixel_centre_frame_bit_for_bit():
     T = camera_pose([4.0, 0.2, 1.3], np.radians(10.0), np.radians(-5.0), np.radians(2.0))
     fr = render_depth(_SCENE, cam, T, pixel_offset=(0.0, 0.0))
     _assert_frames_equal(fr, render_depth(_SCENE, cam, T))
-    d = pixel_rays(cam).reshape(-1, 3)
-    R = T[:3, :3]
-    # The world direction by the kernel's arithmetic order (no BLAS reordering).
-    dirs = np.stack([R[k, 0] * d[:, 0] + R[k, 1] * d[:, 1] + R[k, 2] * d[:, 2]
-                     for k in range(3)], 1)
+    d, dirs = _world_dirs(cam, T)
     ref = _SCENE.cast(T[:3, 3], dirs)
     hit = ref.triangle >= 0
     np.testing.assert_array_equal(fr.hit.ravel(), hit)
@@ -151,10 +156,7 @@ def test_surface_fields_computed_on_first_use_equal_the_cast_and_frames_are_read
     cam = _cam()
     T = camera_pose([3.0, -0.4, 1.2], np.radians(-20.0), np.radians(8.0))
     fr = render_depth(_SCENE, cam, T)
-    d = pixel_rays(cam).reshape(-1, 3)
-    R = T[:3, :3]
-    dirs = np.stack([R[k, 0] * d[:, 0] + R[k, 1] * d[:, 1] + R[k, 2] * d[:, 2]
-                     for k in range(3)], 1)
+    _d, dirs = _world_dirs(cam, T)
     ref = _SCENE.cast(T[:3, 3], dirs)
     hit = ref.triangle >= 0
     assert 0 < hit.sum() < hit.size          # rays out of the tube's open ends miss
