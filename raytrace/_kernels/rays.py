@@ -17,6 +17,12 @@ from numba import njit, prange
 from ..config import CACHE, ERROR_MODEL
 
 
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def _bad_direction(x, y, z, length):
+    """A direction that cannot be cast: not finite, or of zero length."""
+    return not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z) and length != 0.0)
+
+
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
 def unit_directions(d, out):
     """out[i] = d[i] / |d[i]| for d (n, 3) float64; returns how many rows are not
@@ -30,7 +36,7 @@ def unit_directions(d, out):
         out[i, 0] = x / length
         out[i, 1] = y / length
         out[i, 2] = z / length
-        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z) and length != 0.0):
+        if _bad_direction(x, y, z, length):
             bad += 1
     return bad
 
@@ -45,7 +51,6 @@ def count_nonfinite(a):
     return bad
 
 
-
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
 def count_bad_directions(d):
     """How many rows of d (n, 3) float64 ``unit_directions`` would count as bad (not
@@ -56,8 +61,7 @@ def count_bad_directions(d):
         x = d[i, 0]
         y = d[i, 1]
         z = d[i, 2]
-        length = np.sqrt(x * x + y * y + z * z)
-        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z) and length != 0.0):
+        if _bad_direction(x, y, z, np.sqrt(x * x + y * y + z * z)):
             bad += 1
     return bad
 
