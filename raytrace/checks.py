@@ -13,8 +13,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._kernels.rays import (count_bad_directions, count_nonfinite,
-                           rows_unlike_first, shift_origins, unit_directions)
+from ._kernels.rays import (UNIT_TOL, count_bad_directions, count_nonfinite,
+                           count_not_unit, rows_unlike_first, shift_origins,
+                           unit_directions)
 from .errors import MeshError, RayError
 
 __all__ = ["as_points", "as_xyz", "first_rows", "positive", "prepare_cast", "prepare_rays",
@@ -193,6 +194,15 @@ def _raise_bad_rays(o: NDArray[np.float64], d: NDArray[np.float64]) -> None:
                    f"{first_rows(bad)}; drop those rays.")
 
 
+def _raise_not_unit(d: NDArray[np.float64]) -> None:
+    """Raise the ``RayError`` naming the first directions that are not unit vectors."""
+    sq = np.einsum("ij,ij->i", d, d)
+    bad = np.flatnonzero(~(np.abs(sq - 1.0) <= UNIT_TOL))
+    raise RayError(f"Expected unit-length `directions` with unit=True, got length "
+                   f"{float(np.sqrt(sq[bad[0]])):.12g} at row(s) {first_rows(bad)}; "
+                   "normalise them, or leave unit=False to have them normalised.")
+
+
 def prepare_rays(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
                  t_max: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64],
                                             NDArray[np.float64], NDArray[np.float64]]:
@@ -225,7 +235,7 @@ _PARALLEL_ROWS = 64
 
 
 def prepare_cast(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
-                 t_max: ArrayLike, offset: NDArray[np.float64]
+                 t_max: ArrayLike, offset: NDArray[np.float64], given_unit: bool = False
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
                             bool, NDArray[np.float64], NDArray[np.float64]]:
     """Checked rays for ``Scene.cast``: ``prepare_rays`` with the origins also shifted
@@ -238,6 +248,10 @@ def prepare_cast(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
         As in ``prepare_rays``.
     offset : (3,) float64
         The scene's local origin: ``local = origins - offset``.
+    given_unit : bool
+        The caller says the directions are unit vectors already (``Scene.cast(...,
+        unit=True)``): they are checked to be (``_kernels.rays.count_not_unit``) and
+        returned as given, ``unit`` True, with no normalised copy.
 
     Returns
     -------
@@ -256,7 +270,7 @@ def prepare_cast(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
     RayError
         As ``prepare_rays``, with the same messages.
     """
-    return _prepare(origins, directions, t_min, t_max, offset)
+    return _prepare(origins, directions, t_min, t_max, offset, given_unit)
 
 
 def _shared_local(o: NDArray[np.float64], offset: NDArray[np.float64], n: int
@@ -282,8 +296,8 @@ def _shared_local(o: NDArray[np.float64], offset: NDArray[np.float64], n: int
 
 
 def _prepare(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
-             t_max: ArrayLike, offset: NDArray[np.float64] | None
-             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+             t_max: ArrayLike, offset: NDArray[np.float64] | None,
+             given_unit: bool = False) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
                         bool, NDArray[np.float64], NDArray[np.float64]]:
     """``prepare_rays`` (``offset`` None: directions normalised, local = origins) and
     ``prepare_cast``."""
@@ -326,15 +340,29 @@ def _prepare(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
     # map's kernel to normalise per ray (as the BVH walk does): measured (bfo, 4M-ray
     # station, one thread) 88.7 ns a ray in the kernel against 60.7 + 10.5 for the
     # normalised copy; the sqrt and divisions sit on the path to the ray's cell.
-    unit = offset is None or d.shape[0] != n or local.shape[0] != n or n <= _PARALLEL_ROWS
-    if unit:
+    # DECISION: directions the caller says are unit vectors (a camera's, rotated and
+    # normalised by the renderer) are only checked: the normalised copy cost a 640x480
+    # depth frame ~3 ms of CPU (a fresh 7 MB array) for the same bits (issue 35).
+    if given_unit:
+        if count_not_unit(d):
+            if bad_o or not np.isfinite(d).all():
+                _raise_bad_rays(o, d)
+            _raise_not_unit(d)
+        copy = False
+    else:
+        copy = (offset is None or d.shape[0] != n or local.shape[0] != n
+                or n <= _PARALLEL_ROWS)
+    unit = given_unit or copy
+    if copy:
         u = np.empty_like(d)
         bad_d = unit_directions(d, u)
-    else:
+    elif not given_unit:
         bad_d = count_bad_directions(d)
+    else:
+        bad_d = 0
     if bad_o or bad_d:
         _raise_bad_rays(o, d)
-    if unit:
+    if copy:
         d = u
     if d.shape[0] != n:  # one direction shared by several origins
         d = np.broadcast_to(d, (n, 3))

@@ -66,6 +66,30 @@ def count_bad_directions(d):
     return bad
 
 
+#: Largest | |d|^2 - 1 | of a direction that ``count_not_unit`` accepts as unit length.
+#: DECISION: 1e-12, about 4,500 ulps of 1: a vector normalised by any usual float64
+#: arithmetic (x / sqrt(x x + y y + z z), a rotation of a unit vector, cos/sin of
+#: angles) is within a few ulps; a direction in the wrong unit or never normalised
+#: (|d|^2 - 1 of 1e-6 and more) is refused.
+UNIT_TOL = 1e-12
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
+def count_not_unit(d):
+    """How many rows of d (n, 3) float64 are not unit vectors: | |d|^2 - 1 | above
+    ``UNIT_TOL``, or not finite (NaN fails the comparison). Reads only: the check of a
+    cast whose caller says its directions are unit length already (``Scene.cast(...,
+    unit=True)``), instead of writing a normalised copy."""
+    bad = 0
+    for i in prange(d.shape[0]):
+        x = d[i, 0]
+        y = d[i, 1]
+        z = d[i, 2]
+        if not abs(x * x + y * y + z * z - 1.0) <= UNIT_TOL:
+            bad += 1
+    return bad
+
+
 @njit(cache=CACHE, error_model=ERROR_MODEL, parallel=True)
 def shift_origins(o, offset, out):
     """out[i] = o[i] - offset for o (n, 3) float64 (NumPy's ``o - offset``, the same

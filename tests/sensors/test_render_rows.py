@@ -164,8 +164,9 @@ def test_surface_fields_computed_on_first_use_equal_the_cast_and_frames_are_read
                                    -1.0, 1.0)[:, None]
     np.testing.assert_array_equal(fr.normal.reshape(-1, 3)[hit], n_ref[hit])
     np.testing.assert_array_equal(fr.normal.reshape(-1, 3)[~hit], 0.0)
+    # o + t d along the unit direction as cast (t is measured along it).
     np.testing.assert_array_equal(fr.points.reshape(-1, 3)[hit],
-                                  T[:3, 3] + dirs[hit] * ref.t[hit, None])
+                                  T[:3, 3] + ref.directions[hit] * ref.t[hit, None])
     assert np.isnan(fr.points.reshape(-1, 3)[~hit]).all()
     np.testing.assert_array_equal(fr.bary_v.ravel()[hit], ref.v[hit])
     np.testing.assert_array_equal(fr.bary_u.ravel()[~hit], 0.0)
