@@ -297,7 +297,8 @@ def _shared_local(o: NDArray[np.float64], offset: NDArray[np.float64], n: int
 
 def _prepare(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
              t_max: ArrayLike, offset: NDArray[np.float64] | None,
-             given_unit: bool = False) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+             given_unit: bool = False
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
                         bool, NDArray[np.float64], NDArray[np.float64]]:
     """``prepare_rays`` (``offset`` None: directions normalised, local = origins) and
     ``prepare_cast``."""

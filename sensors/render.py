@@ -328,13 +328,14 @@ def _world_rays(dirs_cam, Rs, block, ok_ray, dirs):  # pragma: no cover (Numba)
     ``Rs[i // block]`` (one rotation per image row for a rolling shutter), normalised
     with the arithmetic of ``Scene.cast``'s own normalisation (x / sqrt(x x + y y +
     z z)), so that ``cast(..., unit=True)`` of them casts the rays a plain ``cast`` of
-    R d would, bit for bit (a pose's rotation is orthonormal only to 1e-9). A ray the lens model could not
-    invert (NaN) is flagged and replaced by the optical axis (cast, then masked).
+    R d would, bit for bit (a pose's rotation is orthonormal only to 1e-9). A ray the
+    lens model could not invert (NaN) is flagged and replaced by the optical axis
+    (cast, then masked).
     DECISION: a kernel, not ``dirs_cam @ R.T``: NumPy's BLAS call on (n, 3) x (3, 3)
     took 0.2 s at 640x480 on a loaded 2-core machine (its threads spin), more than the
-    cast. DECISION: the rays of a block turned by its rotation, not a rotation
-    looked up per ray: the per-ray ``i // block`` (a 64-bit division) was a third of
-    the pass (issue 35's depth-frame rate)."""
+    cast. DECISION: the rays of a block turned by its rotation, not a rotation looked
+    up per ray: the per-ray ``i // block`` (a 64-bit division) was a third of the pass
+    (issue 35's depth-frame rate)."""
     n = dirs_cam.shape[0]
     n_blocks = (n + block - 1) // block
     if n_blocks == 1:

@@ -155,7 +155,7 @@ def call_shared(job: tuple[Shared, str, tuple[Any, ...]]) -> Any:
 
 # ---------------------------------------------------------------------------- progress
 class TaskProgress(Progress):
-    """A one-line bar over tasks on stderr (only on a terminal): call it with
+    """A one-line bar over tasks on stderr (a line a minute off a terminal): call it with
     (done, total) as tasks finish and ``close`` it at the end. The one reporter
     (``survey.report.progress.Progress``) counting whole tasks."""
 

@@ -2,9 +2,11 @@
 the cluster code all draw with.
 
 A ``Progress`` is the ``progress(done, total)`` callback the library functions take:
-call it after each chunk, task or tile, and ``close`` it at the end. It redraws one
-line in place, and only on a terminal (a log file or a pipe gets nothing from it), and
-nothing at all when ``quiet``. Two styles of count:
+call it after each chunk, task or tile, and ``close`` it at the end. On a terminal it
+redraws one line in place; off one (a log file, a pipe, a job scheduler's output) it
+writes the same text as a whole line once every ``LOG_EVERY_S`` seconds, so that a long
+run started from a script still says how far it is; nothing at all when ``quiet``. Two
+styles of count:
 
 - ``"rate"`` (rays, points): millions done of the total, the rate in millions per
   second and the time left, for work counted in millions;
@@ -24,19 +26,24 @@ import time
 from collections.abc import Callable
 from typing import TextIO
 
-__all__ = ["BAR_WIDTH", "LINE_BAR_WIDTH", "PROGRESS_STYLES", "Progress"]
+__all__ = ["BAR_WIDTH", "LINE_BAR_WIDTH", "LOG_EVERY_S", "PROGRESS_STYLES", "Progress"]
 
 #: Characters of the in-place bar (``__call__``).
 BAR_WIDTH = 30
 #: Characters of the bar that starts a log line (``line``).
 LINE_BAR_WIDTH = 20
+#: Seconds between the whole lines ``__call__`` writes off a terminal. DECISION: a
+#: minute: a 20-minute drive run from a script gets ~20 lines, a run under a minute
+#: none (its summary says the rest).
+LOG_EVERY_S = 60.0
 #: How ``__call__`` counts: millions and a rate, or whole counts.
 PROGRESS_STYLES = ("rate", "count")
 
 
 class Progress:
-    """A one-line progress bar on a stream (stderr by default), drawn only on a
-    terminal and never when ``quiet``.
+    """A one-line progress bar on a stream (stderr by default), redrawn in place on a
+    terminal, written as a whole line every ``LOG_EVERY_S`` seconds off one, never when
+    ``quiet``.
 
     Parameters
     ----------
@@ -55,7 +62,9 @@ class Progress:
     Attributes
     ----------
     on : bool
-        Whether ``__call__`` draws: not quiet and the stream is a terminal.
+        Whether ``__call__`` redraws in place: not quiet and the stream is a terminal.
+    logs : bool
+        Whether ``__call__`` writes log lines instead: not quiet, not a terminal.
     calls : int
         How many times ``__call__`` was called (drawn or not).
     done, total : int
@@ -64,13 +73,13 @@ class Progress:
     Examples
     --------
     >>> import io
-    >>> out = io.StringIO()            # not a terminal: nothing is drawn
+    >>> out = io.StringIO()            # not a terminal: a line a minute at most
     >>> bar = Progress(unit="tasks", style="count", stream=out)
     >>> for i in range(3):
     ...     bar(i + 1, 3)
     >>> bar.close()
-    >>> out.getvalue(), bar.on, bar.done, bar.total
-    ('', False, 3, 3)
+    >>> out.getvalue(), bar.on, bar.logs, bar.done, bar.total
+    ('', False, True, 3, 3)
     >>> bar.line(0.5, "2/4 mesh: 1 cm")
     >>> out.getvalue()
     '[##########          ] 2/4 mesh: 1 cm\\n'
@@ -87,10 +96,12 @@ class Progress:
         # would be a fragment of a line, thousands per run.
         isatty = getattr(self.stream, "isatty", None)
         self.on = not self.quiet and bool(isatty is not None and isatty())
+        self.logs = not self.quiet and not self.on
         self.unit = unit
         self.style = style
         self.clock = time.perf_counter if clock is None else clock
         self.t0 = self.clock()
+        self._logged = self.t0
         self.calls = 0
         self.done = 0
         self.total = 0
@@ -108,10 +119,16 @@ class Progress:
                 f"{done / max(dt, 1e-9) / 1e6:.2f} M{u}/s  ETA {eta:.0f} s ")
 
     def __call__(self, done: int, total: int) -> None:
-        """Record ``done`` of ``total`` and redraw the bar (on a terminal)."""
+        """Record ``done`` of ``total`` and redraw the bar (on a terminal), or write it
+        as a line when ``LOG_EVERY_S`` have passed since the last one (off a terminal)."""
         self.calls += 1
         self.done, self.total = int(done), int(total)
         if not self.on:
+            if self.logs:
+                now = self.clock()
+                if now - self._logged >= LOG_EVERY_S:
+                    self._logged = now
+                    print(self.text(done, total).rstrip(), file=self.stream, flush=True)
             return
         self.stream.write("\r" + self.text(done, total))
         self.stream.flush()

@@ -2,8 +2,8 @@
 bars of the command line, the pipeline and the cluster code. Checked: the counts it
 shows against the counts given (parsed back from the text), the bar's length against
 floor(width * done / total), the rate and time left against a clock the test drives,
-nothing drawn when quiet or off a terminal, and the pipeline's step lines through the
-real ``tunnelsim run``."""
+nothing drawn when quiet, a whole line a minute off a terminal, and the pipeline's step
+lines through the real ``tunnelsim run``."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from survey.report.progress import BAR_WIDTH, LINE_BAR_WIDTH, Progress
+from survey.report.progress import BAR_WIDTH, LINE_BAR_WIDTH, LOG_EVERY_S, Progress
 
 
 class _Terminal(io.StringIO):
@@ -93,7 +93,7 @@ def test_the_bar_shows_the_counts_it_was_given(total, data):
 
 def test_quiet_and_non_terminal_draw_nothing_but_count():
     for quiet, stream in ((True, _Terminal()), (False, io.StringIO())):
-        bar = Progress(quiet, unit="tasks", style="count", stream=stream)
+        bar = Progress(quiet, unit="tasks", style="count", stream=stream, clock=_Clock())
         for i in range(5):
             bar(i + 1, 5)
         bar.close()
@@ -102,6 +102,34 @@ def test_quiet_and_non_terminal_draw_nothing_but_count():
     quiet = _Terminal()
     Progress(True, stream=quiet).line(0.5, "step")
     assert quiet.getvalue() == ""
+
+
+@given(st.lists(st.floats(0.0, 400.0), min_size=1, max_size=40), st.booleans())
+def test_off_a_terminal_a_whole_line_each_minute(times, quiet):
+    """A log file or a pipe gets the bar's text as whole lines, one each time
+    LOG_EVERY_S have passed since the last (the count the bar was given), nothing in
+    between, no carriage returns, and nothing at all when quiet."""
+    clock = _Clock()
+    out = io.StringIO()
+    bar = Progress(quiet, unit="rays", stream=out, clock=clock)
+    want, last = [], 100.0
+    for i, t in enumerate(sorted(times)):
+        clock.now = 100.0 + t
+        bar((i + 1) * 1_000_000, len(times) * 1_000_000)
+        if clock.now - last >= LOG_EVERY_S:
+            last = clock.now
+            want.append(i + 1)
+    bar.close()
+    text = out.getvalue()
+    assert "\r" not in text
+    lines = text.splitlines()
+    if quiet:
+        assert text == ""
+        return
+    assert len(lines) == len(want)
+    for line, done in zip(lines, want):
+        got = re.search(r"(\d+\.\d)M/(\d+\.\d)M rays", line)
+        assert got is not None and float(got.group(1)) == pytest.approx(done, abs=0.05)
 
 
 def test_a_line_is_written_off_a_terminal_too():
