@@ -71,6 +71,7 @@ from . import physics as ph
 from . import waveform
 from ._threads import run_each
 from ._checks import as_number, as_points, as_whole
+from ._pages import transient_pages
 from ._kernels.pulses import (
     detect_and_noise,
     fill_points,
@@ -285,23 +286,31 @@ class Run:
         store: list[tuple[int, int, NDArray[np.void]]] | None = \
             [] if self.cache_bytes > 0 and not returned_only else None
         size = 0
-        for pulses in self.scan.chunks(self._chunk_step()):
-            got = self._chunk(n_pulses, pulses, returned_only)
-            if returned_only:
-                k, hits = len(got), got.n_hit
-                size += k * POINT_DTYPE.itemsize
-            else:
-                pts, hits = got
-                k = len(pts)
-                size += pts.nbytes
+        pattern = iter(self.scan.chunks(self._chunk_step()))
+        while True:
+            # A chunk's arrays are written once and dropped: ordinary pages, not
+            # NumPy's huge-page hint (``_pages.py``: a third of the drive's CPU time
+            # was page faults). The caller's code between chunks is left alone.
+            with transient_pages():
+                pulses = next(pattern, None)
+                if pulses is None:
+                    break
+                got = self._chunk(n_pulses, pulses, returned_only)
+                if returned_only:
+                    k, hits = len(got), got.n_hit
+                    size += k * POINT_DTYPE.itemsize
+                else:
+                    pts, hits = got
+                    k = len(pts)
+                    size += pts.nbytes
+                if store is not None:
+                    if size > self.cache_bytes:
+                        store = None
+                    else:
+                        store.append((len(pulses), hits, pts.copy()))
             n_pulses += len(pulses)
             n_points += k
             n_hits += hits
-            if store is not None:
-                if size > self.cache_bytes:
-                    store = None
-                else:
-                    store.append((len(pulses), hits, pts.copy()))
             self.pass_stats = {"pulses": n_pulses, "points": n_points,
                                "hit_ratio": n_hits / max(n_pulses, 1),
                                "seconds": _time.perf_counter() - t_start,
@@ -346,7 +355,9 @@ class Run:
                     pulses = Pulses(pulses.time[cut], pulses.direction[cut],
                                     pulses.channel[cut], pulses.column[cut],
                                     pulses.frame[cut])
-                yield self._chunk(lo, pulses)[0]
+                with transient_pages():
+                    pts = self._chunk(lo, pulses)[0]
+                yield pts
             first += n
 
     def write(self, path, *, fmt: str | None = None, progress=None, fields=None,
