@@ -63,6 +63,7 @@ from numpy.typing import ArrayLike, NDArray
 from raytrace import Scene
 
 from ._kernels.lamps import HARD, POINT, RAMP, lamp_light
+from ._kernels.noise import shot_and_read
 from .camera import CameraSpec
 from .errors import SimulationError
 from .platform_spec import PlatformSpec
@@ -447,8 +448,16 @@ def expose(cam: CameraSpec, lum: NDArray[np.float64], *, seed: int = 0,
     H = lum * t * math.pi / (4.0 * cam.f_number ** 2)
     e = cam.quantum_efficiency * K_V * cam.pixel_area_m2 * H
     if noise:
-        rng = np.random.default_rng(seed)
-        e = rng.poisson(e).astype(np.float64) + rng.normal(0.0, cam.read_noise_e, e.shape)
+        # One parallel pass, each value from its own stream of the seed's SplitMix64
+        # sequence (``_kernels/noise.py``): the same frame for any thread count.
+        key = np.random.SeedSequence(seed).generate_state(1, np.uint64)[0]
+        flat = np.ascontiguousarray(e, dtype=np.float64).reshape(-1)
+        noisy = np.empty_like(flat)
+        if shot_and_read(flat, key, float(cam.read_noise_e), noisy):
+            raise SimulationError("Expected finite, non-negative luminance to expose, got "
+                                  "NaN, inf or negative values; check the lamps and the "
+                                  "albedo (0 where nothing is lit).")
+        e = noisy.reshape(np.shape(e))
     e = np.minimum(e, cam.full_well_e)     # the pixel saturates before the gain
     dn = np.clip(gain * e / cam.full_well_e, 0.0, 1.0) * (2 ** cam.bit_depth - 1)
     return dn
