@@ -343,7 +343,8 @@ def _prepare(origins: ArrayLike, directions: ArrayLike, t_min: ArrayLike,
     # normalised copy; the sqrt and divisions sit on the path to the ray's cell.
     # DECISION: directions the caller says are unit vectors (a camera's, rotated and
     # normalised by the renderer) are only checked: the normalised copy cost a 640x480
-    # depth frame ~3 ms of CPU (a fresh 7 MB array) for the same bits (issue 35).
+    # depth frame 1.6 ms of CPU against 0.4 for the check (a fresh 7 MB array written),
+    # for the same bits (issue 35).
     if given_unit:
         if count_not_unit(d):
             if bad_o or not np.isfinite(d).all():
