@@ -244,9 +244,9 @@ class Scene:
             long (a camera frame). The answer is identical either way; only the speed
             differs.
         unit : bool, keyword-only
-            True: the directions are unit vectors already (| |d|^2 - 1 | <= 1e-12,
-            checked) and are cast exactly as given, without the normalised copy the
-            default makes (24 bytes a ray). False: they are normalised here
+            True: the directions are unit vectors already (``abs(|d|^2 - 1) <=
+            1e-12``, checked) and are cast exactly as given, without the normalised
+            copy the default makes (24 bytes a ray). False: they are normalised here
             (x / sqrt(x x + y y + z z)); normalising them so yourself and passing
             True casts the same rays, bit for bit.
 
