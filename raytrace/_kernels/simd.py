@@ -408,6 +408,227 @@ def order8_scalar(mask, dist):
     return count, packed
 
 
+# ---------------------------------------------------------------------------------------
+# leaf8 and lowest_lane: the leaf/internal split of a visit without per-lane branches
+# ---------------------------------------------------------------------------------------
+def _int32_array(ty):
+    return isinstance(ty, types.Array) and ty.dtype == types.int32 and ty.layout == "C"
+
+
+@intrinsic
+def leaf8(typingctx, arr, offset):
+    """Which of eight consecutive int32 of a C-contiguous int32 array (any rank), from
+    flat element ``offset``, are > 0, as an 8-bit mask (int64, bit k = element
+    ``offset + k``). No bounds check: the caller keeps ``offset + 8 <= arr.size``.
+
+    With ``offset`` at a record's triangle counts (``traverse.COUNT``) this is the
+    record's leaf mask: ``mask & leaf`` are the leaf children a visit hits and
+    ``mask ^ (mask & leaf)`` the internal ones, with no branch per lane.
+
+    LLVM IR::
+
+        %p = getelementptr i32, i32* %data, i64 %offset
+        %v = load <8 x i32>, <8 x i32>* (bitcast %p), align 4
+        %c = icmp sgt <8 x i32> %v, zeroinitializer           ; vpcmpgtd (or vpcmpltd)
+        %m = zext (bitcast <8 x i1> %c to i8) to i64           ; vmovmskps / kmovb
+        %r = call i64 asm "", "=r,0"(i64 %m)                   ; no instruction
+
+    DECISION: the empty ``asm`` (it emits nothing) keeps the mask in a general
+    register. Without it LLVM folds ``mask & leaf`` back into ``<8 x i1>`` operations,
+    which on AVX-512 live in mask registers that it spilled to the stack and reloaded
+    on every visit: bfo, one thread, kernel CPU ns a ray, with / without: drive 166 /
+    168, station 149 / 148, random 276 / 285 (issue 33). An empty string with a
+    register constraint is valid on every LLVM target.
+    """
+    if not (_int32_array(arr) and isinstance(offset, types.Integer)):
+        return None
+    sig = types.int64(arr, types.intp)
+
+    def codegen(context, builder, sig, args):
+        ptr = _vec_ptr(context, builder, sig.args[0], args[0], args[1], _V8I)
+        vec = builder.load(ptr, align=4)
+        pos = builder.icmp_signed(">", vec, ir.Constant(_V8I, [0] * LANES))
+        mask = builder.zext(builder.bitcast(pos, _I8), _I64)
+        keep = ir.InlineAsm(ir.FunctionType(_I64, [_I64]), "", "=r,0")
+        return builder.call(keep, [mask])
+
+    return sig, codegen
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def leaf8_scalar(arr, offset):
+    """Scalar twin of ``leaf8``."""
+    a = arr.reshape(arr.size)
+    mask = 0
+    for k in range(LANES):
+        if a[offset + k] > 0:
+            mask |= 1 << k
+    return mask
+
+
+@intrinsic
+def lowest_lane(typingctx, mask):
+    """Index of the lowest set bit of ``mask`` (int64), 64 for 0: count trailing zeros,
+    one ``tzcnt`` (or ``bsf`` + ``cmov``) instead of a loop whose trip count the branch
+    predictor must guess.
+
+    LLVM IR::
+
+        %n = call i64 @llvm.cttz.i64(i64 %mask, i1 false)
+    """
+    if not isinstance(mask, types.Integer):
+        return None
+    sig = types.int64(types.int64)
+
+    def codegen(context, builder, sig, args):
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(_I64, [_I64, ir.IntType(1)]), "llvm.cttz.i64")
+        return builder.call(fn, [args[0], ir.Constant(ir.IntType(1), 0)])
+
+    return sig, codegen
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def lowest_lane_scalar(mask):
+    """Scalar twin of ``lowest_lane``."""
+    if mask == 0:
+        return 64
+    lane = 0
+    while (mask >> lane) & 1 == 0:
+        lane += 1
+    return lane
+
+
+@intrinsic
+def int32_at(typingctx, arr, offset):
+    """The int32 at flat element ``offset`` of a C-contiguous int32 array (any rank), as
+    int64. No bounds check.
+
+    DECISION: a record's links are read at ``cur * RECORD + CHILD + lane``, the flat
+    offset the slab test already computed, instead of ``links[cur, CHILD + lane]``:
+    Numba's 2-D index wraps a negative ``cur`` (a shift, an and, an add) and multiplies
+    by the row stride read from the array (``imul``), all on the chain from one visit to
+    the next (bfo, one thread, kernel CPU ns a ray, flat / 2-D index: drive 166 / 170,
+    station 149 / 153, random 276 / 283; issue 33).
+
+    LLVM IR::
+
+        %p = getelementptr i32, i32* %data, i64 %offset
+        %x = sext (load i32, i32* %p) to i64
+    """
+    if not (_int32_array(arr) and isinstance(offset, types.Integer)):
+        return None
+    sig = types.int64(arr, types.intp)
+
+    def codegen(context, builder, sig, args):
+        data = context.make_array(sig.args[0])(context, builder, args[0]).data
+        return builder.sext(builder.load(builder.gep(data, [args[1]])), _I64)
+
+    return sig, codegen
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def int32_at_scalar(arr, offset):
+    """Scalar twin of ``int32_at``."""
+    return np.int64(arr.reshape(arr.size)[offset])
+
+
+# ---------------------------------------------------------------------------------------
+# Outward rounding to float32 without a library call
+# ---------------------------------------------------------------------------------------
+_F64 = ir.DoubleType()
+
+
+def _round32(builder, x, up):
+    """float32 nearest to the float64 x, moved one float32 step up (``up``) or down
+    where that rounding went the wrong way. The step is an integer +-1 on the bit
+    pattern: for a float32 f != -0 of sign s the next float32 away from zero has the
+    bits of f plus 1, the next towards zero minus 1 (IEEE 754 orders the magnitudes
+    of a sign like their bit patterns; +-inf step to +-FLT_MAX)."""
+    f = builder.fptrunc(x, _F32)
+    wrong = builder.fcmp_ordered("<" if up else ">", builder.fpext(f, _F64), x)
+    bits = builder.bitcast(f, _I32)
+    one = ir.Constant(_I32, 1)
+    minus = ir.Constant(_I32, -1)
+    zero = ir.Constant(_I32, 0)
+    if up:
+        # f < x: f is not +inf and not -0 (x > -0 would round to +0 or above).
+        step = builder.select(builder.icmp_signed(">=", bits, zero), one, minus)
+    else:
+        # f > x: f is not -inf; f = -0 (x a tiny negative) steps to -denormal (+1).
+        step = builder.select(builder.icmp_signed(">", bits, zero), minus, one)
+    return builder.select(wrong, builder.bitcast(builder.add(bits, step), _F32), f)
+
+
+@intrinsic
+def round_up32_fast(typingctx, x):
+    """``round_up32`` (its scalar twin and specification) without ``np.nextafter``.
+
+    DECISION: Numba compiles ``np.nextafter`` on float32 to a call of
+    ``numba_nextafterf`` (with a ``vzeroupper`` before it): ~4 calls a ray (the ray's
+    origin for three axes, and every closer hit), a fifth to a sixth of a drive ray's
+    time. Here it is a compare and an integer step on the bits, branch-free (bfo, one
+    thread, kernel CPU ns a ray, HEAD walk with nextafter / with this: drive 220 / 180,
+    station 170 / 159, random 328 / 287; issue 33).
+
+    LLVM IR::
+
+        %f    = fptrunc double %x to float
+        %bad  = fcmp olt double (fpext float %f to double), %x
+        %bits = bitcast float %f to i32
+        %step = select (icmp sge i32 %bits, 0), i32 1, i32 -1
+        %r    = select %bad, (bitcast (add %bits, %step) to float), %f
+    """
+    if not isinstance(x, types.Float):
+        return None
+    sig = types.float32(types.float64)
+
+    def codegen(context, builder, sig, args):
+        return _round32(builder, args[0], True)
+
+    return sig, codegen
+
+
+@intrinsic
+def round_down32_fast(typingctx, x):
+    """``round_down32`` (its scalar twin and specification) without ``np.nextafter``
+    (see ``round_up32_fast``).
+
+    LLVM IR::
+
+        %f    = fptrunc double %x to float
+        %bad  = fcmp ogt double (fpext float %f to double), %x
+        %bits = bitcast float %f to i32
+        %step = select (icmp sgt i32 %bits, 0), i32 -1, i32 1
+        %r    = select %bad, (bitcast (add %bits, %step) to float), %f
+    """
+    if not isinstance(x, types.Float):
+        return None
+    sig = types.float32(types.float64)
+
+    def codegen(context, builder, sig, args):
+        return _round32(builder, args[0], False)
+
+    return sig, codegen
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def axis_setup_fast(o, d):
+    """``axis_setup`` (its twin and specification) with ``round_up32_fast`` and
+    ``round_down32_fast``: the same four results, bit for bit, without library calls."""
+    inv = 1.0 / d
+    inv32 = np.float32(inv)
+    if d != 0.0 and abs(inv32) > _F32_MAX:
+        if inv > 0.0:
+            return 0, round_up32_fast(o), np.float32(-np.inf), _F32_MAX
+        return 24, round_down32_fast(o), np.float32(np.inf), -_F32_MAX
+    if inv >= 0.0:
+        return 0, round_up32_fast(o), round_down32_fast(o), inv32
+    return 24, round_down32_fast(o), round_up32_fast(o), inv32
+
+
 __all__ = ["LANES", "PLANES", "EXIT_SCALE", "ENTRY_SLACK", "load8", "load8_scalar",
            "slab8", "slab8_scalar", "axis_setup", "round_up32", "round_down32", "order8",
-           "order8_scalar"]
+           "order8_scalar", "leaf8", "leaf8_scalar", "lowest_lane", "lowest_lane_scalar",
+           "int32_at", "int32_at_scalar", "round_up32_fast", "round_down32_fast",
+           "axis_setup_fast"]
