@@ -23,7 +23,10 @@ and the serial ``count_part``, ``fill_part``.
 Cells listing more than ``HOT`` triangles (looking down a long tunnel, many far
 triangles crowd into a small solid angle) are marked, and their rays walk the BVH
 instead. Both paths use the same float64 Möller–Trumbore on the same local-frame data
-and the same (t, input index) order, so the result is bit-identical to the BVH's.
+and the same (t, input index) order, so the result is bit-identical to the BVH's. A
+cell's list is tested four entries at a time (``mt4_gather``: one ``<4 x double>``
+Möller–Trumbore over four gathered rows, each lane the scalar test bit for bit), as the
+BVH's leaves are (``intersect.mt4``).
 
 Layout (one view, for one origin)::
 
@@ -54,7 +57,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..config import CACHE, CUBEMAP_PAD, ERROR_MODEL
-from .intersect import closer, moller_trumbore
+from .intersect import GROUP, closer, moller_trumbore, mt4_gather
 from .traverse import new_scratch, trace_closest
 
 #: Chunk of triangles per parallel task in the footprint pass.
@@ -73,6 +76,11 @@ _FAST_MARGIN = 1e-4
 #: found by the brute-force property test) go everywhere. 1e-2 keeps a factor 10; only a
 #: station within 1 mm of a 0.1 m triangle pays for it.
 _TOUCH_REL = 1e-2
+
+
+#: A cell's list is tested in groups of ``intersect.GROUP`` (``mt4_gather``) from this
+#: many entries left; a last single entry is tested on its own (``moller_trumbore``).
+LIST_GROUP_MIN = 2
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
@@ -475,7 +483,13 @@ def _view_block(start, slots, counts, g, n_faces, rot, scale, hot, radius, nodes
                 out_slot, out_tri, out_u, out_v):
     """Rays r0..r1 of ``closest_hit_view``, sequentially: a serial function called from
     the prange loop, as ``traverse._closest_block`` is (measured here: as fast as the
-    loop inlined into the prange body, within this VM's noise)."""
+    loop inlined into the prange body, within this VM's noise).
+
+    DECISION: the lists in groups of four (``mt4_gather``) from two entries left, a last
+    single entry on its own. Measured on bfo (one thread, CPU time, the lists' tests
+    alone): a camera frame's near map (4.9 entries a ray) 82-96 -> 45-50 ns a ray. The
+    (t, input index) minimum does not depend on the order in which a list's entries
+    are tried."""
     st_node, st_dist, sd, cn, cd = new_scratch(stack_size)
     # Warm start of the BVH walks (``traverse.trace_closest``): a near map's only (a
     # whole map, radius None, keeps -1, as before near maps existed).
@@ -547,23 +561,49 @@ def _view_block(start, slots, counts, g, n_faces, rot, scale, hot, radius, nodes
             bslot = -1
             bu = 0.0
             bv = 0.0
-            for e in range(start[cell], start[cell + 1]):
-                k = slots[e]
-                t, uu, vv = moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz)
-                if closer(t, ids, k, t0, bt, bid):
-                    bt = t
-                    bid = ids[k]
-                    bslot = k
-                    bu = uu
-                    bv = vv
+            e1 = start[cell + 1]
+            for e in range(start[cell], e1, GROUP):
+                left = e1 - e
+                if left >= LIST_GROUP_MIN:
+                    # Four entries a <4 x double> test, each lane the scalar test bit
+                    # for bit; ``closer`` keeps the (t, input index) minimum, which does
+                    # not depend on the order the entries are tried in.
+                    hits, gt, gu, gv = mt4_gather(tris, slots, e, min(GROUP, left),
+                                                  ox, oy, oz, dx, dy, dz)
+                    for q in range(GROUP):
+                        if (hits >> q) & 1:
+                            k = slots[e + q]
+                            if closer(gt[q], ids, k, t0, bt, bid):
+                                bt = gt[q]
+                                bid = ids[k]
+                                bslot = k
+                                bu = gu[q]
+                                bv = gv[q]
+                else:
+                    k = slots[e]
+                    t, uu, vv = moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz)
+                    if closer(t, ids, k, t0, bt, bid):
+                        bt = t
+                        bid = ids[k]
+                        bslot = k
+                        bu = uu
+                        bv = vv
             # A near map (finite radius) lists only the triangles nearer than radius:
             # its answer stands when it is nearer than that, or when the whole interval
             # is; otherwise the BVH decides, warm-started with the local hit (nearmap.py).
+            # DECISION: that walk starts its interval at max(t0, radius): the ray hits
+            # nothing in [t0, radius) (a listed triangle would have answered, an
+            # unlisted one it can hit was not collected, so it has no hit point nearer
+            # than radius), so the answer, ties at radius included (closed interval), is
+            # the same, and the walk culls the boxes it leaves before radius. Measured
+            # with the grouped lists (bfo frame, one thread): the 3.3 % of rays beyond
+            # the radius 710-940 -> 540-610 ns a ray.
             if radius is not None:
                 if bt > radius:
                     bt, bid, bslot, bu, bv = trace_closest(
-                        nodes, links, tris, ids, ox, oy, oz, dx, dy, dz, t0, t1,
-                        bslot if bslot >= 0 else prev, st_node, st_dist, sd, cn, cd)
+                        nodes, links, tris, ids, ox, oy, oz, dx, dy, dz,
+                        max(t0, radius), t1, bslot if bslot >= 0 else prev,
+                        st_node, st_dist, sd, cn, cd)
                     if bslot >= 0:
                         prev = bslot
         if bslot >= 0:

@@ -1,6 +1,8 @@
 """The ray-triangle test: a small pure function, inlined into the traversal kernels, and
-the same test of four consecutive triangle slots as one ``<4 x double>`` computation
-(``mt4``, LLVM IR through ``numba.extending.intrinsic``), with its scalar twin.
+the same test of four triangle slots as one ``<4 x double>`` computation (LLVM IR
+through ``numba.extending.intrinsic``): four consecutive slots (``mt4``, a BVH leaf) or
+four slots gathered from a list (``mt4_gather``, a cube-map cell), each with its scalar
+twin.
 
 No ``fastmath`` here (see ``config.BUILD_FASTMATH``): the results must be the IEEE
 float64 results of the formulas as written. ``mt4`` performs, lane by lane, exactly the
@@ -99,6 +101,73 @@ def _splat4(builder, x):
                                   ir.Constant(ir.VectorType(_I32, GROUP), [0] * GROUP))
 
 
+def _mt4_body(context, builder, data, rows, nv, ray, ret, quad):
+    """The IR shared by ``mt4`` and ``mt4_gather``: load the nine float64 columns of the
+    four rows ``rows`` (i64 values, row indices of ``data``, a (m, 9) float64 array's
+    data pointer) into <4 x double> columns, run ``moller_trumbore``'s formulas on them
+    in its order of operations, mask the misses and the lanes >= ``nv``, and return
+    (mask, t, u, v) as ``ret``."""
+    ox, oy, oz, dx, dy, dz = ray
+    cols = [ir.Constant(_V4D, ir.Undefined) for _ in range(9)]
+    for lane, r in enumerate(rows):
+        row = builder.mul(r, ir.Constant(_I64, 9))
+        for c in range(9):
+            x = builder.load(builder.gep(data, [builder.add(row, ir.Constant(_I64, c))]))
+            cols[c] = builder.insert_element(cols[c], x, ir.Constant(_I32, lane))
+    v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z = cols
+    vdx, vdy, vdz, vox, voy, voz = (_splat4(builder, a) for a in (dx, dy, dz, ox, oy, oz))
+    mul, sub, add = builder.fmul, builder.fsub, builder.fadd
+    # Möller & Trumbore 1997, in moller_trumbore's order of operations.
+    px = sub(mul(vdy, e2z), mul(vdz, e2y))
+    py = sub(mul(vdz, e2x), mul(vdx, e2z))
+    pz = sub(mul(vdx, e2y), mul(vdy, e2x))
+    det = add(add(mul(e1x, px), mul(e1y, py)), mul(e1z, pz))
+    inv = builder.fdiv(ir.Constant(_V4D, [1.0] * GROUP), det)
+    sx = sub(vox, v0x)
+    sy = sub(voy, v0y)
+    sz = sub(voz, v0z)
+    u = mul(add(add(mul(sx, px), mul(sy, py)), mul(sz, pz)), inv)
+    qx = sub(mul(sy, e1z), mul(sz, e1y))
+    qy = sub(mul(sz, e1x), mul(sx, e1z))
+    qz = sub(mul(sx, e1y), mul(sy, e1x))
+    v = mul(add(add(mul(vdx, qx), mul(vdy, qy)), mul(vdz, qz)), inv)
+    t = mul(add(add(mul(e2x, qx), mul(e2y, qy)), mul(e2z, qz)), inv)
+    lo = ir.Constant(_V4D, [-BARY] * GROUP)
+    hi = ir.Constant(_V4D, [1.0 + BARY] * GROUP)
+    zero = ir.Constant(_V4D, [0.0] * GROUP)
+    bad = builder.fcmp_ordered("==", det, zero)
+    bad = builder.or_(bad, builder.fcmp_ordered("<", u, lo))
+    bad = builder.or_(bad, builder.fcmp_ordered(">", u, hi))
+    bad = builder.or_(bad, builder.fcmp_ordered("<", v, lo))
+    bad = builder.or_(bad, builder.fcmp_ordered(">", add(u, v), hi))
+    v4i = ir.VectorType(_I64, GROUP)
+    nvec = builder.shuffle_vector(
+        builder.insert_element(ir.Constant(v4i, ir.Undefined), nv, ir.Constant(_I32, 0)),
+        ir.Constant(v4i, ir.Undefined), ir.Constant(ir.VectorType(_I32, GROUP), [0] * GROUP))
+    beyond = builder.icmp_signed(">=", ir.Constant(v4i, list(range(GROUP))), nvec)
+    bad = builder.or_(bad, beyond)
+    t = builder.select(bad, ir.Constant(_V4D, [float("nan")] * GROUP), t)
+    u = builder.select(bad, zero, u)
+    v = builder.select(bad, zero, v)
+    mask = builder.zext(builder.bitcast(builder.fcmp_ordered("ord", t, t),
+                                        ir.IntType(GROUP)), _I64)
+    quads = []
+    for vec in (t, u, v):
+        items = [builder.extract_element(vec, ir.Constant(_I32, k)) for k in range(GROUP)]
+        quads.append(context.make_tuple(builder, quad, items))
+    return context.make_tuple(builder, ret, [mask] + quads)
+
+
+def _lane_offsets(builder, nv):
+    """min(l, n - 1) for the four lanes l (i64 values): lanes beyond n repeat the last."""
+    last = builder.sub(nv, ir.Constant(_I64, 1))
+    out = []
+    for lane in range(GROUP):
+        lv = ir.Constant(_I64, lane)
+        out.append(builder.select(builder.icmp_signed("<", lv, nv), lv, last))
+    return out
+
+
 @intrinsic
 def mt4(typingctx, tris, j, n, ox, oy, oz, dx, dy, dz):
     """``moller_trumbore`` of the slots j .. j + n - 1 (1 <= n <= 4) at once.
@@ -136,57 +205,51 @@ def mt4(typingctx, tris, j, n, ox, oy, oz, dx, dy, dz):
     def codegen(context, builder, sig, args):
         tr, jv, nv, ox, oy, oz, dx, dy, dz = args
         data = context.make_array(sig.args[0])(context, builder, tr).data
-        last = builder.sub(nv, ir.Constant(_I64, 1))
-        cols = [ir.Constant(_V4D, ir.Undefined) for _ in range(9)]
-        for lane in range(GROUP):
-            lv = ir.Constant(_I64, lane)
-            r = builder.add(jv, builder.select(builder.icmp_signed("<", lv, nv), lv, last))
-            row = builder.mul(r, ir.Constant(_I64, 9))
-            for c in range(9):
-                x = builder.load(builder.gep(data, [builder.add(row, ir.Constant(_I64, c))]))
-                cols[c] = builder.insert_element(cols[c], x, ir.Constant(_I32, lane))
-        v0x, v0y, v0z, e1x, e1y, e1z, e2x, e2y, e2z = cols
-        vdx, vdy, vdz, vox, voy, voz = (_splat4(builder, a) for a in (dx, dy, dz, ox, oy, oz))
-        mul, sub, add = builder.fmul, builder.fsub, builder.fadd
-        # Möller & Trumbore 1997, in moller_trumbore's order of operations.
-        px = sub(mul(vdy, e2z), mul(vdz, e2y))
-        py = sub(mul(vdz, e2x), mul(vdx, e2z))
-        pz = sub(mul(vdx, e2y), mul(vdy, e2x))
-        det = add(add(mul(e1x, px), mul(e1y, py)), mul(e1z, pz))
-        inv = builder.fdiv(ir.Constant(_V4D, [1.0] * GROUP), det)
-        sx = sub(vox, v0x)
-        sy = sub(voy, v0y)
-        sz = sub(voz, v0z)
-        u = mul(add(add(mul(sx, px), mul(sy, py)), mul(sz, pz)), inv)
-        qx = sub(mul(sy, e1z), mul(sz, e1y))
-        qy = sub(mul(sz, e1x), mul(sx, e1z))
-        qz = sub(mul(sx, e1y), mul(sy, e1x))
-        v = mul(add(add(mul(vdx, qx), mul(vdy, qy)), mul(vdz, qz)), inv)
-        t = mul(add(add(mul(e2x, qx), mul(e2y, qy)), mul(e2z, qz)), inv)
-        lo = ir.Constant(_V4D, [-BARY] * GROUP)
-        hi = ir.Constant(_V4D, [1.0 + BARY] * GROUP)
-        zero = ir.Constant(_V4D, [0.0] * GROUP)
-        bad = builder.fcmp_ordered("==", det, zero)
-        bad = builder.or_(bad, builder.fcmp_ordered("<", u, lo))
-        bad = builder.or_(bad, builder.fcmp_ordered(">", u, hi))
-        bad = builder.or_(bad, builder.fcmp_ordered("<", v, lo))
-        bad = builder.or_(bad, builder.fcmp_ordered(">", add(u, v), hi))
-        v4i = ir.VectorType(_I64, GROUP)
-        nvec = builder.shuffle_vector(
-            builder.insert_element(ir.Constant(v4i, ir.Undefined), nv, ir.Constant(_I32, 0)),
-            ir.Constant(v4i, ir.Undefined), ir.Constant(ir.VectorType(_I32, GROUP), [0] * GROUP))
-        beyond = builder.icmp_signed(">=", ir.Constant(v4i, list(range(GROUP))), nvec)
-        bad = builder.or_(bad, beyond)
-        t = builder.select(bad, ir.Constant(_V4D, [float("nan")] * GROUP), t)
-        u = builder.select(bad, zero, u)
-        v = builder.select(bad, zero, v)
-        mask = builder.zext(builder.bitcast(builder.fcmp_ordered("ord", t, t),
-                                            ir.IntType(GROUP)), _I64)
-        quads = []
-        for vec in (t, u, v):
-            items = [builder.extract_element(vec, ir.Constant(_I32, k)) for k in range(GROUP)]
-            quads.append(context.make_tuple(builder, quad, items))
-        return context.make_tuple(builder, ret, [mask] + quads)
+        rows = [builder.add(jv, off) for off in _lane_offsets(builder, nv)]
+        return _mt4_body(context, builder, data, rows, nv, (ox, oy, oz, dx, dy, dz),
+                         ret, quad)
+
+    return sig, codegen
+
+
+@intrinsic
+def mt4_gather(typingctx, tris, slots, e, n, ox, oy, oz, dx, dy, dz):
+    """``moller_trumbore`` of the triangles ``slots[e]`` .. ``slots[e + n - 1]`` (1 <= n
+    <= 4) at once: ``mt4`` for rows that are not consecutive (a cube-map cell's list).
+
+    ``tris`` (m, 9) float64, C order; ``slots`` (k,) int32, C order, e + n <= k (lanes
+    n..3 test ``slots[e + n - 1]`` again and report NaN, 0, 0). Returns (mask, t, u, v)
+    as ``mt4`` does, lane l < n being ``moller_trumbore(tris, slots[e + l], ...)`` bit
+    for bit. ``mt4_gather_scalar`` is its specification.
+
+    LLVM IR: per lane l, s = sext(load slots[e + min(l, n - 1)]) to i64, then ``mt4``'s
+    IR on the rows s (``_mt4_body``)::
+
+        %s   = sext i32 (load i32* (getelementptr %slots, %e + min(l, %n - 1))) to i64
+        %x   = load double, double* (getelementptr %tris, 9 %s + c)    ; c = 0..8
+        ...                                                            ; as mt4
+
+    DECISION: a gather of rows instead of a copy of the triangles in list order: a
+    camera's near map has ~18 entries a triangle (~40 MB of rows a frame to copy).
+    """
+    if not (isinstance(tris, types.Array) and tris.dtype == types.float64
+            and tris.layout == "C" and isinstance(slots, types.Array)
+            and slots.dtype == types.int32 and slots.layout == "C"
+            and isinstance(e, types.Integer) and isinstance(n, types.Integer)):
+        return None
+    f64 = types.float64
+    quad = types.UniTuple(f64, GROUP)
+    ret = types.Tuple((types.int64, quad, quad, quad))
+    sig = ret(tris, slots, types.intp, types.intp, f64, f64, f64, f64, f64, f64)
+
+    def codegen(context, builder, sig, args):
+        tr, sl, ev, nv, ox, oy, oz, dx, dy, dz = args
+        data = context.make_array(sig.args[0])(context, builder, tr).data
+        sdata = context.make_array(sig.args[1])(context, builder, sl).data
+        rows = [builder.sext(builder.load(builder.gep(sdata, [builder.add(ev, off)])), _I64)
+                for off in _lane_offsets(builder, nv)]
+        return _mt4_body(context, builder, data, rows, nv, (ox, oy, oz, dx, dy, dz),
+                         ret, quad)
 
     return sig, codegen
 
@@ -194,12 +257,29 @@ def mt4(typingctx, tris, j, n, ox, oy, oz, dx, dy, dz):
 @njit(cache=CACHE, error_model=ERROR_MODEL)
 def mt4_scalar(tris, j, n, ox, oy, oz, dx, dy, dz):
     """Scalar twin of ``mt4`` (its specification): ``moller_trumbore`` lane by lane."""
+    return _twin(tris, (j, j + min(1, n - 1), j + min(2, n - 1), j + min(3, n - 1)), n,
+                 ox, oy, oz, dx, dy, dz)
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL)
+def mt4_gather_scalar(tris, slots, e, n, ox, oy, oz, dx, dy, dz):
+    """Scalar twin of ``mt4_gather`` (its specification): ``moller_trumbore`` lane by
+    lane on ``slots[e + min(l, n - 1)]``, lanes l >= n reported as (NaN, 0, 0)."""
+    rows = (np.int64(slots[e]), np.int64(slots[e + min(1, n - 1)]),
+            np.int64(slots[e + min(2, n - 1)]), np.int64(slots[e + min(3, n - 1)]))
+    return _twin(tris, rows, n, ox, oy, oz, dx, dy, dz)
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL)
+def _twin(tris, rows, n, ox, oy, oz, dx, dy, dz):
+    """The scalar twins' lanes: ``moller_trumbore`` on the four ``rows``, lanes l >= n
+    reported as (NaN, 0, 0), and the mask of non-NaN t."""
     t = np.full(GROUP, np.nan)
     u = np.zeros(GROUP)
     v = np.zeros(GROUP)
     mask = 0
     for lane in range(GROUP):
-        a, b, c = moller_trumbore(tris, j + min(lane, n - 1), ox, oy, oz, dx, dy, dz)
+        a, b, c = moller_trumbore(tris, rows[lane], ox, oy, oz, dx, dy, dz)
         if lane < n:
             t[lane] = a
             u[lane] = b
