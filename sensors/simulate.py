@@ -59,7 +59,7 @@ import os
 import time as _time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
-from typing import Any, Final
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -72,6 +72,7 @@ from . import waveform
 from ._threads import run_each
 from ._checks import as_number, as_points, as_whole
 from ._pages import held_heap, transient_pages
+from ._kernels.digest import digest
 from ._kernels.pulses import (
     detect_and_noise,
     fill_points,
@@ -193,9 +194,9 @@ class Run:
         self.stats: dict[str, float] = {}
         self.pass_stats: dict[str, float] = {}
         self.cache_bytes = as_whole(cache_bytes, "cache_bytes", SimulationError, lo=0)
-        # Chunks of the last complete pass, (pulses, hits, points) each, and what
-        # they were simulated with; None when there is none to replay.
-        self._cache: list[tuple[int, int, NDArray[np.void]]] | None = None
+        # Chunks of the last complete pass (``_Cached``) and what they were simulated
+        # with; None when there is none to replay.
+        self._cache: list[_Cached] | None = None
         self._cache_key: tuple[object, ...] | None = None
         self._overflowed = False
 
@@ -246,13 +247,22 @@ class Run:
     def __iter__(self) -> Iterator[NDArray[np.void]]:
         """Point chunks (structured arrays of ``POINT_DTYPE``), in pulse order: simulated
         on the first complete pass, replayed from the cache after it (each chunk a
-        fresh copy: a consumer may change what it is given)."""
+        fresh copy: a consumer may change what it is given).
+
+        The cache holds the first pass's chunks themselves, not copies: a chunk a
+        consumer changed in place since (its bytes, dtype or shape) is simulated again
+        when it is replayed (the same points: a run is deterministic)."""
         t_start = _time.perf_counter()
         n_pulses = n_points = n_hits = 0
         self.pass_stats = {}
         if self.cached:
             assert self._cache is not None
-            for pulses_n, hits, pts in self._cache:
+            for j, entry in enumerate(self._cache):
+                if not entry.intact():
+                    entry = _Cached.of(entry.first, entry.pulses, entry.hits, next(
+                        self._range_chunks(entry.first, entry.first + entry.pulses)))
+                    self._cache[j] = entry
+                pulses_n, hits, pts = entry.pulses, entry.hits, entry.points
                 n_pulses += pulses_n
                 n_points += len(pts)
                 n_hits += hits
@@ -283,7 +293,7 @@ class Run:
         # is iterated more than once by callers that exist (list(run) then write, a
         # preview then the file), and each pass gave the same points; a bound keeps a
         # long drive (a 2 min OS1 drive is ~6 GB of records) from filling the memory.
-        store: list[tuple[int, int, NDArray[np.void]]] | None = \
+        store: list[_Cached] | None = \
             [] if self.cache_bytes > 0 and not returned_only else None
         size = 0
         pattern = iter(self.scan.chunks(self._chunk_step()))
@@ -310,7 +320,11 @@ class Run:
                     if size > self.cache_bytes:
                         store = None
                     else:
-                        store.append((len(pulses), hits, pts.copy()))
+                        # DECISION: the chunk itself, with a digest of its bytes, not
+                        # a copy (issue 33: the copy was 3-4 % of a drive's time, and
+                        # list(run) held every point twice); a consumer's change in
+                        # place is caught on replay (``__iter__``).
+                        store.append(_Cached.of(n_pulses, len(pulses), hits, pts))
                 n_pulses += len(pulses)
                 n_points += k
                 n_hits += hits
@@ -729,6 +743,31 @@ class _Returned:
             pts = self.points()
             quantize(np.stack([pts["x"], pts["y"], pts["z"]], 1), scales, offsets)
         return True
+
+
+class _Cached(NamedTuple):
+    """A chunk of the replay cache: its first pulse's index and pulse count in the
+    pass, the pulses that hit a surface, its points (the very array the pass handed
+    out), their record type and length, and the digest of their bytes then
+    (``sensors._kernels.digest``)."""
+    first: int
+    pulses: int
+    hits: int
+    points: NDArray[np.void]
+    dtype: np.dtype
+    length: int
+    digest: int
+
+    @classmethod
+    def of(cls, first: int, pulses: int, hits: int, pts: NDArray[np.void]) -> _Cached:
+        return cls(first, pulses, hits, pts, pts.dtype, len(pts), digest(pts))
+
+    def intact(self) -> bool:
+        """Whether the chunk is as the pass handed it out (a consumer may have changed
+        its values, or its dtype or shape in place)."""
+        p = self.points
+        return (p.dtype == self.dtype and p.shape == (self.length,) and
+                p.flags.c_contiguous and digest(p) == self.digest)
 
 
 class _Streams:

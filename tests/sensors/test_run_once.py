@@ -78,6 +78,40 @@ def test_replayed_chunks_are_copies(scene, traj):
     np.testing.assert_array_equal(np.concatenate(list(run)), ref)
 
 
+def test_the_cache_holds_the_chunks_handed_out_not_copies(scene, traj):
+    """list(run) holds its points once: the cache keeps the very arrays of the pass."""
+    run = _drive(scene, traj)
+    first = list(run)
+    assert run._cache is not None and len(run._cache) == len(first)
+    assert all(e.points is c for e, c in zip(run._cache, first))
+
+
+@pytest.mark.parametrize("change", ["value", "dtype", "shape"])
+def test_a_chunk_changed_in_place_is_simulated_again_on_replay(scene, traj, casts,
+                                                               change):
+    """A consumer that changes a chunk it was handed (in place: a value, or the array's
+    dtype or shape) gets the true points on replay: that chunk, and only it, is
+    simulated again; the reference is a run without a cache."""
+    run = _drive(scene, traj)
+    first = list(run)
+    truth = np.concatenate(list(_drive(scene, traj, cache_bytes=0)))
+    k = 1
+    if change == "value":
+        first[k]["range"][3] += 1e-9          # one value, by far less than noise
+    elif change == "dtype":
+        first[k].dtype = np.dtype([("raw", "V%d" % POINT_DTYPE.itemsize)])
+    else:
+        first[k].shape = (len(first[k]), 1)
+    n = casts["n"]
+    again = list(run)
+    assert casts["n"] == n + 1                 # only the changed chunk is cast again
+    assert np.concatenate(again).tobytes() == truth.tobytes()
+    assert run.pass_stats["replayed"]
+    third = list(run)                          # the repaired chunk is kept
+    assert casts["n"] == n + 1
+    assert np.concatenate(third).tobytes() == truth.tobytes()
+
+
 def test_a_partial_pass_is_not_kept(scene, traj, casts):
     run = _drive(scene, traj)
     for _chunk in run:
