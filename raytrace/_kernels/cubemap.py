@@ -58,7 +58,7 @@ from numba import njit, prange
 
 from ..config import CACHE, CUBEMAP_PAD, ERROR_MODEL
 from .intersect import GROUP, closer, moller_trumbore, mt4_gather
-from .traverse import new_scratch, trace_closest
+from .traverse import new_scratch, take_hit, trace_closest
 
 #: Chunk of triangles per parallel task in the footprint pass.
 _CHUNK = 4096
@@ -574,20 +574,13 @@ def _view_block(start, slots, counts, g, n_faces, rot, scale, hot, radius, nodes
                         if (hits >> q) & 1:
                             k = slots[e + q]
                             if closer(gt[q], ids, k, t0, bt, bid):
-                                bt = gt[q]
-                                bid = ids[k]
-                                bslot = k
-                                bu = gu[q]
-                                bv = gv[q]
+                                bt, bid, bslot, bu, bv, _, _ = take_hit(gt[q], gu[q],
+                                                                        gv[q], ids, k)
                 else:
                     k = slots[e]
                     t, uu, vv = moller_trumbore(tris, k, ox, oy, oz, dx, dy, dz)
                     if closer(t, ids, k, t0, bt, bid):
-                        bt = t
-                        bid = ids[k]
-                        bslot = k
-                        bu = uu
-                        bv = vv
+                        bt, bid, bslot, bu, bv, _, _ = take_hit(t, uu, vv, ids, k)
             # A near map (finite radius) lists only the triangles nearer than radius:
             # its answer stands when it is nearer than that, or when the whole interval
             # is; otherwise the BVH decides, warm-started with the local hit (nearmap.py).

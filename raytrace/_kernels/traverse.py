@@ -93,6 +93,24 @@ def _visit_order(mask, sd):
 
 
 @njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
+def take_hit(t, u, v, ids, k):
+    """The state of a closest-hit search once the hit (t, u, v) on slot k has passed
+    ``closer``: (t, input index, slot, u, v, hi32, cull), hi32 the float32 bound of the
+    box test (``round_up32_fast``) and cull the entry-distance bound (t times
+    ``ENTRY_SLACK``) that follow the new t. The one place a closest-hit loop (this
+    walk's leaves, the cube-map lists) takes a hit; a caller that culls no boxes drops
+    the last two, and the compiler with them.
+
+    DECISION: called only where ``closer`` passed, so the bounds are rounded once a
+    closer hit, as when the update was written out in each loop: ``closest_hit`` and
+    the whole cube map's ``_view_block`` compile to the same machine code as that form
+    (normalised ``inspect_asm``). Setting the bounds once a leaf instead (the update
+    then without them) changed the code and measured 1-3 % slower in the median (bfo,
+    one thread, seven alternations, drive 194 -> 198, station 158 -> 163 ns a ray)."""
+    return t, ids[k], k, u, v, round_up32_fast(t), t * ENTRY_SLACK
+
+
+@njit(cache=CACHE, error_model=ERROR_MODEL, inline="always")
 def trace_closest(nodes, links, tris, ids, ox, oy, oz, dx, dy, dz, t0, t1, prev,
                   st_node, st_dist, sd, cn, cd):
     """Closest hit of one ray o + t d, t in [t0, t1], through the BVH.
@@ -118,11 +136,7 @@ def trace_closest(nodes, links, tris, ids, ox, oy, oz, dx, dy, dz, t0, t1, prev,
     if prev >= 0:
         t, u, v = moller_trumbore(tris, prev, ox, oy, oz, dx, dy, dz)
         if closer(t, ids, prev, t0, best_t, best_id):
-            best_t = t
-            best_id = ids[prev]
-            best_slot = prev
-            best_u = u
-            best_v = v
+            best_t, best_id, best_slot, best_u, best_v, _, _ = take_hit(t, u, v, ids, prev)
     hi32 = round_up32_fast(best_t)
     cull = best_t * ENTRY_SLACK
     sp = 0
@@ -162,24 +176,14 @@ def trace_closest(nodes, links, tris, ids, ox, oy, oz, dx, dy, dz, t0, t1, prev,
                         for m in range(GROUP):
                             if (hits >> m) & 1 and closer(gt[m], ids, g + m, t0,
                                                           best_t, best_id):
-                                best_t = gt[m]
-                                best_id = ids[g + m]
-                                best_slot = g + m
-                                best_u = gu[m]
-                                best_v = gv[m]
-                                hi32 = round_up32_fast(best_t)
-                                cull = best_t * ENTRY_SLACK
+                                (best_t, best_id, best_slot, best_u, best_v, hi32,
+                                 cull) = take_hit(gt[m], gu[m], gv[m], ids, g + m)
                 else:
                     for j in range(first, first + cnt):
                         t, u, v = moller_trumbore(tris, j, ox, oy, oz, dx, dy, dz)
                         if closer(t, ids, j, t0, best_t, best_id):
-                            best_t = t
-                            best_id = ids[j]
-                            best_slot = j
-                            best_u = u
-                            best_v = v
-                            hi32 = round_up32_fast(best_t)
-                            cull = best_t * ENTRY_SLACK
+                            (best_t, best_id, best_slot, best_u, best_v, hi32,
+                             cull) = take_hit(t, u, v, ids, j)
         rest = inner & (inner - 1)
         if rest == 0:
             # At most one internal child: go there. Without a leaf in this visit t did

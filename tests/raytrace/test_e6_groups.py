@@ -16,7 +16,7 @@ from hypothesis.extra.numpy import arrays
 from numba import njit
 
 from raytrace._kernels.intersect import GROUP, moller_trumbore, mt4, mt4_scalar
-from tests.raytrace.cpu import generic_and_host, needs_avx2
+from tests.raytrace.cpu import generic_and_host_groups, needs_avx2
 
 _SPECIAL = st.sampled_from([0.0, -0.0, 1.0, -1.0, np.inf, -np.inf, np.nan, 1e-300, 1e300])
 _COORD = st.one_of(st.floats(-4.0, 4.0, width=64), _SPECIAL)
@@ -133,44 +133,9 @@ def test_mt4_compiles_to_packed_double_instructions():
     assert re.search(r"\bvcmp\w*pd\b[^\n]*%[yz]mm", asm), "no packed vcmppd"
 
 
-_GENERIC_SCRIPT = r"""
-import json, sys
-import numpy as np
-from numba import njit
-from raytrace._kernels.intersect import mt4
-
-@njit(error_model="numpy")
-def run(tris, o, d, out_mask, out):
-    for r in range(d.shape[0]):
-        j = r % (tris.shape[0] - 3)
-        n = 1 + r % 4
-        m, t, u, v = mt4(tris, j, n, o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2])
-        out_mask[r] = m
-        for k in range(4):
-            out[r, k] = t[k]
-            out[r, 4 + k] = u[k]
-            out[r, 8 + k] = v[k]
-
-def case(seed, n=2000):
-    rng = np.random.default_rng(seed)
-    tris = rng.standard_normal((40, 9))
-    tris[rng.random(tris.shape) < 0.02] = np.nan
-    o = 0.3 * rng.standard_normal((n, 3))
-    d = rng.standard_normal((n, 3))
-    d[rng.random((n, 3)) < 0.1] = 0.0
-    mask = np.empty(n, dtype=np.int64)
-    out = np.empty((n, 12))
-    run(tris, o, d, mask, out)
-    return dict(mask=mask.tolist(), out=out.view(np.int64).ravel().tolist())
-
-if __name__ == "__main__":
-    print(json.dumps(case(int(sys.argv[1]))))
-"""
-
-
 def test_generic_cpu_gives_the_same_groups(tmp_path):
     """``NUMBA_CPU_NAME=generic`` (no AVX: LLVM splits the 4-lane vectors) in a
     subprocess with its own Numba cache agrees bit for bit with this process."""
-    generic, host = generic_and_host(tmp_path, "generic_mt4", _GENERIC_SCRIPT)
+    generic, host = generic_and_host_groups(tmp_path, gather=False)
     assert 0 < sum(m != 0 for m in host["mask"]) < len(host["mask"])  # mixed hits/misses
     assert generic == host

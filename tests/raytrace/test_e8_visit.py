@@ -24,7 +24,7 @@ from raytrace._kernels.intersect import GROUP, GROUP_MIN, closer, moller_trumbor
 from raytrace._kernels.traverse import (CHILD, COUNT, RECORD, new_scratch, trace_any,
                                        trace_closest)
 from raytrace.shapes import icosphere
-from tests.raytrace.cpu import generic_and_host, needs_avx2
+from tests.raytrace.cpu import generic_and_host, jit_call, needs_avx2
 
 _I32 = st.one_of(st.integers(-2 ** 31, 2 ** 31 - 1), st.sampled_from([0, 1, -1, 2 ** 31 - 1,
                                                                       -2 ** 31]))
@@ -43,49 +43,15 @@ _F64_ANY = st.one_of(
 # ---------------------------------------------------------------------------------------
 # Intrinsics against their scalar twins
 # ---------------------------------------------------------------------------------------
-@njit
-def _leaf8(a, i):
-    return simd.leaf8(a, i)
-
-
-@njit
-def _int32_at(a, i):
-    return simd.int32_at(a, i)
-
-
-@njit
-def _lowest(m):
-    return simd.lowest_lane(m)
-
-
-@njit(error_model="numpy")
-def _up(x):
-    return simd.round_up32_fast(x)
-
-
-@njit(error_model="numpy")
-def _down(x):
-    return simd.round_down32_fast(x)
-
-
-@njit(error_model="numpy")
-def _up_twin(x):
-    return simd.round_up32(x)
-
-
-@njit(error_model="numpy")
-def _down_twin(x):
-    return simd.round_down32(x)
-
-
-@njit(error_model="numpy")
-def _setup_fast(o, d):
-    return simd.axis_setup_fast(o, d)
-
-
-@njit(error_model="numpy")
-def _setup_twin(o, d):
-    return simd.axis_setup(o, d)
+_leaf8 = jit_call(simd.leaf8, 2)
+_int32_at = jit_call(simd.int32_at, 2)
+_lowest = jit_call(simd.lowest_lane, 1)
+_up = jit_call(simd.round_up32_fast, 1, error_model="numpy")
+_down = jit_call(simd.round_down32_fast, 1, error_model="numpy")
+_up_twin = jit_call(simd.round_up32, 1, error_model="numpy")
+_down_twin = jit_call(simd.round_down32, 1, error_model="numpy")
+_setup_fast = jit_call(simd.axis_setup_fast, 2, error_model="numpy")
+_setup_twin = jit_call(simd.axis_setup, 2, error_model="numpy")
 
 
 @settings(max_examples=300, deadline=None)
@@ -302,6 +268,26 @@ def _compare(scene, o, d, t0, t1, prev):
     return out
 
 
+def _soup_and_rays(seed, m, leaf, bounded):
+    """A random soup of m triangles (leaves of at most ``leaf``) and 4000 random rays
+    through it: 5 % of direction components zero (axis-parallel rays), t_min 0 or
+    random, t_max finite on a ``bounded`` share of the rays, else inf, and a random
+    warm-start slot on 30 % (else -1). Returns (scene, o, d, t0, t1, prev)."""
+    rng = np.random.default_rng(seed)
+    centres = rng.uniform(-5.0, 5.0, (m, 1, 3))
+    v = (centres + rng.normal(0.0, 0.4, (m, 3, 3))).reshape(-1, 3)
+    scene = Scene(v, np.arange(3 * m).reshape(m, 3), max_leaf_size=leaf)
+    n = 4000
+    o = rng.uniform(-6.0, 6.0, (n, 3))
+    d = rng.standard_normal((n, 3))
+    d[rng.random((n, 3)) < 0.05] = 0.0
+    d[np.linalg.norm(d, axis=1) == 0.0] = [0.0, 0.0, 1.0]
+    t0 = np.where(rng.random(n) < 0.3, rng.uniform(0.0, 2.0, n), 0.0)
+    t1 = np.where(rng.random(n) < bounded, t0 + rng.uniform(0.0, 6.0, n), np.inf)
+    prev = np.where(rng.random(n) < 0.3, rng.integers(0, len(scene._ids), n), -1)
+    return scene, o, d, t0, t1, prev
+
+
 @pytest.mark.parametrize("seed, m, leaf", [(0, 400, 8), (1, 3000, 4), (2, 3000, 2),
                                            (3, 3000, 1), (4, 1500, 16)])
 def test_walk_equals_the_old_walk_on_random_soups(seed, m, leaf):
@@ -309,20 +295,9 @@ def test_walk_equals_the_old_walk_on_random_soups(seed, m, leaf):
     internal children and leaves of every group size), random rays with warm starts
     (a random slot, or -1) and random [t_min, t_max] (0 / finite / inf): t, input
     index, slot, u and v bit for bit as the old walk; and over a tenth of the rays hit."""
-    rng = np.random.default_rng(seed)
-    centres = rng.uniform(-5.0, 5.0, (m, 1, 3))
-    v = (centres + rng.normal(0.0, 0.4, (m, 3, 3))).reshape(-1, 3)
-    f = np.arange(3 * m).reshape(m, 3)
-    scene = Scene(v, f, max_leaf_size=leaf)
-    n = 4000
-    o = rng.uniform(-6.0, 6.0, (n, 3))
-    d = rng.standard_normal((n, 3))
-    d[rng.random((n, 3)) < 0.05] = 0.0       # axis-parallel rays
-    d[np.linalg.norm(d, axis=1) == 0.0] = [0.0, 0.0, 1.0]
-    t0 = np.where(rng.random(n) < 0.3, rng.uniform(0.0, 2.0, n), 0.0)
-    t1 = np.where(rng.random(n) < 0.3, t0 + rng.uniform(0.0, 6.0, n), np.inf)
-    prev = np.where(rng.random(n) < 0.3, rng.integers(0, len(scene._ids), n), -1)
+    scene, o, d, t0, t1, prev = _soup_and_rays(seed, m, leaf, bounded=0.3)
     out = _compare(scene, o, d, t0, t1, prev)
+    n = len(d)
     hit = out[:, 2] >= 0
     assert n // 10 < hit.sum() < n
 
@@ -421,18 +396,8 @@ def test_any_hit_walk_returns_the_old_walks_slot(seed, m, leaf):
     """``trace_any`` on random soups with warm starts and [t_min, t_max] limits returns
     the very slot the old walk returned (not only hit / no hit: the slot feeds the next
     ray's warm start), and its hit / no hit is ``trace_closest``'s."""
-    rng = np.random.default_rng(seed)
-    centres = rng.uniform(-5.0, 5.0, (m, 1, 3))
-    v = (centres + rng.normal(0.0, 0.4, (m, 3, 3))).reshape(-1, 3)
-    scene = Scene(v, np.arange(3 * m).reshape(m, 3), max_leaf_size=leaf)
-    n = 4000
-    o = rng.uniform(-6.0, 6.0, (n, 3))
-    d = rng.standard_normal((n, 3))
-    d[rng.random((n, 3)) < 0.05] = 0.0
-    d[np.linalg.norm(d, axis=1) == 0.0] = [0.0, 0.0, 1.0]
-    t0 = np.where(rng.random(n) < 0.3, rng.uniform(0.0, 2.0, n), 0.0)
-    t1 = np.where(rng.random(n) < 0.5, t0 + rng.uniform(0.0, 6.0, n), np.inf)
-    prev = np.where(rng.random(n) < 0.3, rng.integers(0, len(scene._ids), n), -1)
+    scene, o, d, t0, t1, prev = _soup_and_rays(seed, m, leaf, bounded=0.5)
+    n = len(d)
     local = np.ascontiguousarray(o - scene.origin_offset)
     unit = np.ascontiguousarray(d / np.linalg.norm(d, axis=1)[:, None])
     out = np.zeros((n, 2), dtype=np.int64)

@@ -6,7 +6,6 @@ v), ties to the lower input index included."""
 from __future__ import annotations
 
 import re
-import warnings
 
 import numpy as np
 import pytest
@@ -15,13 +14,14 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from numba import njit
 
-from raytrace import MeshError, Scene, config
+from raytrace import Scene
 from raytrace._kernels.intersect import GROUP as LIST_GROUP
 from raytrace._kernels.intersect import moller_trumbore, mt4_gather, mt4_gather_scalar
 from raytrace.scene import _turn_to_x
 from raytrace.shapes import icosphere
 from tests.naive import naive_cast
-from tests.raytrace.cpu import generic_and_host, needs_avx2
+from tests.raytrace.cpu import (cone_rays, generic_and_host_groups, near_budget, needs_avx2,
+                                soup_scene)
 
 FIELDS = ("t", "triangle", "u", "v")
 
@@ -92,58 +92,12 @@ def test_mt4_gather_compiles_to_packed_double_instructions():
     assert re.search(r"\bvcmp\w*pd\b[^\n]*%[yz]mm", asm), "no packed vcmppd"
 
 
-_GENERIC_SCRIPT = r"""
-import json, sys
-import numpy as np
-from numba import njit
-from raytrace._kernels.intersect import mt4_gather
-
-@njit(error_model="numpy")
-def run(tris, slots, o, d, out_mask, out):
-    for r in range(d.shape[0]):
-        e = r % (slots.shape[0] - 3)
-        n = 1 + r % 4
-        m, t, u, v = mt4_gather(tris, slots, e, n, o[r, 0], o[r, 1], o[r, 2],
-                                d[r, 0], d[r, 1], d[r, 2])
-        out_mask[r] = m
-        for k in range(4):
-            out[r, k] = t[k]
-            out[r, 4 + k] = u[k]
-            out[r, 8 + k] = v[k]
-
-def case(seed, n=2000):
-    rng = np.random.default_rng(seed)
-    tris = rng.standard_normal((40, 9))
-    tris[rng.random(tris.shape) < 0.02] = np.nan
-    slots = rng.integers(0, 40, 64).astype(np.int32)
-    o = 0.3 * rng.standard_normal((n, 3))
-    d = rng.standard_normal((n, 3))
-    d[rng.random((n, 3)) < 0.1] = 0.0
-    mask = np.empty(n, dtype=np.int64)
-    out = np.empty((n, 12))
-    run(tris, slots, o, d, mask, out)
-    return dict(mask=mask.tolist(), out=out.view(np.int64).ravel().tolist())
-
-if __name__ == "__main__":
-    print(json.dumps(case(int(sys.argv[1]))))
-"""
-
-
 def test_generic_cpu_gives_the_same_list_groups(tmp_path):
     """``NUMBA_CPU_NAME=generic`` (no AVX: LLVM splits the vectors) in a subprocess
     agrees bit for bit with this process."""
-    generic, host = generic_and_host(tmp_path, "generic_mt4_gather", _GENERIC_SCRIPT)
+    generic, host = generic_and_host_groups(tmp_path, gather=True)
     assert 0 < sum(m != 0 for m in host["mask"]) < len(host["mask"])  # mixed hits/misses
     assert generic == host
-
-
-def _cone_rays(rng, n, axis, half_angle_rad):
-    """n unit directions within ``half_angle_rad`` of ``axis`` (uniform in tan)."""
-    rot = _turn_to_x(*(np.asarray(axis, float) / np.linalg.norm(axis)))
-    r = np.tan(half_angle_rad) * np.sqrt(rng.uniform(0, 1, n))
-    phi = rng.uniform(0, 2 * np.pi, n)
-    d = np.stack([np.ones(n), r * np.cos(phi), r * np.sin(phi)], axis=1) @ rot
-    return d / np.linalg.norm(d, axis=1)[:, None]
 
 
 def _camera_rays(width, height, hfov_deg, forward):
@@ -172,12 +126,8 @@ def _assert_brute_force(got, v, f, o, d, t_min=0.0, t_max=np.inf):
 
 def _near(scene, o, d, k, **limits):
     """``method="near"`` with k triangles gathered (a finite radius below the mesh's)."""
-    old = config.NEARMAP_MIN_TRIS, config.NEARMAP_TRIS_PER_RAY
-    try:
-        config.NEARMAP_MIN_TRIS, config.NEARMAP_TRIS_PER_RAY = k, 0.0
+    with near_budget(k):
         return scene.cast(o, d, method="near", **limits)
-    finally:
-        config.NEARMAP_MIN_TRIS, config.NEARMAP_TRIS_PER_RAY = old
 
 
 coord = st.floats(-6.0, 6.0, allow_nan=False, allow_infinity=False, width=64)
@@ -219,7 +169,7 @@ def test_near_and_whole_maps_equal_the_bvh(case):
         d = rng.standard_normal((n, 3))
         d /= np.linalg.norm(d, axis=1)[:, None]
     else:
-        d = _cone_rays(rng, n, axis, half)
+        d = cone_rays(rng, n, axis, half)
     # Some rays aimed at vertices: hits on shared vertices and edges, exact ties.
     d[:10] = v[rng.integers(0, len(v), 10)] - o
     keep = np.linalg.norm(d, axis=1) > 1e-9
@@ -230,11 +180,8 @@ def test_near_and_whole_maps_equal_the_bvh(case):
     elif limits == "per_ray":
         t_min = rng.uniform(0, 4, len(d))
         kw = dict(t_min=t_min, t_max=t_min + rng.uniform(0, 8, len(d)))
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            scene = Scene(v, f)
-    except MeshError:
+    scene = soup_scene(v, f)
+    if scene is None:
         return
     ref = scene.cast(o, d, method="bvh", **kw)
     _assert_same(_near(scene, o, d, k, **kw), ref)
@@ -334,12 +281,8 @@ def test_walk_beyond_the_radius_starts_there_and_keeps_ties():
     d = _camera_rays(80, 60, 90.0, [1.0, 0.0, 0.0])
     k = 2 * len(near_f)
     local = (o - scene.origin_offset)[None]
-    old = config.NEARMAP_MIN_TRIS, config.NEARMAP_TRIS_PER_RAY
-    try:
-        config.NEARMAP_MIN_TRIS, config.NEARMAP_TRIS_PER_RAY = k, 0.0
+    with near_budget(k):
         radius = scene._near_view(local, d)[-1]
-    finally:
-        config.NEARMAP_MIN_TRIS, config.NEARMAP_TRIS_PER_RAY = old
     assert np.isfinite(radius)
     t_min = np.where(np.arange(len(d)) % 3 == 0, rng.uniform(radius, 10.0, len(d)),
                      rng.uniform(0.0, radius, len(d)))

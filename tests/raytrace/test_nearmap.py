@@ -4,19 +4,18 @@ BVH's bit for bit and the brute force's; the gathered set is what its radius pro
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from raytrace import MeshError, Scene, config
+from raytrace import Scene, config
 from raytrace._kernels.nearmap import gather_near, ray_cone
 from raytrace.scene import _turn_to_x
 from raytrace.shapes import tunnel_tube
 from tests.naive import naive_cast
+from tests.raytrace.cpu import cone_rays, near_budget, soup_scene
 
 FIELDS = ("t", "triangle", "u", "v")
 
@@ -24,16 +23,6 @@ FIELDS = ("t", "triangle", "u", "v")
 def _assert_same(a, b):
     for name in FIELDS:
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
-
-
-def _cone_rays(rng, n, axis, half_angle_rad):
-    """n unit directions within ``half_angle_rad`` of ``axis`` (uniform in tan)."""
-    rot = _turn_to_x(*(np.asarray(axis, float) / np.linalg.norm(axis)))
-    r = np.tan(half_angle_rad) * np.sqrt(rng.uniform(0, 1, n))
-    phi = rng.uniform(0, 2 * np.pi, n)
-    local = np.stack([np.ones(n), r * np.cos(phi), r * np.sin(phi)], axis=1)
-    d = local @ rot  # rows of rot are the turned frame's axes in the world
-    return d / np.linalg.norm(d, axis=1)[:, None]
 
 
 def _camera_rays(width, height, hfov_deg, forward, up=(0.0, 0.0, 1.0)):
@@ -93,7 +82,7 @@ def test_cones_of_every_width_match_bvh(tunnel, monkeypatch, half_angle_deg):
     for origin, axis in (([40.0, 0.0, 1.2], [1.0, 0.2, 0.1]),
                          ([40.0, 0.0, 1.2], [0.0, 0.0, -1.0]),
                          ([40.0, 30.0, 10.0], [0.0, -1.0, -0.2])):
-        d = _cone_rays(rng, 6000, axis, np.deg2rad(min(half_angle_deg, 179.9)))
+        d = cone_rays(rng, 6000, axis, np.deg2rad(min(half_angle_deg, 179.9)))
         if half_angle_deg == 180.0:
             d = rng.standard_normal((6000, 3))
         _assert_same(scene.cast(origin, d, method="near"),
@@ -157,19 +146,12 @@ def test_near_map_matches_brute_force(case):
     if np.linalg.norm(axis) < 1e-3:
         return
     rng = np.random.default_rng(seed)
-    d = _cone_rays(rng, 40, axis, half)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            scene = Scene(v, f)
-    except MeshError:
+    d = cone_rays(rng, 40, axis, half)
+    scene = soup_scene(v, f)
+    if scene is None:
         return
-    old = config.NEARMAP_MIN_TRIS, config.NEARMAP_TRIS_PER_RAY
-    try:
-        config.NEARMAP_MIN_TRIS, config.NEARMAP_TRIS_PER_RAY = k, 0.0
+    with near_budget(k):
         near = scene.cast(o, d, method="near")
-    finally:
-        config.NEARMAP_MIN_TRIS, config.NEARMAP_TRIS_PER_RAY = old
     # Bit for bit the BVH's answer (which tests/raytrace/test_against_naive.py holds to
     # the brute force, rounding-level ties and grazing rays aside).
     _assert_same(near, scene.cast(o, d, method="bvh"))

@@ -16,7 +16,7 @@ from hypothesis.extra.numpy import arrays
 from numba import njit
 
 from raytrace._kernels import simd
-from tests.raytrace.cpu import generic_and_host, needs_avx2
+from tests.raytrace.cpu import generic_and_host, jit_call, needs_avx2
 
 _F32_ANY = st.floats(width=32, allow_nan=True, allow_infinity=True)
 _SPECIAL = st.sampled_from([0.0, -0.0, np.inf, -np.inf, np.nan, 1.0, -1.0, 1e-30, 3e38])
@@ -36,19 +36,9 @@ def _slab_twin(planes, base, off, org, inv, t, dist):
                              dist)
 
 
-@njit
-def _order_simd(mask, dist):
-    return simd.order8(mask, dist)
-
-
-@njit
-def _order_twin(mask, dist):
-    return simd.order8_scalar(mask, dist)
-
-
-@njit
-def _load_simd(a, i):
-    return simd.load8(a, i)
+_order_simd = jit_call(simd.order8, 2)
+_order_twin = jit_call(simd.order8_scalar, 2)
+_load_simd = jit_call(simd.load8, 2)
 
 
 @njit(error_model="numpy")
