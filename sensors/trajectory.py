@@ -331,8 +331,8 @@ class Trajectory:
         mat = np.empty((len(t), 3, 3))
         interpolate_poses(self.times, self._local, self._quat, t[rows[:-1]], rows,
                           np.asarray(mount.lever_arm_m, dtype=np.float64),
-                          np.ascontiguousarray(mount.boresight.as_matrix()), pos, mat)
-        pos += self.origin
+                          np.ascontiguousarray(mount.boresight.as_matrix()),
+                          np.asarray(self.origin, dtype=np.float64), pos, mat)
         return pos, mat
 
     def sensor_poses(self, t: ArrayLike, mount: Mount, *, local: bool = False

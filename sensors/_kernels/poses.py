@@ -10,12 +10,13 @@ from raytrace.config import CACHE, ERROR_MODEL
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)
-def interpolate_poses(times, pos, quat, t, rows, lever, bore, out_pos, out_mat):
+def interpolate_poses(times, pos, quat, t, rows, lever, bore, origin, out_pos, out_mat):
     """times (k,) increasing; pos (k, 3) local; quat (k, 4) x, y, z, w; t (n,) within
-    [times[0], times[-1]]; rows (n + 1,) increasing offsets; lever (3,); bore (3, 3).
-    Writes the pose at t[j] into rows rows[j] to rows[j + 1] - 1 of out_pos (local
-    sensor positions, (rows[n], 3)) and out_mat (sensor-to-world matrices,
-    (rows[n], 3, 3)): pulses fired at one instant share one interpolation."""
+    [times[0], times[-1]]; rows (n + 1,) increasing offsets; lever (3,); bore (3, 3);
+    origin (3,) added to the positions last. Writes the pose at t[j] into rows rows[j]
+    to rows[j + 1] - 1 of out_pos (sensor positions, local + origin, (rows[n], 3)) and
+    out_mat (sensor-to-world matrices, (rows[n], 3, 3)): pulses fired at one instant
+    share one interpolation."""
     k = times.shape[0]
     for j in prange(t.shape[0]):
         tj = min(max(t[j], times[0]), times[k - 1])
@@ -69,9 +70,9 @@ def interpolate_poses(times, pos, quat, t, rows, lever, bore, out_pos, out_mat):
         py += r10 * lever[0] + r11 * lever[1] + r12 * lever[2]
         pz += r20 * lever[0] + r21 * lever[1] + r22 * lever[2]
         q0 = rows[j]
-        out_pos[q0, 0] = px
-        out_pos[q0, 1] = py
-        out_pos[q0, 2] = pz
+        out_pos[q0, 0] = px + origin[0]
+        out_pos[q0, 1] = py + origin[1]
+        out_pos[q0, 2] = pz + origin[2]
         for c in range(3):
             out_mat[q0, 0, c] = r00 * bore[0, c] + r01 * bore[1, c] + r02 * bore[2, c]
             out_mat[q0, 1, c] = r10 * bore[0, c] + r11 * bore[1, c] + r12 * bore[2, c]
