@@ -90,6 +90,8 @@ from .trajectory import Mount, Trajectory
 __all__ = ["CACHE_BYTES", "RANDOM_BLOCK", "Run", "WAVE_CHUNK_PULSES", "simulate_drive",
            "simulate_station"]
 
+#: An empty row index: the kernels' "one matrix for each pulse, or one for all".
+NO_ROWS: Final = np.empty(0, dtype=np.int64)
 #: Pulses per block of random numbers (see ``_Streams``).
 RANDOM_BLOCK: Final = 1 << 16
 #: Default bound of a run's replay cache (bytes of point records): 1 GiB holds about
@@ -101,8 +103,11 @@ CACHE_BYTES: Final = 1 << 30
 #: per pulse). Results do not depend on it (random streams are keyed by pulse index).
 WAVE_CHUNK_PULSES: Final = 1 << 16
 
-#: poses(times (n,)) -> (positions (1 or n, 3), sensor-to-world matrices (1 or n, 3, 3)).
-PoseFn = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np.float64]]]
+#: poses(times (n,)) -> sensor positions (n or 1, 3), sensor-to-world matrices (m, 3, 3)
+#: and each pulse's matrix row (n,) int64, or ``NO_ROWS`` when the matrices are one
+#: per pulse or one for all.
+PoseFn = Callable[[NDArray[np.float64]], tuple[NDArray[np.float64], NDArray[np.float64],
+                                               NDArray[np.int64]]]
 #: Per pulse: range (m), power, cosine of incidence, flag, triangle.
 _Returns = tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
                  NDArray[np.uint8], NDArray[np.int32]]
@@ -455,7 +460,9 @@ class Run:
         n = len(pulses)
         rng = _Streams(self.seed, first, n)
         t_abs = pulses.time + self.t0
-        pos, mats = self._poses(t_abs)
+        # One matrix per firing instant and each pulse's row in ``which`` (a drive), or
+        # one matrix for every pulse (a station; ``which`` empty).
+        pos, mats, which = self._poses(t_abs)
         single = self.station is not None
         mats = np.ascontiguousarray(mats.reshape(-1, 3, 3))
         pos = np.ascontiguousarray(np.asarray(pos, dtype=np.float64).reshape(-1, 3))
@@ -472,9 +479,11 @@ class Run:
         u_det = rng.uniform(3)
         z = rng.normal(4, 1)
         dw = np.empty((n, 3))
-        world_directions(pulses.direction, jit, mats, dw)
+        world_directions(pulses.direction, jit, mats, which, dw)
         if st.returns is not None or st.waveform:   # the waveform model
-            return self._chunk_returns(rng, pulses, t_abs, pos, mats, dw, dpart, u_det, z)
+            per_pulse = mats[which] if len(which) else mats
+            return self._chunk_returns(rng, pulses, t_abs, pos, per_pulse, dw, dpart,
+                                       u_det, z)
         ret = self._surface(pos[0] if single else pos, dw, "cubemap" if single else "auto")
         n_hit = int(np.count_nonzero(ret[3]))
         if dpart is not None and u_part is not None:
@@ -487,7 +496,7 @@ class Run:
                          1.0 / phys.detection_softness, st.range_noise, floor2, ref2,
                          returned)
         got = _Returned(np.flatnonzero(returned), r, p, flag, tri, cos, pulses, t_abs, pos,
-                        mats, p_min, log_span, n_hit)
+                        mats, which, p_min, log_span, n_hit)
         return got if returned_only else (got.points(), n_hit)
 
     def _chunk_returns(self, rng: _Streams, pulses: Pulses, t_abs: NDArray[np.float64],
@@ -550,7 +559,7 @@ class Run:
         fill_points(idx, r, cr.power, cr.flag, cr.triangle, cr.cos,
                     np.ascontiguousarray(pulses.direction[q]), t_abs[q], pulses.channel[q],
                     pulses.column[q], pulses.frame[q], np.ascontiguousarray(per_pos),
-                    np.ascontiguousarray(per_rot), p_min, log_span, *f)
+                    np.ascontiguousarray(per_rot), NO_ROWS, p_min, log_span, *f)
         out["return_number"], out["number_of_returns"] = \
             waveform.renumber_returns(q, returned)
         out["echo_width"] = cr.width_m[idx]
@@ -699,10 +708,12 @@ class _Returned:
     def __init__(self, idx: NDArray[np.int64], r: NDArray[np.float64],
                  p: NDArray[np.float64], flag: NDArray[np.uint8], tri: NDArray[np.int32],
                  cos: NDArray[np.float64], pulses: Pulses, t_abs: NDArray[np.float64],
-                 pos: NDArray[np.float64], mats: NDArray[np.float64], p_min: float,
-                 log_span: float, n_hit: int) -> None:
+                 pos: NDArray[np.float64], mats: NDArray[np.float64],
+                 which: NDArray[np.int64], p_min: float, log_span: float, n_hit: int
+                 ) -> None:
         self.idx, self.r, self.p, self.flag, self.tri, self.cos = idx, r, p, flag, tri, cos
         self.pulses, self.t_abs, self.pos, self.mats = pulses, t_abs, pos, mats
+        self.which = which
         self.p_min, self.log_span, self.n_hit = p_min, log_span, n_hit
 
     def __len__(self) -> int:
@@ -711,7 +722,7 @@ class _Returned:
     def _args(self, idx: NDArray[np.int64]) -> tuple[Any, ...]:
         q = self.pulses
         return (idx, self.r, self.p, self.flag, self.tri, self.cos, q.direction,
-                self.t_abs, q.channel, q.column, q.frame, self.pos, self.mats,
+                self.t_abs, q.channel, q.column, q.frame, self.pos, self.mats, self.which,
                 self.p_min, self.log_span)
 
     def points(self, limit: int | None = None) -> NDArray[np.void]:
@@ -977,8 +988,9 @@ def simulate_station(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
     rot = Rotation.identity() if attitude is None else attitude
     mat = rot.as_matrix()[None]
 
-    def poses(t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        return pos[None, :], mat
+    def poses(t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                               NDArray[np.int64]]:
+        return pos[None, :], mat, NO_ROWS
 
     return Run(scene, spec, scan, poses, settings=st, seed=seed, reflectivity=reflectivity,
                chunk_pulses=chunk_pulses, station=(pos, rot), cache_bytes=cache_bytes)
@@ -1037,8 +1049,9 @@ def simulate_drive(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
                               f"ending at {trajectory.end_s:g} s; use a longer trajectory "
                               "or a static one.")
 
-    def poses(t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        return trajectory.sensor_matrices(t, mnt)
+    def poses(t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                               NDArray[np.int64]]:
+        return trajectory._matrices(t, mnt, per_instant=True)
 
     return Run(scene, spec, scan, poses, settings=st, seed=seed, reflectivity=reflectivity,
                chunk_pulses=chunk_pulses, t0=a, mount=mnt, trajectory=trajectory,

@@ -315,6 +315,14 @@ class Trajectory:
         """Sensor positions (n, 3) (world) and sensor-to-world matrices (n, 3, 3) at
         times t: the fast path of the simulation loop. Quaternion SLERP (Shoemake 1985)
         in Numba, equal to ``sensor_poses`` (scipy's Slerp) to rounding."""
+        pos, mat, _ = self._matrices(t, mount, per_instant=False)
+        return pos, mat
+
+    def _matrices(self, t: ArrayLike, mount: Mount, per_instant: bool
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
+        """``sensor_matrices``; with ``per_instant`` the matrices are one per run of
+        equal times, (r, 3, 3), and the third array (n,) int64 gives each time's row
+        (else it is empty and the matrices are per time)."""
         from ._kernels.poses import interpolate_poses
 
         t = self._query_times(t)
@@ -323,17 +331,19 @@ class Trajectory:
         # DECISION: pulses fired at one instant (the Airy fires 8 channels at a time)
         # share one pose: it is interpolated once per run of equal times and written to
         # each pulse of the run, the same bits at an eighth of the work (poses were 7 %
-        # of a drive; issue 16).
+        # of a drive; issue 16). The simulation loop keeps one matrix per run and an
+        # index per pulse (72 bytes a pulse written and read twice less; issue 33).
         first = np.ones(len(t), dtype=np.bool_)
         np.not_equal(t[1:], t[:-1], out=first[1:])
         rows = np.append(np.flatnonzero(first), len(t))
         pos = np.empty((len(t), 3))
-        mat = np.empty((len(t), 3, 3))
+        mat = np.empty((len(rows) - 1 if per_instant else len(t), 3, 3))
+        which = np.empty(len(t) if per_instant else 0, dtype=np.int64)
         interpolate_poses(self.times, self._local, self._quat, t[rows[:-1]], rows,
                           np.asarray(mount.lever_arm_m, dtype=np.float64),
                           np.ascontiguousarray(mount.boresight.as_matrix()),
-                          np.asarray(self.origin, dtype=np.float64), pos, mat)
-        return pos, mat
+                          np.asarray(self.origin, dtype=np.float64), pos, mat, which)
+        return pos, mat, which
 
     def sensor_poses(self, t: ArrayLike, mount: Mount, *, local: bool = False
                      ) -> tuple[NDArray[np.float64], Rotation]:

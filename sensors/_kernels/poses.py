@@ -10,13 +10,17 @@ from raytrace.config import CACHE, ERROR_MODEL
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)
-def interpolate_poses(times, pos, quat, t, rows, lever, bore, origin, out_pos, out_mat):
+def interpolate_poses(times, pos, quat, t, rows, lever, bore, origin, out_pos, out_mat,
+                      out_which):
     """times (k,) increasing; pos (k, 3) local; quat (k, 4) x, y, z, w; t (n,) within
     [times[0], times[-1]]; rows (n + 1,) increasing offsets; lever (3,); bore (3, 3);
     origin (3,) added to the positions last. Writes the pose at t[j] into rows rows[j]
-    to rows[j + 1] - 1 of out_pos (sensor positions, local + origin, (rows[n], 3)) and
-    out_mat (sensor-to-world matrices, (rows[n], 3, 3)): pulses fired at one instant
-    share one interpolation."""
+    to rows[j + 1] - 1 of out_pos (sensor positions, local + origin, (rows[n], 3)), and
+    its sensor-to-world matrix either into the same rows of out_mat ((rows[n], 3, 3),
+    out_which of length 0) or into row j of out_mat ((n, 3, 3)) with out_which[q] = j
+    for each of its rows q (out_which (rows[n],) int64): pulses fired at one instant
+    share one interpolation, and with out_which one matrix."""
+    per_instant = out_which.shape[0] > 0
     k = times.shape[0]
     for j in prange(t.shape[0]):
         tj = min(max(t[j], times[0]), times[k - 1])
@@ -73,13 +77,18 @@ def interpolate_poses(times, pos, quat, t, rows, lever, bore, origin, out_pos, o
         out_pos[q0, 0] = px + origin[0]
         out_pos[q0, 1] = py + origin[1]
         out_pos[q0, 2] = pz + origin[2]
+        qm = np.int64(j) if per_instant else q0
         for c in range(3):
-            out_mat[q0, 0, c] = r00 * bore[0, c] + r01 * bore[1, c] + r02 * bore[2, c]
-            out_mat[q0, 1, c] = r10 * bore[0, c] + r11 * bore[1, c] + r12 * bore[2, c]
-            out_mat[q0, 2, c] = r20 * bore[0, c] + r21 * bore[1, c] + r22 * bore[2, c]
+            out_mat[qm, 0, c] = r00 * bore[0, c] + r01 * bore[1, c] + r02 * bore[2, c]
+            out_mat[qm, 1, c] = r10 * bore[0, c] + r11 * bore[1, c] + r12 * bore[2, c]
+            out_mat[qm, 2, c] = r20 * bore[0, c] + r21 * bore[1, c] + r22 * bore[2, c]
+        if per_instant:
+            for q in range(q0, rows[j + 1]):
+                out_which[q] = j
         # The other pulses of the run copy the first one's pose.
         for q in range(q0 + 1, rows[j + 1]):
             for c in range(3):
                 out_pos[q, c] = out_pos[q0, c]
-                for a in range(3):
-                    out_mat[q, a, c] = out_mat[q0, a, c]
+                if not per_instant:
+                    for a in range(3):
+                        out_mat[q, a, c] = out_mat[q0, a, c]

@@ -69,11 +69,13 @@ intensity_ufunc = vectorize(_F8x3, cache=CACHE)(_intensity)
 
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)
-def world_directions(d, jit, rot, out):
+def world_directions(d, jit, rot, which, out):
     """out[i] = R_i (d[i] tilted by jit[i]) for unit d (n, 3); jit (n, 2) radians or
-    (0, 2) for no jitter; rot (1, 3, 3) shared or (n, 3, 3) per pulse."""
+    (0, 2) for no jitter; rot (1, 3, 3) shared or (n, 3, 3) per pulse, or (m, 3, 3)
+    with ``which`` (n,) int64 giving each pulse's row (``which`` empty otherwise)."""
     n = d.shape[0]
     per = rot.shape[0] == n and n > 1
+    by_row = which.shape[0] > 0
     tilt = jit.shape[0] == n
     for i in prange(n):
         x, y, z = d[i, 0], d[i, 1], d[i, 2]
@@ -98,7 +100,9 @@ def world_directions(d, jit, rot, out):
             y *= s
             z *= s
         q = np.int64(i)  # prange indices are unsigned: keep q an int64
-        if not per:
+        if by_row:
+            q = which[i]
+        elif not per:
             q = np.int64(0)
         for k in range(3):
             out[i, k] = rot[q, k, 0] * x + rot[q, k, 1] * y + rot[q, k, 2] * z
@@ -142,11 +146,14 @@ def detect_and_noise(r, p, flag, u, z, detect, p_min, inv_soft, noise, floor2, r
 
 @njit(parallel=True, cache=CACHE, error_model=ERROR_MODEL)
 def fill_points(idx, r, p, flag, tri, cos, d, t, channel, column, frame, pos, rot,
-                p_min, log_span, ox, oy, oz, sx, sy, sz, rng, az, el, tt, ch, co, fr,
-                inten, inc, otri, oflag):
+                which, p_min, log_span, ox, oy, oz, sx, sy, sz, rng, az, el, tt, ch, co,
+                fr, inten, inc, otri, oflag):
     """Output records of the returned pulses idx: sensor-frame point r d, world point
-    pos + R (r d), angles (rad), time, indices, intensity, incidence angle (rad)."""
+    pos + R (r d), angles (rad), time, indices, intensity, incidence angle (rad).
+    pos and rot: one (shape (1, ...)) or one per pulse; with ``which`` (n,) int64 not
+    empty, pulse i's matrix is rot[which[i]]."""
     per = pos.shape[0] > 1
+    by_row = which.shape[0] > 0
     for j in prange(idx.shape[0]):
         i = idx[j]
         ri = r[i]
@@ -157,9 +164,10 @@ def fill_points(idx, r, p, flag, tri, cos, d, t, channel, column, frame, pos, ro
         q = np.int64(i)  # prange indices are unsigned: keep q an int64
         if not per:
             q = np.int64(0)
-        ox[j] = pos[q, 0] + rot[q, 0, 0] * x + rot[q, 0, 1] * y + rot[q, 0, 2] * z
-        oy[j] = pos[q, 1] + rot[q, 1, 0] * x + rot[q, 1, 1] * y + rot[q, 1, 2] * z
-        oz[j] = pos[q, 2] + rot[q, 2, 0] * x + rot[q, 2, 1] * y + rot[q, 2, 2] * z
+        m = which[i] if by_row else q
+        ox[j] = pos[q, 0] + rot[m, 0, 0] * x + rot[m, 0, 1] * y + rot[m, 0, 2] * z
+        oy[j] = pos[q, 1] + rot[m, 1, 0] * x + rot[m, 1, 1] * y + rot[m, 1, 2] * z
+        oz[j] = pos[q, 2] + rot[m, 2, 0] * x + rot[m, 2, 1] * y + rot[m, 2, 2] * z
         rng[j] = ri
         az[j] = np.arctan2(d[i, 1], d[i, 0])
         el[j] = np.arcsin(min(1.0, max(-1.0, d[i, 2])))
@@ -188,7 +196,7 @@ INT32_LIMIT = 2.0 ** 31 - 1
 # beside the simulation's parallel kernels, which must not wait for the GIL meanwhile (a
 # 1M-point chunk takes ~50 ms in it, time the main thread would otherwise stand still).
 @njit(cache=CACHE, error_model=ERROR_MODEL, nogil=True)
-def las_points(idx, r, p, flag, tri, cos, d, t, channel, column, frame, pos, rot,
+def las_points(idx, r, p, flag, tri, cos, d, t, channel, column, frame, pos, rot, which,
                p_min, log_span, offsets, scales, X, Y, Z, inten, bits, cflags, cls, udata,
                scan, psid, gps, sx, sy, sz, rng, az, el, ch, co, fr, inc, otri, oflag):
     """LAS point format 6 records (with tunnelsim's extra bytes) of the returned pulses
@@ -206,6 +214,7 @@ def las_points(idx, r, p, flag, tri, cos, d, t, channel, column, frame, pos, rot
     Z are then meaningless: the caller raises).
     """
     per = pos.shape[0] > 1
+    by_row = which.shape[0] > 0
     has_s = sx.shape[0] > 0
     has_r = rng.shape[0] > 0
     has_az = az.shape[0] > 0
@@ -224,10 +233,11 @@ def las_points(idx, r, p, flag, tri, cos, d, t, channel, column, frame, pos, rot
         q = np.int64(i)
         if not per:
             q = np.int64(0)
+        m = which[i] if by_row else q
         # The world point exactly as fill_points computes it.
-        wx = pos[q, 0] + rot[q, 0, 0] * x + rot[q, 0, 1] * y + rot[q, 0, 2] * z
-        wy = pos[q, 1] + rot[q, 1, 0] * x + rot[q, 1, 1] * y + rot[q, 1, 2] * z
-        wz = pos[q, 2] + rot[q, 2, 0] * x + rot[q, 2, 1] * y + rot[q, 2, 2] * z
+        wx = pos[q, 0] + rot[m, 0, 0] * x + rot[m, 0, 1] * y + rot[m, 0, 2] * z
+        wy = pos[q, 1] + rot[m, 1, 0] * x + rot[m, 1, 1] * y + rot[m, 1, 2] * z
+        wz = pos[q, 2] + rot[m, 2, 0] * x + rot[m, 2, 1] * y + rot[m, 2, 2] * z
         qx = np.rint((wx - offsets[0]) / scales[0])
         qy = np.rint((wy - offsets[1]) / scales[1])
         qz = np.rint((wz - offsets[2]) / scales[2])
