@@ -1051,7 +1051,7 @@ def simulate_drive(scene: Scene, sensor: str | os.PathLike[str] | SensorSpec,
 
     def poses(t: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64],
                                                NDArray[np.int64]]:
-        return trajectory._matrices(t, mnt, per_instant=True)
+        return trajectory.instant_matrices(t, mnt)
 
     return Run(scene, spec, scan, poses, settings=st, seed=seed, reflectivity=reflectivity,
                chunk_pulses=chunk_pulses, t0=a, mount=mnt, trajectory=trajectory,

@@ -318,11 +318,19 @@ class Trajectory:
         pos, mat, _ = self._matrices(t, mount, per_instant=False)
         return pos, mat
 
+    def instant_matrices(self, t: ArrayLike, mount: Mount
+                         ) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                    NDArray[np.int64]]:
+        """``sensor_matrices`` with one matrix per firing instant: positions (n, 3),
+        matrices (r, 3, 3) for the r runs of equal times in t, and each time's row
+        (n,) int64, so that ``matrices[rows]`` is ``sensor_matrices``' (n, 3, 3) bit
+        for bit (the simulation loop's form: the Airy fires eight channels at once)."""
+        return self._matrices(t, mount, per_instant=True)
+
     def _matrices(self, t: ArrayLike, mount: Mount, per_instant: bool
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int64]]:
-        """``sensor_matrices``; with ``per_instant`` the matrices are one per run of
-        equal times, (r, 3, 3), and the third array (n,) int64 gives each time's row
-        (else it is empty and the matrices are per time)."""
+        """``sensor_matrices`` or, with ``per_instant``, ``instant_matrices`` (the third
+        array empty without it)."""
         from ._kernels.poses import interpolate_poses
 
         t = self._query_times(t)

@@ -1,5 +1,5 @@
-"""One sensor-to-world matrix per firing instant (issue 33): ``Trajectory._matrices``
-with ``per_instant`` gives each pulse the row of its instant, and the matrices picked
+"""One sensor-to-world matrix per firing instant (issue 33): ``Trajectory.
+instant_matrices`` gives each pulse the row of its instant, and the matrices picked
 through that index are bit for bit the per-pulse ones of ``sensor_matrices``; the
 kernels that take the index (``world_directions``, ``fill_points``, ``las_points``)
 give the bits they give with the matrices expanded per pulse. Random trajectories,
@@ -8,11 +8,12 @@ repeated firing times, and a chunk's worth of Airy-like pulses."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
-from sensors import Mount, Trajectory
+from sensors import Mount, Trajectory, TrajectoryError
 from sensors._kernels.pulses import fill_points, las_points, world_directions
 from sensors.io.fields import POINT_DTYPE
 from sensors.simulate import _LAS_EXTRA_FIELDS, NO_ROWS
@@ -34,7 +35,7 @@ def test_rows_pick_the_per_pulse_matrices_bit_for_bit(seed, burst):
     q = np.sort(rng.uniform(t[0], t[-1], 300))
     rep = np.repeat(q, rng.integers(1, burst + 1, len(q)))
     pos, mat = tr.sensor_matrices(rep, mount)
-    pos_r, mat_r, which = tr._matrices(rep, mount, per_instant=True)
+    pos_r, mat_r, which = tr.instant_matrices(rep, mount)
     assert len(mat_r) == len(np.unique(rep)) and which.shape == (len(rep),)
     assert np.all(np.diff(which) >= 0) and np.all(rep == np.unique(rep)[which])
     assert pos_r.tobytes() == pos.tobytes()
@@ -45,7 +46,7 @@ def test_the_kernels_give_the_same_bits_through_the_rows():
     rng, t, tr = _trajectory(7)
     n = 20_000
     tt = np.repeat(np.sort(rng.uniform(t[0], t[-1], n // 8)), 8)
-    pos, mat, which = tr._matrices(tt, Mount(), per_instant=True)
+    pos, mat, which = tr.instant_matrices(tt, Mount())
     full = np.ascontiguousarray(mat[which])
     d = rng.normal(size=(n, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -79,3 +80,13 @@ def test_the_kernels_give_the_same_bits_through_the_rows():
         assert bad == 0
         outs.append(rec.tobytes() + b"".join(e.tobytes() for e in extra))
     assert outs[0] == outs[1]
+
+
+@pytest.mark.parametrize("bad", [[1e6], [[0.1, 0.2]], [0.1, np.nan], "soon"])
+def test_bad_times_get_the_same_clear_error_as_sensor_matrices(bad):
+    _, _, tr = _trajectory(1)
+    with pytest.raises(TrajectoryError) as a:
+        tr.instant_matrices(bad, Mount())
+    with pytest.raises(TrajectoryError) as b:
+        tr.sensor_matrices(bad, Mount())
+    assert str(a.value) == str(b.value) and str(a.value).startswith("Expected")
