@@ -12,6 +12,10 @@ import numpy as np
 
 from raytrace.config import BARY
 
+#: Relative distance of t from [t_min, t_max] within which a missed triangle still
+#: counts as grazed (``margin``).
+T_GRAZE = 1e-9
+
 
 def naive_cast(vertices, faces, origins, directions, t_min=0.0, t_max=np.inf):
     """Returns t (n,), triangle (n,), u (n,), v (n,), and margin (n,): how far the winning
@@ -45,8 +49,12 @@ def naive_cast(vertices, faces, origins, directions, t_min=0.0, t_max=np.inf):
                  (u + vv <= 1 + BARY) & (t >= t_min) & (t <= t_max)
             m = np.minimum(np.minimum(u, vv), 1 - u - vv)
         if not ok.any():
-            # Closest near-miss margin, for diagnosing grazing rays.
-            m = np.where((det != 0) & (t >= t_min) & (t <= t_max), -m, np.inf)
+            # Closest near-miss margin, for diagnosing grazing rays. A triangle met just
+            # outside [t_min, t_max] counts (rounding decides t there as on an edge):
+            # a ray from a triangle's vertex hits it at t = +-1e-122 either way.
+            near = (t >= t_min - T_GRAZE * (1 + abs(t_min))) & \
+                (t <= t_max + T_GRAZE * (1 + abs(t_max)))
+            m = np.where((det != 0) & near, -m, np.inf)
             margin[i] = np.nanmin(np.abs(m)) if np.isfinite(m).any() else np.inf
             continue
         cand = np.flatnonzero(ok)

@@ -9,7 +9,7 @@ import re
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from numba import njit
@@ -154,8 +154,19 @@ def soups(draw):
     return v, f, o, axis, half, k, limits, seed
 
 
+_TINY = 5.16714748e-123
+#: Found by hypothesis in CI: the rays leave the shared vertex (~1e-123) of a face, so
+#: brute force sees it at t = -1e-122 (a miss) where the engine sees +1e-122; a graze
+#: at t_min, which ``naive_cast``'s margin now counts.
+_VERTEX_ORIGIN = (np.array([[-2.0, _TINY, _TINY], [_TINY] * 3, [_TINY] * 3,
+                            [_TINY, 1.0, _TINY], [_TINY] * 3, [_TINY, _TINY, 1.0]]),
+                  np.array([[0, 1, 2], [3, 4, 5]]), np.zeros(3), np.ones(3), 0.0, 0,
+                  "none", 0)
+
+
 @settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(soups())
+@example(_VERTEX_ORIGIN)
 def test_near_and_whole_maps_equal_the_bvh(case):
     """Near maps (any number of gathered triangles, so rays on both sides of the
     radius) and the whole cube map give the BVH's answers bit for bit, with and without
