@@ -15,12 +15,30 @@ from raytrace.config import BARY
 #: Relative distance of t from [t_min, t_max] within which a missed triangle still
 #: counts as grazed (``margin``).
 T_GRAZE = 1e-9
+#: Distance (relative to the size of the coordinates) from a triangle's edges within
+#: which the point where a ray meets its plane counts as on the edge (``margin`` 0): a
+#: sliver 1e-12 m wide has a large barycentric margin one coordinate ulp outside it.
+EDGE_GRAZE = 1e-12
+
+
+def _edge_distance(a, b, c, x):
+    """(k,) distance from x[i] to the nearest edge of triangle (a[i], b[i], c[i])."""
+    best = np.full(len(x), np.inf)
+    for p, q in ((a, b), (b, c), (c, a)):
+        e = q - p
+        den = np.einsum("ij,ij->i", e, e)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.clip(np.einsum("ij,ij->i", x - p, e) / den, 0.0, 1.0)
+        s = np.where(den > 0, s, 0.0)
+        best = np.minimum(best, np.linalg.norm(x - (p + s[:, None] * e), axis=1))
+    return best
 
 
 def naive_cast(vertices, faces, origins, directions, t_min=0.0, t_max=np.inf):
     """Returns t (n,), triangle (n,), u (n,), v (n,), and margin (n,): how far the winning
     hit's barycentric coordinates are from the edge of the accepted region (small means
-    the ray grazes an edge, where rounding may decide either way)."""
+    the ray grazes an edge, where rounding may decide either way); 0 where the point
+    lies within ``EDGE_GRAZE`` of the coordinates' size of an edge."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     d = np.asarray(directions, dtype=np.float64)
@@ -35,6 +53,8 @@ def naive_cast(vertices, faces, origins, directions, t_min=0.0, t_max=np.inf):
     out_u = np.zeros(n)
     out_v = np.zeros(n)
     margin = np.full(n, np.inf)
+    near_edge = EDGE_GRAZE * max(1.0, float(np.abs(v).max(initial=0.0)),
+                                 float(np.abs(o).max(initial=0.0)))
     for i in range(n):
         p = np.cross(d[i], e2)
         det = np.einsum("ij,ij->i", e1, p)
@@ -55,6 +75,12 @@ def naive_cast(vertices, faces, origins, directions, t_min=0.0, t_max=np.inf):
             near = (t >= t_min - T_GRAZE * (1 + abs(t_min))) & \
                 (t <= t_max + T_GRAZE * (1 + abs(t_max)))
             m = np.where((det != 0) & near, -m, np.inf)
+            seen = np.flatnonzero(np.isfinite(m))
+            if seen.size:
+                x = o[i] + t[seen, None] * d[i]
+                on_edge = _edge_distance(p0[seen], p0[seen] + e1[seen], p0[seen] + e2[seen],
+                                         x) <= near_edge
+                m[seen[on_edge]] = 0.0
             margin[i] = np.nanmin(np.abs(m)) if np.isfinite(m).any() else np.inf
             continue
         cand = np.flatnonzero(ok)
@@ -65,6 +91,10 @@ def naive_cast(vertices, faces, origins, directions, t_min=0.0, t_max=np.inf):
         out_u[i] = u[best]
         out_v[i] = vv[best]
         margin[i] = abs(min(u[best], vv[best], 1 - u[best] - vv[best]))
+        x = (o[i] + t[best] * d[i])[None]
+        if _edge_distance(p0[best][None], (p0[best] + e1[best])[None],
+                          (p0[best] + e2[best])[None], x)[0] <= near_edge:
+            margin[i] = 0.0
     return out_t, out_tri, out_u, out_v, margin
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -232,3 +233,20 @@ def test_hit_attributes_are_consistent():
     np.testing.assert_allclose(h.normals[m], n_ref, atol=1e-9)
     assert np.isnan(h.points[~m]).all() and np.isinf(h.t[~m]).all()
     assert (h.triangle[~m] == -1).all()
+
+
+def test_the_reference_margin_counts_a_sliver_met_one_ulp_outside_as_a_graze():
+    """``naive_cast``'s margin, which other tests use to set grazing rays aside, is 0
+    for the sliver above (its barycentric margin is 2.2e-4), and stays the barycentric
+    one for a ray through the middle of an ordinary triangle."""
+    v, f, o, d = _SLIVER_AT_A_VERTEX
+    sliver = f[8:9]
+    *_, margin = naive_cast(v, sliver, o, d)
+    assert margin[0] == 0.0
+    *_, margin = naive_cast(v, sliver, o + np.array([1e-3, 0.0, 0.0]), d)  # 1 mm away
+    assert margin[0] > 1e-6
+    tri = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    t, hit, u, w, margin = naive_cast(tri, np.array([[0, 1, 2]]), np.array([[0.25, 0.25,
+                                                                             1.0]]),
+                                      np.array([[0.0, 0, -1]]))
+    assert hit[0] == 0 and margin[0] == pytest.approx(0.25)
