@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+__all__ = ["CACHE_LINE", "as_aligned", "empty_aligned"]
+
 #: Bytes: one cache line.
 CACHE_LINE = 64
 

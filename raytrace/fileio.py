@@ -184,4 +184,4 @@ def savez_aligned(fh: IO[bytes], arrays: dict[str, Any], align: int = 64) -> Non
             info.extra = struct.pack("<HH", _ALIGN_EXTRA_ID, pad) + bytes(pad)
             with zf.open(info, mode="w", force_zip64=True) as out:
                 out.write(header)
-                out.write(memoryview(a.reshape(-1)).cast("B"))
+                out.write(a.reshape(-1).view(np.uint8).data)
