@@ -161,7 +161,8 @@ def savez_aligned(fh: IO[bytes], arrays: dict[str, Any], align: int = 64) -> Non
     import numpy as np
 
     if align <= 0 or 64 % align:
-        raise ValueError(f"Expected `align` to divide 64, got {align}.")
+        raise ValueError(f"Expected `align` to be a power of two up to 64, got {align}; "
+                         "use 64 (a cache line).")
     with zipfile.ZipFile(fh, mode="w", compression=zipfile.ZIP_STORED,
                          allowZip64=True) as zf:
         for name, value in arrays.items():

@@ -21,7 +21,7 @@ T_GRAZE = 1e-9
 EDGE_GRAZE = 1e-12
 
 
-def _edge_distance(a, b, c, x):
+def edge_distance(a, b, c, x):
     """(k,) distance from x[i] to the nearest edge of triangle (a[i], b[i], c[i])."""
     best = np.full(len(x), np.inf)
     for p, q in ((a, b), (b, c), (c, a)):
@@ -78,7 +78,7 @@ def naive_cast(vertices, faces, origins, directions, t_min=0.0, t_max=np.inf):
             seen = np.flatnonzero(np.isfinite(m))
             if seen.size:
                 x = o[i] + t[seen, None] * d[i]
-                on_edge = _edge_distance(p0[seen], p0[seen] + e1[seen], p0[seen] + e2[seen],
+                on_edge = edge_distance(p0[seen], p0[seen] + e1[seen], p0[seen] + e2[seen],
                                          x) <= near_edge
                 m[seen[on_edge]] = 0.0
             margin[i] = np.nanmin(np.abs(m)) if np.isfinite(m).any() else np.inf
@@ -92,7 +92,7 @@ def naive_cast(vertices, faces, origins, directions, t_min=0.0, t_max=np.inf):
         out_v[i] = vv[best]
         margin[i] = abs(min(u[best], vv[best], 1 - u[best] - vv[best]))
         x = (o[i] + t[best] * d[i])[None]
-        if _edge_distance(p0[best][None], (p0[best] + e1[best])[None],
+        if edge_distance(p0[best][None], (p0[best] + e1[best])[None],
                           (p0[best] + e2[best])[None], x)[0] <= near_edge:
             margin[i] = 0.0
     return out_t, out_tri, out_u, out_v, margin

@@ -14,7 +14,7 @@ from hypothesis.extra.numpy import arrays
 
 from raytrace import MeshError, Scene
 from raytrace.config import AREA_REL
-from tests.naive import naive_cast
+from tests.naive import EDGE_GRAZE, edge_distance, naive_cast
 
 coord = st.floats(-10.0, 10.0, allow_nan=False, allow_infinity=False, width=64)
 
@@ -113,19 +113,9 @@ def _ambiguous(p, o, d, t_min, t_max, scale):
     v_ = d @ q / det
     t = e2 @ q / det
     margin = min(abs(u), abs(v_), abs(1 - u - v_))
-    return (margin < 1e-6 or _edge_distance(p, o + t * d) <= 1e-12 * scale
+    return (margin < 1e-6 or edge_distance(p[None, 0], p[None, 1], p[None, 2],
+                                             (o + t * d)[None])[0] <= EDGE_GRAZE * scale
             or abs(t - t_min) <= 1e-9 * scale or abs(t - t_max) <= 1e-9 * scale)
-
-
-def _edge_distance(p, x):
-    """Distance (m) from the point x to the nearest of the triangle p's three edges."""
-    best = np.inf
-    for a, b in ((p[0], p[1]), (p[1], p[2]), (p[2], p[0])):
-        ab = b - a
-        den = ab @ ab
-        s = 0.0 if den == 0 else min(1.0, max(0.0, (x - a) @ ab / den))
-        best = min(best, float(np.linalg.norm(x - (a + s * ab))))
-    return best
 
 
 # A sliver 1e-12 m wide whose vertex (0, 1, 0) the ray meets 2.2e-16 m outside it: the

@@ -64,6 +64,13 @@ def test_empty_aligned_refuses_an_alignment_not_a_power_of_two(align):
         empty_aligned((4,), np.float32, align)
 
 
+@pytest.mark.parametrize("align", [0, 3, 128, -64])
+def test_savez_aligned_refuses_an_alignment_the_npy_header_cannot_keep(tmp_path, align):
+    with open(tmp_path / "a.npz", "wb") as fh, \
+            pytest.raises(ValueError, match="power of two up to 64"):
+        savez_aligned(fh, {"a": np.zeros(3)}, align)
+
+
 def test_as_aligned_copies_only_what_is_off_the_line():
     buf = empty_aligned((1024 + 64,), np.uint8)
     on = buf[:1024].view(np.float32)
